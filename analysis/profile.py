@@ -1,0 +1,258 @@
+"""The crop around the LEM, its radial band profile, the background fit and I_center."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+#: The crop of the T-REX analysis: 300 x 300 pixels around the centroid.
+DEFAULT_CROP_PX = 300
+#: Pixels averaged at the centroid for I_center (the paper uses ~100).
+DEFAULT_CENTER_PIXELS = 100
+
+
+def crop_half_size_px(radius_px: float, minimum_px: int = DEFAULT_CROP_PX // 2) -> int:
+    """Half-size of the crop: 150 px, or more when the LEM would fill that.
+
+    The band profile needs room outside the disk for the background fit, so
+    the crop reaches at least 1.6 disk radii plus a margin. For T-REX (disk
+    radii ~45 and ~87 px) this is the paper's 300 x 300 crop.
+    """
+    return max(int(minimum_px), math.ceil(1.6 * radius_px + 10))
+
+
+@dataclass(frozen=True)
+class Crop:
+    """A square cut of the frame centred on the rounded centroid.
+
+    ``pixels`` is float32 with NaN where the crop reaches outside the frame.
+    ``origin_xy`` is the frame position of the crop's pixel ``[0, 0]``, and
+    ``center_xy`` the sub-pixel centroid in crop coordinates.
+    """
+
+    pixels: np.ndarray
+    origin_xy: tuple[int, int]
+    center_xy: tuple[float, float]
+
+    @property
+    def half_size_px(self) -> int:
+        return self.pixels.shape[0] // 2
+
+
+def crop_around(frame: np.ndarray, x_px: float, y_px: float, half_size_px: int) -> Crop:
+    """Cut a ``2*half`` square around ``(x_px, y_px)``; outside the frame is NaN.
+
+    Crops of repeated frames centred on their own centroids are aligned to
+    within half a pixel, which is what makes stacking them meaningful.
+    """
+    size = 2 * half_size_px
+    cx, cy = round(x_px), round(y_px)
+    x0, y0 = cx - half_size_px, cy - half_size_px
+    height, width = frame.shape
+    out = np.full((size, size), np.nan, dtype=np.float32)
+    fx0, fy0 = max(x0, 0), max(y0, 0)
+    fx1, fy1 = min(x0 + size, width), min(y0 + size, height)
+    if fx1 > fx0 and fy1 > fy0:
+        out[fy0 - y0 : fy1 - y0, fx0 - x0 : fx1 - x0] = frame[fy0:fy1, fx0:fx1]
+    return Crop(out, (x0, y0), (x_px - x0, y_px - y0))
+
+
+@dataclass(frozen=True)
+class RadialProfile:
+    """Mean gray per one-pixel radius band around the centroid.
+
+    Band ``i`` holds the pixels whose centre lies at a distance in
+    ``[i, i + 1)`` pixels from the centroid. ``sem_gray`` is the standard error
+    of each band mean (pixel scatter over sqrt(count)).
+    """
+
+    radius_px: np.ndarray
+    mean_gray: np.ndarray
+    sem_gray: np.ndarray
+    count: np.ndarray
+
+
+def _distance_map(shape: tuple[int, int], center_xy: tuple[float, float]) -> np.ndarray:
+    rows = np.arange(shape[0], dtype=np.float32) - np.float32(center_xy[1])
+    cols = np.arange(shape[1], dtype=np.float32) - np.float32(center_xy[0])
+    return np.sqrt(rows[:, None] ** 2 + cols[None, :] ** 2)
+
+
+def radial_profile(
+    pixels: np.ndarray, center_xy: tuple[float, float], max_radius_px: int | None = None
+) -> RadialProfile:
+    """Mean gray of each one-pixel band around ``center_xy`` (NaN pixels skipped).
+
+    Averaging a whole band beats single pixels near zero, where integer gray
+    values are coarse; the band means trace the scattered-light halo smoothly.
+    """
+    dist = _distance_map(pixels.shape, center_xy)
+    if max_radius_px is None:
+        max_radius_px = min(pixels.shape) // 2
+    valid = dist < max_radius_px
+    values = pixels[valid]
+    idx = dist[valid].astype(np.int32)
+    finite = np.isfinite(values)
+    if not finite.all():
+        values, idx = values[finite], idx[finite]
+    values = values.astype(np.float64)
+    count = np.bincount(idx, minlength=max_radius_px)[:max_radius_px]
+    total = np.bincount(idx, weights=values, minlength=max_radius_px)[:max_radius_px]
+    total2 = np.bincount(idx, weights=values * values, minlength=max_radius_px)[:max_radius_px]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = total / count
+        var = np.maximum(total2 / count - mean**2, 0.0)
+        sem = np.sqrt(var / np.maximum(count - 1, 1))
+    return RadialProfile(
+        radius_px=np.arange(max_radius_px, dtype=np.float64) + 0.5,
+        mean_gray=mean,
+        sem_gray=sem,
+        count=count,
+    )
+
+
+@dataclass(frozen=True)
+class BackgroundFit:
+    """``mean_gray(r) = amplitude_gray * exp(-r / scale_px) + background_gray``.
+
+    Fitted to the bands from ``r_min_px`` outward. ``background_gray`` is the
+    constant: the sensor's dark level plus ambient light, under the halo.
+    ``converged`` is False when the fit failed and the background is the mean
+    of the outermost bands instead.
+    """
+
+    amplitude_gray: float
+    scale_px: float
+    background_gray: float
+    background_err_gray: float
+    r_min_px: float
+    chi2_ndof: float
+    converged: bool
+
+    def model(self, radius_px: np.ndarray) -> np.ndarray:
+        return self.amplitude_gray * np.exp(-radius_px / self.scale_px) + self.background_gray
+
+
+def _linear_solve(e: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Weighted least squares of ``y = A e + C`` for each row of ``e``, with A >= 0.
+
+    For a fixed decay scale the model is linear in A and C: a 2 x 2 solve.
+    Where the unconstrained A comes out negative, the constrained optimum is
+    A = 0 and C = the weighted mean.
+    """
+    sw, swy = w.sum(), (w * y).sum()
+    se, see = (e * w).sum(axis=-1), (e * e * w).sum(axis=-1)
+    sey = (e * w * y).sum(axis=-1)
+    det = see * sw - se * se
+    with np.errstate(invalid="ignore", divide="ignore"):
+        amp = (sey * sw - se * swy) / det
+        const = (see * swy - se * sey) / det
+    flat = ~(np.isfinite(amp) & (amp > 0))
+    amp = np.where(flat, 0.0, amp)
+    const = np.where(flat, swy / sw, const)
+    chi2 = (((y - amp[..., None] * e - const[..., None]) ** 2) * w).sum(axis=-1)
+    return amp, const, chi2
+
+
+def fit_background(profile: RadialProfile, r_min_px: float) -> BackgroundFit:
+    """Fit exponential + constant to the bands outside the disk.
+
+    Scattered light falls off steeply away from the LEM and the CMOS floor
+    is flat, so the constant of the fit is the background to subtract from the
+    centre pixels. Bands are weighted by their standard errors (floored at
+    the quantisation step over the band size, so that perfectly flat integer
+    bands do not get infinite weight).
+
+    The model is linear in amplitude and constant for a fixed decay scale, so
+    the fit profiles them out: a grid over the scale finds the best region
+    and `scipy.optimize.minimize_scalar` refines it. The amplitude is kept
+    >= 0 (scattered light adds, never removes) and the scale within the
+    fitted span: a longer scale would make the exponential indistinguishable
+    from the constant and the constant meaningless. Errors come from the
+    Jacobian of the full three-parameter model at the minimum.
+    """
+    sel = (profile.radius_px >= r_min_px) & (profile.count > 0) & np.isfinite(profile.mean_gray)
+    r = profile.radius_px[sel]
+    y = profile.mean_gray[sel]
+    floor = 0.29 / np.sqrt(np.maximum(profile.count[sel], 1))
+    sigma = np.maximum(profile.sem_gray[sel], floor)
+    if len(y) == 0:
+        return BackgroundFit(0.0, 1.0, float("nan"), float("nan"), r_min_px, float("nan"), False)
+    w = 1.0 / sigma**2
+    if len(r) < 6:
+        n_tail = len(y)
+        err = float(np.sqrt(np.sum(sigma**2)) / n_tail)
+        return BackgroundFit(0.0, 1.0, float(np.mean(y)), err, r_min_px, float("nan"), False)
+    x = r - r[0]
+    span = max(float(x[-1]), 2.0)
+    log_lo, log_hi = math.log(0.5), math.log(span)
+    grid = np.linspace(log_lo, log_hi, 32)
+    _, _, chi2_grid = _linear_solve(np.exp(-x[None, :] / np.exp(grid)[:, None]), y, w)
+    k = int(np.argmin(chi2_grid))
+    lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
+
+    def chi2_at(log_scale: float) -> float:
+        return float(_linear_solve(np.exp(-x / math.exp(log_scale)), y, w)[2])
+
+    best = (
+        minimize_scalar(chi2_at, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3})
+        if hi > lo
+        else None
+    )
+    log_scale = float(best.x) if best is not None and best.fun <= chi2_grid[k] else float(grid[k])
+    scale = math.exp(log_scale)
+    e = np.exp(-x / scale)
+    amp_a, const_a, chi2_a = _linear_solve(e, y, w)
+    amp, const, chi2 = float(amp_a), float(const_a), float(chi2_a)
+    if amp > 0:
+        jac = np.column_stack([e, amp * x * e / (scale * scale), np.ones_like(x)])
+    else:
+        jac = np.ones((len(x), 1))
+    cov = np.linalg.pinv(jac.T @ (jac * w[:, None]))
+    err = float(math.sqrt(max(cov[-1, -1], 0.0)))
+    ndof = max(len(r) - jac.shape[1], 1)
+    chi2_ndof = chi2 / ndof
+    # A poor fit (chi2/ndof > 1) means the model misses structure: widen the error.
+    err *= math.sqrt(max(chi2_ndof, 1.0))
+    amplitude = amp * math.exp(r[0] / scale)  # referred to r = 0
+    return BackgroundFit(amplitude, scale, const, err, r_min_px, chi2_ndof, True)
+
+
+@dataclass(frozen=True)
+class CenterValue:
+    """Mean gray of the pixels nearest the centroid and its standard error."""
+
+    mean_gray: float
+    err_gray: float
+    n_pixels: int
+
+
+def center_value(
+    pixels: np.ndarray, center_xy: tuple[float, float], n_pixels: int = DEFAULT_CENTER_PIXELS
+) -> CenterValue:
+    """Mean of the ``n_pixels`` pixels whose centres lie nearest the centroid.
+
+    These pixels see the LEM's centre, so they carry the direct, unscattered
+    light; their scatter over sqrt(n) is the statistical error of the mean.
+    """
+    reach = math.ceil(math.sqrt(n_pixels / math.pi)) + 2
+    cx, cy = center_xy
+    x0, y0 = max(round(cx) - reach, 0), max(round(cy) - reach, 0)
+    x1 = min(round(cx) + reach + 1, pixels.shape[1])
+    y1 = min(round(cy) + reach + 1, pixels.shape[0])
+    window = pixels[y0:y1, x0:x1]
+    dist = _distance_map(window.shape, (cx - x0, cy - y0)).ravel()
+    values = window.ravel()
+    ok = np.isfinite(values)
+    dist, values = dist[ok], values[ok]
+    if values.size == 0:
+        return CenterValue(float("nan"), float("nan"), 0)
+    k = min(n_pixels, values.size)
+    nearest = values[np.argsort(dist, kind="stable")[:k]].astype(np.float64)
+    err = float(nearest.std(ddof=1) / math.sqrt(k)) if k > 1 else float("nan")
+    # Integer gray values: never claim better than quantisation allows.
+    err = max(err, 0.29 / math.sqrt(k))
+    return CenterValue(float(nearest.mean()), err, k)

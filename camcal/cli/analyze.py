@@ -1,0 +1,116 @@
+"""``camcal analyze``: I_center on every frame of a frame set and λ_att per wavelength."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from analysis import REASON_HELP
+from camcal.cli.common import console, fail, parse_floats, parse_mapping, progress_bar
+from camcal.frameset import FrameSetError, write_atomic
+from camcal.pipeline import FrameSetAnalysis, Overrides, analyze_folder, to_json
+from camcal.plots import write_plots
+
+
+def register(app: typer.Typer) -> None:
+    app.command("analyze")(analyze)
+
+
+def parse_ratios(items: list[str] | None) -> dict[int, tuple[float, float]]:
+    """``["460=1.27:0.04"]`` -> ``{460: (1.27, 0.04)}``."""
+    out: dict[int, tuple[float, float]] = {}
+    for item in items or []:
+        key, _sep, rest = item.partition("=")
+        value, _, err = rest.partition(":")
+        try:
+            out[int(key)] = (float(value), float(err) if err else 0.0)
+        except ValueError:
+            raise fail(f"--ratio: expected NM=VALUE[:ERR] such as 460=1.27:0.04, got {item!r}") from None
+    return out
+
+
+def analyze(
+    folder: Annotated[Path, typer.Argument(help="Frame-set folder (manifest.csv, setup.json, images).")],
+    json_out: Annotated[Path | None, typer.Option("--json", help="Write the results as JSON here.")] = None,
+    plots: Annotated[Path | None, typer.Option(help="Write figures (PNG) into this folder.")] = None,
+    distance: Annotated[
+        list[str] | None, typer.Option(help="Override a camera distance: CAM=METRES.")
+    ] = None,
+    distance_err: Annotated[
+        list[str] | None, typer.Option(help="Override a distance error: CAM=METRES.")
+    ] = None,
+    ratio: Annotated[
+        list[str] | None, typer.Option(help="Override I0'/I0: NM=VALUE[:ERR], e.g. 460=1.27:0.04.")
+    ] = None,
+    linear_range: Annotated[
+        str | None, typer.Option(help="Override the linear range: LOW,HIGH gray.")
+    ] = None,
+    workers: Annotated[int, typer.Option(help="Worker processes (default: all cores).")] = 0,
+    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+) -> None:
+    """Measure I_center on every frame and the attenuation length per wavelength."""
+    lr = None
+    if linear_range:
+        vals = parse_floats(linear_range, "--linear-range")
+        if len(vals) != 2:
+            raise fail("--linear-range: give LOW,HIGH, e.g. 5,240")
+        lr = (vals[0], vals[1])
+    overrides = Overrides(
+        distances_m=parse_mapping(distance, "--distance") or None,
+        distance_errs_m=parse_mapping(distance_err, "--distance-err") or None,
+        emission_ratios=parse_ratios(ratio) or None,
+        linear_range=lr,
+    )
+    try:
+        with progress_bar("analysing", quiet=quiet) as update:
+            result = analyze_folder(folder, overrides, workers=workers or None, progress=update)
+    except FrameSetError as exc:
+        raise fail(str(exc)) from None
+    print_summary(result)
+    if json_out:
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        write_atomic(json_out, (json.dumps(to_json(result), indent=1) + "\n").encode(), fsync=False)
+        console.print(f"wrote {json_out}")
+    if plots:
+        for p in write_plots(result, plots):
+            console.print(f"wrote {p}")
+
+
+def print_summary(an: FrameSetAnalysis) -> None:
+    """λ_att per wavelength and the frame counts by reason, as tables."""
+    table = Table(title="attenuation length λ_att", title_justify="left")
+    for col in ("wavelength", "λ_att [m]", "stat [m]", "sys [m]", "pairs", "χ²/ndof"):
+        table.add_column(col, justify="right")
+    if an.result is not None:
+        for wl, res in sorted(an.result.attenuation.items()):
+            if res.lambda_att_m is None:
+                table.add_row(f"{wl} nm", "—", "—", "—", str(res.n_pairs), f"{res.chi2_ndof:.2f}")
+                continue
+            table.add_row(
+                f"{wl} nm",
+                f"{res.lambda_att_m:.2f}",
+                f"± {res.stat_err_m:.2f}",
+                f"± {res.sys_err_m:.2f}",
+                str(res.n_pairs),
+                f"{res.chi2_ndof:.2f}",
+            )
+    console.print(table)
+    if an.problem:
+        console.print(f"[yellow]no λ_att:[/] {an.problem}")
+    if an.result is not None:
+        for wl, why in sorted(an.result.skipped.items()):
+            console.print(f"[yellow]{wl} nm skipped:[/] {why}")
+    counts = an.counts()
+    frames = Table(title=f"frames: {len(an.frames)}", title_justify="left")
+    frames.add_column("status")
+    frames.add_column("count", justify="right")
+    frames.add_column("what it means")
+    frames.add_row("accepted", str(counts.get("ok", 0)), "LEM found, in the linear range")
+    for reason, n in sorted(counts.items()):
+        if reason != "ok":
+            frames.add_row(reason, str(n), REASON_HELP.get(reason, ""))
+    console.print(frames)

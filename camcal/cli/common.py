@@ -1,0 +1,73 @@
+"""Shared pieces of the command line: errors, progress, consoles."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+console = Console()
+err_console = Console(stderr=True)
+
+
+def fail(message: str, code: int = 2) -> typer.Exit:
+    """Print one line to stderr and return the exit to raise (no traceback)."""
+    err_console.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    return typer.Exit(code)
+
+
+@contextmanager
+def progress_bar(label: str, *, quiet: bool = False) -> Iterator[Callable[[int, int], None]]:
+    """A progress bar on stderr; yields ``update(done, total)``."""
+    if quiet:
+        yield lambda done, total: None
+        return
+    with Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+        console=err_console,
+        transient=False,
+    ) as prog:
+        task = prog.add_task(label, total=None)
+
+        def update(done: int, total: int) -> None:
+            prog.update(task, completed=done, total=total)
+
+        yield update
+
+
+def parse_floats(text: str, what: str) -> tuple[float, ...]:
+    """``"0.02,0.05"`` -> ``(0.02, 0.05)``; a bad item names the option."""
+    try:
+        values = tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise fail(f"{what}: {text!r} is not a comma-separated list of numbers") from None
+    if not values:
+        raise fail(f"{what}: empty list")
+    return values
+
+
+def parse_mapping(items: list[str] | str | None, what: str) -> dict[str, float]:
+    """``["A=21.5", "B=41.6"]`` or ``"405=39,460=65"`` -> ``{"A": 21.5, ...}``."""
+    if not items:
+        return {}
+    if isinstance(items, str):
+        items = [x for x in items.split(",") if x.strip()]
+    out: dict[str, float] = {}
+    for item in items:
+        for part in item.split(","):
+            if not part.strip():
+                continue
+            key, sep, value = part.partition("=")
+            if not sep or not key.strip():
+                raise fail(f"{what}: expected KEY=VALUE, got {part!r}")
+            try:
+                out[key.strip()] = float(value)
+            except ValueError:
+                raise fail(f"{what}: {value!r} is not a number (in {part!r})") from None
+    return out

@@ -1,0 +1,385 @@
+"""The frame set: camcal's on-disk exchange format (``docs/frameset.md``).
+
+A folder with ``manifest.csv``, an optional ``setup.json`` and 8-bit
+grayscale images. This module is the one place that reads and writes it:
+the LRM outbox, ``camcal analyze``, ``camcal import`` and replay all use it.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+MANIFEST = "manifest.csv"
+SETUP = "setup.json"
+REQUIRED_COLUMNS = ("file", "camera", "wavelength_nm", "exposure_s", "gain_db")
+OPTIONAL_COLUMNS = (
+    "timestamp",
+    "depth_m",
+    "seq",
+    "distance_m",
+    "distance_err_m",
+    "temperature_c",
+    "medium",
+)
+MANIFEST_COLUMNS = REQUIRED_COLUMNS + OPTIONAL_COLUMNS
+
+
+class FrameSetError(Exception):
+    """A frame set cannot be read at all (no manifest, missing column, bad setup).
+
+    Fatal for a command: it exits with status 2 and this one-line message.
+    """
+
+
+class FrameReadError(Exception):
+    """One image cannot be used; ``reason`` is the frame-set reason word."""
+
+    def __init__(self, reason: str, detail: str) -> None:
+        super().__init__(f"{reason}: {detail}")
+        self.reason = reason
+        self.detail = detail
+
+
+# ---------------------------------------------------------------- setup.json
+class CameraSetup(BaseModel):
+    model_config = ConfigDict(extra="allow")
+    distance_m: float = Field(gt=0, description="LEM-to-camera distance in metres")
+    distance_err_m: float = Field(0.0, ge=0, description="its one-sigma error in metres")
+
+
+class RatioSetup(BaseModel):
+    model_config = ConfigDict(extra="allow")
+    value: float = Field(gt=0, description="I0'/I0, far side over near side")
+    err: float = Field(0.0, ge=0, description="its one-sigma error")
+
+
+def _trex_cameras() -> dict[str, CameraSetup]:
+    return {
+        "A": CameraSetup(distance_m=21.56, distance_err_m=0.02),
+        "B": CameraSetup(distance_m=41.62, distance_err_m=0.04),
+    }
+
+
+def _trex_ratios() -> dict[int, RatioSetup]:
+    return {
+        405: RatioSetup(value=1.04, err=0.03),
+        460: RatioSetup(value=1.27, err=0.04),
+        525: RatioSetup(value=1.23, err=0.04),
+    }
+
+
+class Setup(BaseModel):
+    """The contents of ``setup.json``; anything missing takes the T-REX value."""
+
+    model_config = ConfigDict(extra="allow")
+    cameras: dict[str, CameraSetup] = Field(default_factory=_trex_cameras)
+    emission_ratio: dict[int, RatioSetup] = Field(default_factory=_trex_ratios)
+    linear_range: tuple[float, float] = (5.0, 240.0)
+
+    @field_validator("linear_range")
+    @classmethod
+    def _range_ordered(cls, v: tuple[float, float]) -> tuple[float, float]:
+        lo, hi = v
+        if not (0 <= lo < hi <= 255):
+            raise ValueError(f"must satisfy 0 <= low < high <= 255, got [{lo}, {hi}]")
+        return v
+
+    def to_json(self) -> dict[str, Any]:
+        data = self.model_dump(mode="json")
+        data["emission_ratio"] = {str(k): v for k, v in data["emission_ratio"].items()}
+        data["linear_range"] = list(self.linear_range)
+        return data
+
+
+def read_setup(folder: Path) -> Setup:
+    """``setup.json`` of a frame set, or the T-REX defaults if there is none."""
+    path = Path(folder) / SETUP
+    if not path.exists():
+        return Setup()
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise FrameSetError(f"{path}: not valid JSON ({exc})") from exc
+    return parse_setup(data, str(path))
+
+
+def parse_setup(data: Any, where: str = "setup") -> Setup:
+    """Validate a setup mapping; errors name the field and the reason."""
+    try:
+        return Setup.model_validate(data)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        loc = ".".join(str(p) for p in first["loc"])
+        raise FrameSetError(f"{where}: {loc}: {first['msg']}") from exc
+
+
+# -------------------------------------------------------------- manifest.csv
+@dataclass(frozen=True)
+class ManifestRow:
+    """One manifest row. ``error`` says why the row's metadata cannot be used."""
+
+    index: int
+    file: str
+    camera: str
+    wavelength_nm: int
+    exposure_s: float
+    gain_db: float
+    timestamp: str | None = None
+    depth_m: float | None = None
+    seq: int | None = None
+    distance_m: float | None = None
+    distance_err_m: float | None = None
+    temperature_c: float | None = None
+    medium: str | None = None
+    error: str | None = None
+    extra: Mapping[str, str] = field(default_factory=dict, repr=False, compare=False)
+
+    def to_csv(self) -> dict[str, str]:
+        out: dict[str, str] = {}
+        for col in MANIFEST_COLUMNS:
+            v = getattr(self, col)
+            out[col] = "" if v is None else (repr(v) if isinstance(v, float) else str(v))
+        return out
+
+
+def _number(value: str, column: str, *, integer: bool = False) -> float:
+    try:
+        x = float(value)
+    except ValueError:
+        raise ValueError(f"{column} {value!r} is not a number") from None
+    if not math.isfinite(x):
+        raise ValueError(f"{column} {value!r} is not finite")
+    if integer and x != int(x):
+        raise ValueError(f"{column} {value!r} is not an integer")
+    return x
+
+
+def _parse_row(index: int, raw: Mapping[str, str | None]) -> ManifestRow:
+    get = {k.strip(): (v or "").strip() for k, v in raw.items() if k is not None}
+    problems: list[str] = []
+
+    def num(col: str, *, integer: bool = False, required: bool = False) -> float | None:
+        text = get.get(col, "")
+        if text == "":
+            if required:
+                problems.append(f"{col} is empty")
+            return None
+        try:
+            return _number(text, col, integer=integer)
+        except ValueError as exc:
+            problems.append(str(exc))
+            return None
+
+    file = get.get("file", "")
+    if not file:
+        problems.append("file is empty")
+    elif Path(file).is_absolute() or ".." in Path(file).parts:
+        problems.append(f"file {file!r} must be a path inside the frame set")
+    camera = get.get("camera", "")
+    if not camera:
+        problems.append("camera is empty")
+    wl = num("wavelength_nm", integer=True, required=True)
+    exposure = num("exposure_s", required=True)
+    gain = num("gain_db", required=True)
+    if wl is not None and wl <= 0:
+        problems.append(f"wavelength_nm {int(wl)} must be > 0")
+    if exposure is not None and exposure <= 0:
+        problems.append(f"exposure_s {exposure:g} must be > 0")
+    depth = num("depth_m")
+    seq = num("seq", integer=True)
+    distance = num("distance_m")
+    if distance is not None and distance <= 0:
+        problems.append(f"distance_m {distance:g} must be > 0")
+    distance_err = num("distance_err_m")
+    temperature = num("temperature_c")
+    medium = get.get("medium") or None
+    if medium is not None and medium not in ("air", "water"):
+        problems.append(f"medium {medium!r} must be air or water")
+    known = set(MANIFEST_COLUMNS)
+    return ManifestRow(
+        index=index,
+        file=file,
+        camera=camera,
+        wavelength_nm=int(wl) if wl is not None else 0,
+        exposure_s=exposure if exposure is not None else float("nan"),
+        gain_db=gain if gain is not None else float("nan"),
+        timestamp=get.get("timestamp") or None,
+        depth_m=depth,
+        seq=int(seq) if seq is not None else None,
+        distance_m=distance,
+        distance_err_m=distance_err,
+        temperature_c=temperature,
+        medium=medium,
+        error="; ".join(problems) or None,
+        extra={k: v for k, v in get.items() if k not in known},
+    )
+
+
+def read_manifest(folder: Path) -> list[ManifestRow]:
+    """All rows of ``manifest.csv`` in order.
+
+    A missing manifest or a missing required column raises `FrameSetError`
+    (fatal). A row with a bad value is returned with ``error`` set, so the
+    frame is reported rejected and the run goes on.
+    """
+    folder = Path(folder)
+    path = folder / MANIFEST
+    if not folder.is_dir():
+        raise FrameSetError(f"{folder}: no such frame-set folder")
+    if not path.is_file():
+        raise FrameSetError(f"{path}: manifest missing (a frame set needs {MANIFEST})")
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as fh:
+            reader = csv.DictReader(fh)
+            header = [h.strip() for h in (reader.fieldnames or [])]
+            missing = [c for c in REQUIRED_COLUMNS if c not in header]
+            if missing:
+                raise FrameSetError(
+                    f"{path}: required column{'s' if len(missing) > 1 else ''} "
+                    f"{', '.join(missing)} missing (header: {', '.join(header) or 'empty'})"
+                )
+            return [_parse_row(i, raw) for i, raw in enumerate(reader)]
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise FrameSetError(f"{path}: cannot read the manifest ({exc})") from exc
+
+
+# -------------------------------------------------------------------- images
+def decode_frame(data: bytes | np.ndarray, name: str = "frame") -> np.ndarray:
+    """Decode PNG/TIFF bytes into a 2-D ``uint8`` frame or raise `FrameReadError`."""
+    buf = np.frombuffer(data, dtype=np.uint8) if isinstance(data, bytes | bytearray) else data
+    if buf.size == 0:
+        raise FrameReadError("unreadable", f"{name}: empty file")
+    image = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise FrameReadError("unreadable", f"{name}: not a decodable PNG/TIFF (truncated or corrupt?)")
+    if image.ndim != 2:
+        raise FrameReadError(
+            "bad_format", f"{name}: {image.shape[2]}-channel image, expected 8-bit grayscale"
+        )
+    if image.dtype != np.uint8:
+        raise FrameReadError("bad_format", f"{name}: {image.dtype} pixels, expected 8-bit grayscale (uint8)")
+    return image
+
+
+def read_frame(path: Path) -> np.ndarray:
+    """Read one frame file; missing, undecodable or non-8-bit files raise `FrameReadError`."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise FrameReadError("unreadable", f"{path.name}: file not found") from None
+    except OSError as exc:
+        raise FrameReadError("unreadable", f"{path.name}: {exc.strerror or exc}") from None
+    return decode_frame(data, path.name)
+
+
+def encode_png(frame: np.ndarray) -> bytes:
+    """Lossless PNG bytes of an 8-bit frame (OpenCV's default compression)."""
+    ok, buf = cv2.imencode(".png", frame)
+    if not ok:
+        raise ValueError("PNG encoding failed")
+    return buf.tobytes()
+
+
+def write_atomic(path: Path, data: bytes, *, fsync: bool = True) -> None:
+    """Write ``data`` to a temporary name, fsync, then rename over ``path``.
+
+    A reader (or a crash) never sees a half-written file under ``path``.
+    """
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    with open(tmp, "wb") as fh:
+        fh.write(data)
+        if fsync:
+            fh.flush()
+            os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def fsync_dir(path: Path) -> None:
+    """Make a rename inside ``path`` durable."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+# -------------------------------------------------------------------- writer
+class FrameSetWriter:
+    """Appends frames to a frame set: image first (atomically), then its manifest row.
+
+    The manifest is opened in append mode and flushed after every row, so an
+    interrupted writer leaves a valid frame set holding every frame whose row
+    was written. Re-opening an existing folder continues its manifest.
+    """
+
+    def __init__(self, folder: Path, setup: Setup | None = None, *, fsync: bool = False) -> None:
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.fsync = fsync
+        if setup is not None:
+            write_atomic(
+                self.folder / SETUP, (json.dumps(setup.to_json(), indent=2) + "\n").encode(), fsync=fsync
+            )
+        manifest = self.folder / MANIFEST
+        new = not manifest.exists() or manifest.stat().st_size == 0
+        self._fh = manifest.open("a", newline="", encoding="utf-8")
+        self._writer = csv.DictWriter(self._fh, fieldnames=list(MANIFEST_COLUMNS))
+        if new:
+            self._writer.writeheader()
+            self._fh.flush()
+        self._count = 0 if new else sum(1 for _ in read_manifest(self.folder))
+
+    def add(self, frame: np.ndarray | bytes, row: ManifestRow) -> ManifestRow:
+        """Store one frame (array or encoded PNG bytes) under ``row.file`` and record it."""
+        data = frame if isinstance(frame, bytes) else encode_png(frame)
+        target = self.folder / row.file
+        target.parent.mkdir(parents=True, exist_ok=True)
+        write_atomic(target, data, fsync=self.fsync)
+        return self.record(row)
+
+    def record(self, row: ManifestRow) -> ManifestRow:
+        """Append the manifest row of an image already stored under ``row.file``."""
+        self._writer.writerow(row.to_csv())
+        self._fh.flush()
+        if self.fsync:
+            os.fsync(self._fh.fileno())
+        self._count += 1
+        return row
+
+    def __len__(self) -> int:
+        return self._count
+
+    def close(self) -> None:
+        self._fh.close()
+
+    def __enter__(self) -> FrameSetWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def iter_frames(folder: Path) -> Iterator[tuple[ManifestRow, np.ndarray | FrameReadError]]:
+    """Rows with their decoded frames (or the error that kept the frame from loading)."""
+    folder = Path(folder)
+    for row in read_manifest(folder):
+        if row.error:
+            yield row, FrameReadError("bad_metadata", row.error)
+            continue
+        try:
+            yield row, read_frame(folder / row.file)
+        except FrameReadError as exc:
+            yield row, exc

@@ -1,0 +1,279 @@
+"""Analyse a frame set on disk: decode on all cores, I_center per frame, λ_att per wavelength."""
+
+from __future__ import annotations
+
+import math
+import os
+from collections import Counter
+from collections.abc import Callable, Mapping
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import cv2
+
+from analysis import (
+    EmissionRatio,
+    FrameAnalysis,
+    FrameConfig,
+    FrameRecord,
+    Geometry,
+    Reason,
+    SetResult,
+    Setting,
+    analyze_frame,
+    analyze_records,
+    rejected,
+)
+from camcal import __version__
+from camcal.frameset import (
+    FrameReadError,
+    FrameSetError,
+    ManifestRow,
+    Setup,
+    read_frame,
+    read_manifest,
+    read_setup,
+)
+
+
+@dataclass(frozen=True)
+class Overrides:
+    """Command-line values that replace those of setup.json."""
+
+    distances_m: Mapping[str, float] | None = None
+    distance_errs_m: Mapping[str, float] | None = None
+    emission_ratios: Mapping[int, tuple[float, float]] | None = None
+    linear_range: tuple[float, float] | None = None
+
+    def apply(self, setup: Setup) -> Setup:
+        data = setup.model_dump()
+        for cam, d in (self.distances_m or {}).items():
+            data["cameras"].setdefault(cam, {"distance_m": d, "distance_err_m": 0.0})
+            data["cameras"][cam]["distance_m"] = d
+        for cam, e in (self.distance_errs_m or {}).items():
+            if cam not in data["cameras"]:
+                raise FrameSetError(f"distance error given for camera {cam} without a distance")
+            data["cameras"][cam]["distance_err_m"] = e
+        for wl, (v, e) in (self.emission_ratios or {}).items():
+            data["emission_ratio"][wl] = {"value": v, "err": e}
+        if self.linear_range is not None:
+            data["linear_range"] = self.linear_range
+        from camcal.frameset import parse_setup
+
+        return parse_setup(data, "options")
+
+
+def geometry_from_setup(setup: Setup, cameras_present: set[str]) -> Geometry:
+    """Near and far camera: of those in the manifest with a distance, the nearest and farthest."""
+    known = sorted(
+        (c for c in cameras_present if c in setup.cameras),
+        key=lambda c: setup.cameras[c].distance_m,
+    )
+    if len(known) < 2:
+        have = ", ".join(sorted(cameras_present)) or "none"
+        raise FrameSetError(
+            f"λ_att needs two cameras with distances in setup.json; manifest cameras: {have}, "
+            f"setup cameras: {', '.join(sorted(setup.cameras))}"
+        )
+    near, far = setup.cameras[known[0]], setup.cameras[known[-1]]
+    try:
+        return Geometry(
+            known[0], known[-1], near.distance_m, near.distance_err_m, far.distance_m, far.distance_err_m
+        )
+    except ValueError as exc:
+        raise FrameSetError(f"setup.json: {exc}") from exc
+
+
+def _init_worker() -> None:
+    cv2.setNumThreads(1)
+
+
+def analyze_file(folder: str, row: ManifestRow, config: FrameConfig) -> FrameAnalysis:
+    """Read and analyse one manifest row; problems become a rejected result."""
+    if row.error:
+        return rejected(Reason.BAD_METADATA, row.error)
+    try:
+        frame = read_frame(Path(folder) / row.file)
+    except FrameReadError as exc:
+        return rejected(exc.reason, exc.detail)
+    result = analyze_frame(frame, config)
+    if not result.ok:
+        # Rejected frames travel back without their crop: nothing downstream needs it.
+        result = replace(result, crop=None, profile=None)
+    return result
+
+
+def _analyze_batch(args: tuple[str, list[ManifestRow], FrameConfig]) -> list[FrameAnalysis]:
+    folder, rows, config = args
+    return [analyze_file(folder, row, config) for row in rows]
+
+
+@dataclass(frozen=True)
+class FrameSetAnalysis:
+    """A frame set's rows, their analyses, and the combined result."""
+
+    folder: Path
+    setup: Setup
+    rows: list[ManifestRow]
+    frames: list[FrameAnalysis]
+    result: SetResult | None
+    geometry: Geometry | None
+    problem: str | None
+
+    def counts(self) -> Counter[str]:
+        return Counter("ok" if f.ok else (f.reason or "rejected") for f in self.frames)
+
+
+def analyze_folder(
+    folder: Path,
+    overrides: Overrides | None = None,
+    *,
+    workers: int | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> FrameSetAnalysis:
+    """Analyse every frame of a frame set in parallel and combine the results.
+
+    Raises `FrameSetError` for a missing manifest, a missing column or an
+    invalid setup. Everything wrong with a single frame is a rejected frame.
+    """
+    folder = Path(folder)
+    rows = read_manifest(folder)
+    setup = read_setup(folder)
+    if overrides:
+        setup = overrides.apply(setup)
+    config = FrameConfig(linear_range_gray=tuple(setup.linear_range))  # type: ignore[arg-type]
+    workers = workers or os.cpu_count() or 1
+    frames: list[FrameAnalysis] = []
+    batch = 4
+    batches = [(str(folder), rows[i : i + batch], config) for i in range(0, len(rows), batch)]
+    if workers <= 1 or len(rows) <= batch:
+        results = map(_analyze_batch, batches)
+        for out in results:
+            frames.extend(out)
+            if progress:
+                progress(len(frames), len(rows))
+    else:
+        with ProcessPoolExecutor(max_workers=workers, initializer=_init_worker) as pool:
+            for out in pool.map(_analyze_batch, batches):
+                frames.extend(out)
+                if progress:
+                    progress(len(frames), len(rows))
+
+    records = [
+        FrameRecord(row.camera, Setting(row.wavelength_nm, row.exposure_s, row.gain_db), f)
+        for row, f in zip(rows, frames, strict=True)
+        if not row.error
+    ]
+    geometry: Geometry | None = None
+    result: SetResult | None = None
+    problem: str | None = None
+    try:
+        geometry = geometry_from_setup(setup, {r.camera for r in rows if not r.error})
+    except FrameSetError as exc:
+        problem = str(exc)
+    if geometry is not None:
+        ratios = {wl: EmissionRatio(r.value, r.err) for wl, r in setup.emission_ratio.items()}
+        result = analyze_records(records, geometry, ratios, tuple(setup.linear_range))  # type: ignore[arg-type]
+    return FrameSetAnalysis(folder, setup, rows, frames, result, geometry, problem)
+
+
+def _num(x: float | None, digits: int = 4) -> float | None:
+    if x is None or not math.isfinite(x):
+        return None
+    return round(float(x), digits)
+
+
+def to_json(an: FrameSetAnalysis) -> dict[str, Any]:
+    """The ``camcal analyze --json`` document (the frame-set spec, plus details)."""
+    attenuation = []
+    pairs = []
+    if an.result is not None:
+        for wl, res in sorted(an.result.attenuation.items()):
+            attenuation.append(
+                {
+                    "wavelength_nm": wl,
+                    "lambda_att_m": _num(res.lambda_att_m, 3),
+                    "stat_err_m": _num(res.stat_err_m, 3),
+                    "sys_err_m": _num(res.sys_err_m, 3),
+                    "n_pairs": res.n_pairs,
+                    "chi2_ndof": _num(res.chi2_ndof, 3),
+                    "emission_ratio": res.emission_ratio.value,
+                    "note": res.note,
+                }
+            )
+        for wl, plist in an.result.pairs.items():
+            for p in plist:
+                pairs.append(
+                    {
+                        "wavelength_nm": wl,
+                        "exposure_s": p.exposure_s,
+                        "gain_db": p.gain_db,
+                        "i_near": _num(p.i_near_gray),
+                        "i_near_err": _num(p.i_near_err_gray),
+                        "i_far": _num(p.i_far_gray),
+                        "i_far_err": _num(p.i_far_err_gray),
+                        "n_near": p.n_near,
+                        "n_far": p.n_far,
+                        "lambda_att_m": _num(p.lambda_att_m, 3),
+                        "stat_err_m": _num(p.stat_err_m, 3),
+                        "sys_err_m": _num(p.sys_err_m, 3),
+                    }
+                )
+    frames = []
+    for row, f in zip(an.rows, an.frames, strict=True):
+        frames.append(
+            {
+                "file": row.file,
+                "camera": row.camera,
+                "wavelength_nm": row.wavelength_nm or None,
+                "exposure_s": _num(row.exposure_s, 6),
+                "gain_db": _num(row.gain_db, 3),
+                "status": f.status,
+                "reason": f.reason,
+                "detail": f.detail,
+                "centroid_px": [_num(f.centroid_px[0], 3), _num(f.centroid_px[1], 3)]
+                if f.centroid_px
+                else None,
+                "radius_px": _num(f.radius_px, 2),
+                "i_center": _num(f.i_center_gray),
+                "i_center_err": _num(f.i_center_err_gray),
+                "center_gray": _num(f.center_gray),
+                "background": _num(f.background_gray),
+            }
+        )
+    linearity = []
+    if an.result is not None:
+        for chk in an.result.linearity:
+            for kind, fit, fixed in (
+                ("exposure", chk.exposure, chk.fixed_gain_db),
+                ("gain", chk.gain, chk.fixed_exposure_s),
+            ):
+                if fit is None:
+                    continue
+                linearity.append(
+                    {
+                        "camera": chk.camera,
+                        "wavelength_nm": chk.wavelength_nm,
+                        "sweep": kind,
+                        "fixed": fixed,
+                        "slope": _num(fit.slope, 4),
+                        "intercept": _num(fit.intercept_gray),
+                        "r2": _num(fit.r2, 5),
+                        "n_used": fit.n_used,
+                        "linear_max_gray": _num(fit.linear_max_gray, 2),
+                        "knee_x": fit.knee_x,
+                    }
+                )
+    return {
+        "attenuation": attenuation,
+        "frames": frames,
+        "pairs": pairs,
+        "linearity": linearity,
+        "skipped": {str(k): v for k, v in (an.result.skipped if an.result else {}).items()},
+        "problem": an.problem,
+        "summary": dict(an.counts()),
+        "inputs": {"folder": str(an.folder), "setup": an.setup.to_json()},
+        "software": {"name": "camcal", "version": __version__},
+    }

@@ -1,0 +1,1 @@
+"""The module side of camcal: camera and sensors, schedule runner, outbox, simulator."""

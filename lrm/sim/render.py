@@ -1,0 +1,321 @@
+"""Rendering one camera frame of the LEM through the water.
+
+What a frame holds, in electrons per pixel, before the sensor turns it into
+gray values:
+
+* the LEM disk: radius ``f * a / sqrt(L² - a²)`` pixels, surface radiance
+  ``B * exp(-L / λ_att)`` (B of the side the camera faces), antialiased;
+* the once-scattered halo around it (`analysis.scattering.single_scatter_halo`);
+* the dark current, and fixed hot pixels of the sensor;
+* optionally bioluminescence specks;
+
+blurred by motion during the exposure (a line kernel from the module's sway)
+and by a Gaussian PSF, displaced by pointing jitter, and, near the edge of the
+view of a camera with an uneven dome (LRM-A in T-REX), doubled: part of the
+light lands ~15 px away. The sensor then adds shot and read noise, a dark
+offset, gain, the soft knee above 240, quantisation and clipping at 255.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import cv2
+import numpy as np
+
+from analysis.scattering import single_scatter_halo
+from lrm.sim.camera import CameraModel
+from lrm.sim.scene import LEMModel, Placement, Water
+
+#: The coarse grid on which the wide halo is evaluated before upsampling.
+HALO_GRID_STEP = 8
+
+
+@dataclass(frozen=True)
+class FrameTruth:
+    """What the simulator knows about a frame it rendered.
+
+    Gray values are noise-free expectations. ``direct_center_gray`` and
+    ``halo_center_gray`` are the direct and once-scattered light at the
+    LEM's centre above the dark level; ``expected_center_gray`` is the gray
+    the centre pixels average to (dark level included, knee applied).
+    """
+
+    camera: str
+    wavelength_nm: int
+    exposure_s: float
+    gain_db: float
+    distance_m: float
+    lambda_att_m: float
+    emission_factor: float
+    centroid_px: tuple[float, float]
+    disk_radius_px: float
+    direct_center_gray: float
+    halo_center_gray: float
+    background_gray: float
+    expected_center_gray: float
+    blur_px: float
+    double_image: bool
+    lem_on: bool
+    lem_in_view: bool
+    n_flashes: int
+
+    def to_dict(self) -> dict[str, object]:
+        return asdict(self)
+
+
+class FrameRenderer:
+    """Renders frames of one camera at one placement in one water.
+
+    Expensive set-up (the halo integral per wavelength, the sensor's hot
+    pixels, a bank of Gaussian noise) is done once; each `render` call then
+    costs a few passes over the frame. Noise for a frame is a window of the
+    bank at a random offset, so frames are statistically independent while
+    no frame pays for generating five million normal deviates.
+    """
+
+    def __init__(
+        self,
+        camera: CameraModel,
+        placement: Placement,
+        water: Water,
+        lem: LEMModel | None = None,
+        *,
+        seed: int = 0,
+        double_image: bool = False,
+        double_image_edge_px: float = 220.0,
+        double_image_offset_px: float = 15.0,
+        double_image_fraction: float = 0.42,
+    ) -> None:
+        self.camera = camera
+        self.placement = placement
+        self.water = water
+        self.lem = lem or LEMModel()
+        self.double_image = double_image
+        self.double_image_edge_px = double_image_edge_px
+        self.double_image_offset_px = double_image_offset_px
+        self.double_image_fraction = double_image_fraction
+        a, big_l = self.lem.radius_m, placement.distance_m
+        if big_l <= a:
+            raise ValueError(f"camera {placement.camera} at {big_l} m sits inside the LEM")
+        self.disk_radius_px = camera.focal_px * a / math.sqrt(big_l * big_l - a * a)
+        half_diag = math.hypot(camera.width_px, camera.height_px)
+        self._psi_grid = np.concatenate(
+            [[0.0], np.geomspace(1e-6, math.atan(half_diag / camera.focal_px) * 1.05, 400)]
+        )
+        self._halo: dict[int, np.ndarray] = {}
+        camera_seed = int(np.frombuffer(placement.camera.encode()[:8].ljust(8, b"\0"), "<u8")[0])
+        self._hot = camera.hot_pixels(seed=(seed * 7919 + camera_seed) % (2**63))
+        npix = camera.width_px * camera.height_px
+        self._bank_extra = max(npix // 2, 1 << 16)
+        bank_rng = np.random.default_rng([seed, camera_seed % (2**32), 17])
+        self._bank = bank_rng.standard_normal(npix + self._bank_extra, dtype=np.float32)
+
+    # -- physics helpers -------------------------------------------------
+    def halo_table(self, wavelength_nm: int) -> np.ndarray:
+        """h(ψ) on the renderer's ψ grid: halo radiance over LEM surface radiance."""
+        if wavelength_nm not in self._halo:
+            self._halo[wavelength_nm] = single_scatter_halo(
+                self._psi_grid,
+                self.placement.distance_m,
+                self.water.at(wavelength_nm),
+                self.lem.radius_m,
+            )
+        return self._halo[wavelength_nm]
+
+    def surface_radiance_e_per_s(self, wavelength_nm: int) -> float:
+        """B of the LEM side this camera faces, before the water."""
+        try:
+            b = self.lem.radiance_e_per_s[wavelength_nm]
+        except KeyError:
+            raise ValueError(f"the LEM has no {wavelength_nm} nm LED") from None
+        return b * self.emission_factor(wavelength_nm)
+
+    def emission_factor(self, wavelength_nm: int) -> float:
+        if self.placement.faces_far_side:
+            return float(self.lem.emission_ratio[wavelength_nm])
+        return 1.0
+
+    def _halo_e_per_s(self, wavelength_nm: int, rho_px: np.ndarray) -> np.ndarray:
+        psi = np.arctan(rho_px / self.camera.focal_px)
+        h = np.interp(psi, self._psi_grid, self.halo_table(wavelength_nm))
+        return (self.surface_radiance_e_per_s(wavelength_nm) * h).astype(np.float32)
+
+    # -- rendering -------------------------------------------------------
+    def render(
+        self,
+        wavelength_nm: int,
+        exposure_s: float,
+        gain_db: float,
+        *,
+        rng: np.random.Generator,
+        offset_px: tuple[float, float] = (0.0, 0.0),
+        blur_px: tuple[float, float] = (0.0, 0.0),
+        lem_on: bool = True,
+        flashes_per_frame: float = 0.0,
+    ) -> tuple[np.ndarray, FrameTruth]:
+        """One 8-bit frame and what the simulator knows about it.
+
+        ``offset_px`` moves the LEM from the optical axis (pointing, tilt,
+        jitter); ``blur_px`` is the LEM's motion on the sensor during the
+        exposure (x, y). ``lem_on=False`` renders a dark frame.
+        """
+        cam = self.camera
+        cam.check_setting(exposure_s, gain_db)
+        height, width = cam.height_px, cam.width_px
+        water = self.water.at(wavelength_nm)
+        cx = cam.center_xy[0] + float(offset_px[0])
+        cy = cam.center_xy[1] + float(offset_px[1])
+        r_disk = self.disk_radius_px
+        b_direct = (
+            self.surface_radiance_e_per_s(wavelength_nm)
+            * math.exp(-self.placement.distance_m / water.lambda_att_m)
+            if lem_on
+            else 0.0
+        )
+        gain_total = cam.gray_per_electron * cam.gain_factor(gain_db)
+
+        # Electrons per second, full frame: first the wide halo on a coarse grid.
+        rate = np.zeros((height, width), dtype=np.float32)
+        if lem_on:
+            step = HALO_GRID_STEP
+            ny, nx = -(-height // step), -(-width // step)
+            # Grid points sit where cv2.resize puts the centres of the coarse cells.
+            gy = np.arange(ny, dtype=np.float32) * step + (step - 1) / 2.0
+            gx = np.arange(nx, dtype=np.float32) * step + (step - 1) / 2.0
+            rho = np.sqrt((gy[:, None] - cy) ** 2 + (gx[None, :] - cx) ** 2)
+            coarse = self._halo_e_per_s(wavelength_nm, rho)
+            big = cv2.resize(coarse, (nx * step, ny * step), interpolation=cv2.INTER_LINEAR)
+            rate = big[:height, :width]
+
+        # The disk (and the steep inner halo) exactly, in a window around the LEM.
+        blur_len = math.hypot(*blur_px)
+        ghost = self.double_image and lem_on and self._near_edge(cx, cy)
+        ghost_dx = ghost_dy = 0.0
+        if ghost:
+            to_centre = np.array(cam.center_xy) - np.array([cx, cy])
+            norm = float(np.hypot(*to_centre)) or 1.0
+            ghost_dx, ghost_dy = (to_centre / norm * self.double_image_offset_px).tolist()
+        reach = r_disk * 3 + 4 * cam.psf_sigma_px + blur_len + abs(ghost_dx) + abs(ghost_dy) + 12
+        x0, x1 = max(int(cx - reach), 0), min(int(cx + reach) + 1, width)
+        y0, y1 = max(int(cy - reach), 0), min(int(cy + reach) + 1, height)
+        in_view = lem_on and x1 > x0 and y1 > y0
+        if in_view:
+            ys = np.arange(y0, y1, dtype=np.float32)[:, None]
+            xs = np.arange(x0, x1, dtype=np.float32)[None, :]
+            rho = np.sqrt((ys - cy) ** 2 + (xs - cx) ** 2)
+            disk = np.clip(r_disk - rho + 0.5, 0.0, 1.0)
+            if ghost:
+                rho2 = np.sqrt((ys - cy - ghost_dy) ** 2 + (xs - cx - ghost_dx) ** 2)
+                disk2 = np.clip(r_disk - rho2 + 0.5, 0.0, 1.0)
+                f = self.double_image_fraction
+                disk = (1 - f) * disk + f * disk2
+            disk *= np.float32(b_direct)
+            disk = _blur(disk, blur_px, cam.psf_sigma_px)
+            rate[y0:y1, x0:x1] = disk + self._halo_e_per_s(wavelength_nm, rho)
+
+        # Electrons collected in the exposure, hot pixels, bioluminescence.
+        electrons = rate
+        electrons *= np.float32(exposure_s)
+        electrons += np.float32(cam.dark_current_e_per_s * exposure_s)
+        hot_r, hot_c, hot_rate = self._hot
+        electrons[hot_r, hot_c] += (hot_rate * exposure_s).astype(np.float32)
+        n_flashes = int(rng.poisson(flashes_per_frame)) if flashes_per_frame > 0 else 0
+        for _ in range(n_flashes):
+            _add_flash(electrons, rng, exposure_s)
+
+        # The sensor: shot + read noise, gain, offset, knee, quantisation.
+        sigma = np.sqrt(electrons + np.float32(cam.read_noise_e**2))
+        start = int(rng.integers(0, self._bank_extra))
+        noise = self._bank[start : start + height * width].reshape(height, width)
+        gray = electrons
+        gray *= np.float32(gain_total)
+        gray += np.float32(cam.black_level_gray)
+        sigma *= noise
+        sigma *= np.float32(gain_total)
+        gray += sigma
+        if in_view:
+            gray[y0:y1, x0:x1] = cam.respond(gray[y0:y1, x0:x1])
+        gray[hot_r, hot_c] = cam.respond(gray[hot_r, hot_c])
+        np.clip(gray, 0.0, 255.0, out=gray)
+        gray += np.float32(0.5)
+        frame = gray.astype(np.uint8)
+
+        background = cam.black_level_gray + cam.dark_current_e_per_s * exposure_s * gain_total
+        direct = b_direct * exposure_s * gain_total
+        h0 = float(self.halo_table(wavelength_nm)[0]) if lem_on else 0.0
+        halo = self.surface_radiance_e_per_s(wavelength_nm) * h0 * exposure_s * gain_total
+        expected = float(cam.respond(np.array([background + direct + halo]))[0])
+        f = self.double_image_fraction if ghost else 0.0
+        truth = FrameTruth(
+            camera=self.placement.camera,
+            wavelength_nm=int(wavelength_nm),
+            exposure_s=float(exposure_s),
+            gain_db=float(gain_db),
+            distance_m=self.placement.distance_m,
+            lambda_att_m=water.lambda_att_m,
+            emission_factor=self.emission_factor(wavelength_nm),
+            centroid_px=(cx + f * ghost_dx, cy + f * ghost_dy),
+            disk_radius_px=r_disk,
+            direct_center_gray=direct,
+            halo_center_gray=halo,
+            background_gray=background,
+            expected_center_gray=expected,
+            blur_px=blur_len,
+            double_image=ghost,
+            lem_on=lem_on,
+            lem_in_view=bool(
+                lem_on and r_disk <= cx <= width - 1 - r_disk and r_disk <= cy <= height - 1 - r_disk
+            ),
+            n_flashes=n_flashes,
+        )
+        return frame, truth
+
+    def _near_edge(self, cx: float, cy: float) -> bool:
+        w, h = self.camera.width_px, self.camera.height_px
+        edge = min(cx, cy, w - 1 - cx, h - 1 - cy)
+        return edge < self.double_image_edge_px + self.disk_radius_px
+
+
+def _blur(image: np.ndarray, blur_px: tuple[float, float], psf_sigma_px: float) -> np.ndarray:
+    """Motion blur along ``blur_px`` (a line kernel), then the Gaussian PSF."""
+    length = math.hypot(*blur_px)
+    if length >= 0.5:
+        size = math.ceil(length) | 1
+        size += 2
+        kernel = np.zeros((size, size), dtype=np.float32)
+        c = size // 2
+        dx, dy = blur_px[0] / 2.0, blur_px[1] / 2.0
+        n = max(math.ceil(length * 4), 2)
+        for t in np.linspace(-1.0, 1.0, n):
+            px, py = c + t * dx, c + t * dy
+            ix, iy = math.floor(px), math.floor(py)
+            fx, fy = px - ix, py - iy
+            for ox, oy, w in (
+                (0, 0, (1 - fx) * (1 - fy)),
+                (1, 0, fx * (1 - fy)),
+                (0, 1, (1 - fx) * fy),
+                (1, 1, fx * fy),
+            ):
+                if 0 <= iy + oy < size and 0 <= ix + ox < size:
+                    kernel[iy + oy, ix + ox] += w
+        kernel /= kernel.sum()
+        image = cv2.filter2D(image, -1, kernel, borderType=cv2.BORDER_CONSTANT)
+    if psf_sigma_px > 0:
+        image = cv2.GaussianBlur(image, (0, 0), psf_sigma_px, borderType=cv2.BORDER_CONSTANT)
+    return image
+
+
+def _add_flash(electrons: np.ndarray, rng: np.random.Generator, exposure_s: float) -> None:
+    """A bioluminescent speck: a small bright Gaussian blob somewhere in the frame."""
+    height, width = electrons.shape
+    x, y = rng.uniform(0, width), rng.uniform(0, height)
+    sigma = rng.uniform(0.7, 2.5)
+    peak = rng.uniform(2e3, 2e5) * min(exposure_s, 0.05)
+    r = math.ceil(4 * sigma)
+    x0, x1 = max(int(x) - r, 0), min(int(x) + r + 1, width)
+    y0, y1 = max(int(y) - r, 0), min(int(y) + r + 1, height)
+    ys = np.arange(y0, y1, dtype=np.float32)[:, None] - y
+    xs = np.arange(x0, x1, dtype=np.float32)[None, :] - x
+    electrons[y0:y1, x0:x1] += np.float32(peak) * np.exp(-(xs**2 + ys**2) / (2 * sigma**2))

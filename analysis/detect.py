@@ -17,6 +17,7 @@ import numpy as np
 #: Step of the strided subsample used by the coarse search. One pixel in 16 is
 #: read, so the search costs about one read pass over the frame.
 COARSE_STEP = 4
+_GROW_KERNEL = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
 
 
 class FrameFormatError(ValueError):
@@ -61,8 +62,10 @@ def _background_from_sample(sample: np.ndarray) -> BackgroundLevel:
     hist = np.bincount(sample[::2, ::2].ravel(), minlength=256).astype(np.float64)
     cdf = np.cumsum(hist)
     total = cdf[-1]
-    p16, median, p84 = np.searchsorted(cdf, (0.16 * total, 0.5 * total, 0.84 * total))
-    spread = max(float(p84 - p16), 1.0)
+    p16, median = np.searchsorted(cdf, (0.16 * total, 0.5 * total))
+    # The lower side of the histogram only: a LEM filling a good part of the
+    # frame (a near camera) lifts the upper percentiles, never the lower ones.
+    spread = max(2.0 * float(median - p16), 1.0)
     hi = int(min(255, median + 3 * spread + 2))
     values = np.arange(hi + 1, dtype=np.float64)
     weights = hist[: hi + 1]
@@ -177,8 +180,8 @@ def locate_source(
     3. declare *no source* unless the peak exceeds the background by both
        ``min_significance`` noise widths and ``min_excess_gray`` gray values;
     4. threshold at half the peak height in a full-resolution window around
-       the region found, and take the intensity-weighted centroid of the
-       connected pixels above threshold (background removed).
+       the region found, and take the intensity-weighted centroid (background
+       removed) of the connected pixels above threshold and a two-pixel rim.
 
     Isolated hot pixels do not move the result: they are removed by the median
     in the search and carry a negligible weight in the centroid.
@@ -201,7 +204,10 @@ def locate_source(
     peak = max(peak, float(fine_peak))
     threshold = bg.level_gray + 0.5 * (peak - bg.level_gray)
     component, _ = _component_at(filtered, (lx, ly), threshold)
-    weights = np.where(component, window.astype(np.float32) - np.float32(bg.level_gray), 0)
+    # Weigh the component grown by two pixels: the whole antialiased and blurred
+    # edge counts, on every side alike, so thresholding does not bias the centroid.
+    grown = cv2.dilate(component.view(np.uint8), _GROW_KERNEL).view(bool)
+    weights = np.where(grown, window.astype(np.float32) - np.float32(bg.level_gray), 0)
     np.maximum(weights, 0, out=weights)
     m = cv2.moments(weights)
     if m["m00"] <= 0:

@@ -6,12 +6,9 @@ import math
 import os
 from collections import Counter
 from collections.abc import Callable, Mapping
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
-
-import cv2
 
 from analysis import (
     EmissionRatio,
@@ -36,6 +33,7 @@ from camcal.frameset import (
     read_manifest,
     read_setup,
 )
+from camcal.parallel import process_pool
 
 
 @dataclass(frozen=True)
@@ -86,10 +84,6 @@ def geometry_from_setup(setup: Setup, cameras_present: set[str]) -> Geometry:
         raise FrameSetError(f"setup.json: {exc}") from exc
 
 
-def _init_worker() -> None:
-    cv2.setNumThreads(1)
-
-
 def analyze_file(folder: str, row: ManifestRow, config: FrameConfig) -> FrameAnalysis:
     """Read and analyse one manifest row; problems become a rejected result."""
     if row.error:
@@ -138,11 +132,29 @@ def analyze_folder(
     Raises `FrameSetError` for a missing manifest, a missing column or an
     invalid setup. Everything wrong with a single frame is a rejected frame.
     """
-    folder = Path(folder)
-    rows = read_manifest(folder)
-    setup = read_setup(folder)
+    rows, setup = load_frame_set(folder, overrides)
+    return analyze_rows(folder, rows, setup, workers=workers, progress=progress)
+
+
+def load_frame_set(folder: Path, overrides: Overrides | None = None) -> tuple[list[ManifestRow], Setup]:
+    """Manifest rows and the effective setup; raises `FrameSetError` if either is unusable."""
+    rows = read_manifest(Path(folder))
+    setup = read_setup(Path(folder))
     if overrides:
         setup = overrides.apply(setup)
+    return rows, setup
+
+
+def analyze_rows(
+    folder: Path,
+    rows: list[ManifestRow],
+    setup: Setup,
+    *,
+    workers: int | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> FrameSetAnalysis:
+    """Analyse the given rows of a frame set (see `analyze_folder`)."""
+    folder = Path(folder)
     config = FrameConfig(linear_range_gray=tuple(setup.linear_range))  # type: ignore[arg-type]
     workers = workers or os.cpu_count() or 1
     frames: list[FrameAnalysis] = []
@@ -155,7 +167,7 @@ def analyze_folder(
             if progress:
                 progress(len(frames), len(rows))
     else:
-        with ProcessPoolExecutor(max_workers=workers, initializer=_init_worker) as pool:
+        with process_pool(workers) as pool:
             for out in pool.map(_analyze_batch, batches):
                 frames.extend(out)
                 if progress:

@@ -11,7 +11,6 @@ import json
 import math
 import os
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -28,6 +27,7 @@ from camcal.frameset import (
     encode_png,
     write_atomic,
 )
+from camcal.parallel import process_pool
 from camcal.schedule import Schedule, trex_subsampled
 from lrm.sim.camera import CameraModel
 from lrm.sim.render import FrameRenderer
@@ -179,9 +179,7 @@ def simulate_frame_set(
             if progress:
                 progress(done, len(jobs))
     else:
-        with ProcessPoolExecutor(
-            max_workers=workers, initializer=_init_worker, initargs=(spec, str(out))
-        ) as pool:
+        with process_pool(workers, _init_worker, (spec, str(out))) as pool:
             for job, truth in zip(jobs, pool.map(_work, jobs, chunksize=2), strict=True):
                 truths[job.index] = truth
                 done += 1

@@ -12,7 +12,7 @@ from rich.table import Table
 from analysis import REASON_HELP
 from camcal.cli.common import console, fail, parse_floats, parse_mapping, progress_bar
 from camcal.frameset import FrameSetError, write_atomic
-from camcal.pipeline import FrameSetAnalysis, Overrides, analyze_folder, to_json
+from camcal.pipeline import FrameSetAnalysis, Overrides, analyze_rows, load_frame_set, to_json
 from camcal.plots import write_plots
 
 
@@ -66,10 +66,11 @@ def analyze(
         linear_range=lr,
     )
     try:
-        with progress_bar("analysing", quiet=quiet) as update:
-            result = analyze_folder(folder, overrides, workers=workers or None, progress=update)
+        rows, setup = load_frame_set(folder, overrides)
     except FrameSetError as exc:
         raise fail(str(exc)) from None
+    with progress_bar("analysing", quiet=quiet) as update:
+        result = analyze_rows(folder, rows, setup, workers=workers or None, progress=update)
     print_summary(result)
     if json_out:
         json_out.parent.mkdir(parents=True, exist_ok=True)

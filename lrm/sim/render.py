@@ -84,7 +84,7 @@ class FrameRenderer:
         *,
         seed: int = 0,
         double_image: bool = False,
-        double_image_edge_px: float = 220.0,
+        double_image_edge_fraction: float = 0.08,
         double_image_offset_px: float = 15.0,
         double_image_fraction: float = 0.42,
     ) -> None:
@@ -93,7 +93,7 @@ class FrameRenderer:
         self.water = water
         self.lem = lem or LEMModel()
         self.double_image = double_image
-        self.double_image_edge_px = double_image_edge_px
+        self.double_image_edge_fraction = double_image_edge_fraction
         self.double_image_offset_px = double_image_offset_px
         self.double_image_fraction = double_image_fraction
         a, big_l = self.lem.radius_m, placement.distance_m
@@ -141,6 +141,21 @@ class FrameRenderer:
         psi = np.arctan(rho_px / self.camera.focal_px)
         h = np.interp(psi, self._psi_grid, self.halo_table(wavelength_nm))
         return (self.surface_radiance_e_per_s(wavelength_nm) * h).astype(np.float32)
+
+    def expected_center_gray(self, wavelength_nm: int, exposure_s: float, gain_db: float) -> float:
+        """Noise-free mean gray of the LEM's centre pixels at a setting (knee applied).
+
+        What the schedule preview and the tests use to know, without rendering,
+        whether a setting will be too dark, in range, or saturated.
+        """
+        cam = self.camera
+        gain_total = cam.gray_per_electron * cam.gain_factor(gain_db)
+        water = self.water.at(wavelength_nm)
+        b = self.surface_radiance_e_per_s(wavelength_nm)
+        direct = b * math.exp(-self.placement.distance_m / water.lambda_att_m)
+        halo = b * float(self.halo_table(wavelength_nm)[0])
+        dark = cam.black_level_gray + cam.dark_current_e_per_s * exposure_s * gain_total
+        return float(cam.respond(np.array([dark + (direct + halo) * exposure_s * gain_total]))[0])
 
     # -- rendering -------------------------------------------------------
     def render(
@@ -273,9 +288,10 @@ class FrameRenderer:
         return frame, truth
 
     def _near_edge(self, cx: float, cy: float) -> bool:
+        """True when the disk comes within the edge band of the view (8 % of its size)."""
         w, h = self.camera.width_px, self.camera.height_px
-        edge = min(cx, cy, w - 1 - cx, h - 1 - cy)
-        return edge < self.double_image_edge_px + self.disk_radius_px
+        edge = min(cx, cy, w - 1 - cx, h - 1 - cy) - self.disk_radius_px
+        return edge < self.double_image_edge_fraction * min(w, h)
 
 
 def _blur(image: np.ndarray, blur_px: tuple[float, float], psf_sigma_px: float) -> np.ndarray:

@@ -1,0 +1,90 @@
+"""Benchmark of the I_center analysis, as ratios against floors measured in the same run.
+
+1. analysis of one 5 MP frame already in memory (centroid search on the full
+   frame, crop, profile, fit) against one read pass over it (``frame.max()``);
+2. ``camcal analyze`` on a whole 5 MP frame set (all cores, decoding
+   included) against decoding the same PNGs and nothing else on one core.
+
+Run: ``.venv/bin/python bench/bench_analysis.py [--frames N]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+
+from analysis import analyze_frame
+from camcal.frameset import read_manifest
+from camcal.schedule import Schedule
+from lrm.simset import SimulationSpec, simulate_frame_set
+
+
+def median_time(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=4, help="frames per setting (x 2 cameras, 9 settings)")
+    args = parser.parse_args()
+    cv2.setNumThreads(1)
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp) / "set"
+        sched = Schedule(
+            name="bench", exposures_s=(0.05, 0.07, 0.11), gains_db=(2.0, 8.0, 14.0), repeats=args.repeats
+        )
+        print(f"building a 5 MP frame set of {sched.n_frames * 2} frames ...", flush=True)
+        simulate_frame_set(folder, SimulationSpec(schedule=sched, seed=5))
+        rows = read_manifest(folder)
+        paths = [folder / r.file for r in rows]
+        frames = [cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in paths[:24]]
+
+        # 1. one frame in memory against one read pass
+        per_frame, read_pass = [], []
+        for f in frames:
+            analyze_frame(f)  # warm
+            per_frame.append(median_time(lambda f=f: analyze_frame(f), 7))
+            read_pass.append(median_time(lambda f=f: f.max(), 21))
+        t_an, t_max = statistics.median(per_frame), statistics.median(read_pass)
+
+        # 2. the whole set through the CLI against decoding alone on one core
+        t_decode = median_time(lambda: [cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in paths], 2)
+        cmd = [
+            sys.executable,
+            "-c",
+            "from camcal.cli import main; main()",
+            "analyze",
+            str(folder),
+            "--quiet",
+            "--json",
+            str(Path(tmp) / "r.json"),
+        ]
+        t_cli = median_time(lambda: subprocess.run(cmd, check=True, capture_output=True), 2)
+
+    print()
+    print("| figure | time | floor | ratio | aim |")
+    print("| --- | --- | --- | --- | --- |")
+    print(
+        f"| analysis of one 5 MP frame in memory vs `frame.max()` | {t_an * 1e3:.2f} ms | "
+        f"{t_max * 1e3:.3f} ms | {t_an / t_max:.1f}x | <= 20x |"
+    )
+    print(
+        f"| `camcal analyze` on {len(paths)} frames vs PNG decoding on one core | {t_cli:.2f} s | "
+        f"{t_decode:.2f} s | {t_cli / t_decode:.2f}x | <= 0.8x |"
+    )
+
+
+if __name__ == "__main__":
+    main()

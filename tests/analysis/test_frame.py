@@ -1,0 +1,79 @@
+"""Per-frame analysis on simulated T-REX frames: acceptance and each rejection reason."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from analysis import FrameConfig, Reason, analyze_frame
+from tests.utils.sim import SMALL_CAMERA, renderer
+
+
+@pytest.fixture(scope="module")
+def near():
+    return renderer("trex", 21.56, camera=SMALL_CAMERA, camera_id="A")
+
+
+def render(r, wl=460, exposure=0.05, gain=8.0, seed=0, **kw):
+    return r.render(wl, exposure, gain, rng=np.random.default_rng(seed), **kw)
+
+
+def test_in_range_frame_gives_i_center_close_to_the_truth(near) -> None:
+    frame, truth = render(near)
+    res = analyze_frame(frame)
+    assert res.ok, res.detail
+    expected = truth.direct_center_gray + truth.halo_center_gray
+    # The fitted constant absorbs a little halo: within 2 % of direct + halo.
+    assert res.i_center_gray == pytest.approx(expected, rel=0.02)
+    assert abs(res.centroid_px[0] - truth.centroid_px[0]) < 0.1
+    assert 0 < res.i_center_err_gray < 1.0
+
+
+def test_saturated_lem_is_rejected_even_though_hot_pixels_saturate_everywhere(near) -> None:
+    frame, truth = render(near, exposure=0.5, gain=14.0)
+    assert truth.expected_center_gray > 250
+    res = analyze_frame(frame)
+    assert res.reason == Reason.SATURATED
+    assert "gray" in res.detail
+
+
+def test_hot_pixels_at_255_outside_the_disk_do_not_reject_the_frame(near) -> None:
+    frame, _ = render(near)
+    rng = np.random.default_rng(5)
+    rows, cols = rng.integers(0, frame.shape[0], 300), rng.integers(0, frame.shape[1], 300)
+    far_from_lem = np.hypot(cols - 320, rows - 256) > 120
+    frame[rows[far_from_lem], cols[far_from_lem]] = 255
+    assert far_from_lem.sum() > 100
+    res = analyze_frame(frame)
+    assert res.ok
+
+
+def test_too_dark_lem_is_rejected(near) -> None:
+    frame, truth = render(near, wl=405, exposure=0.003, gain=0.0)
+    assert truth.expected_center_gray < 5
+    res = analyze_frame(frame)
+    assert res.reason in (Reason.TOO_DARK, Reason.NO_SOURCE)
+
+
+def test_lem_off_gives_no_source(near) -> None:
+    frame, _ = render(near, lem_on=False)
+    assert analyze_frame(frame).reason == Reason.NO_SOURCE
+
+
+def test_lem_cut_by_the_edge_is_off_edge(near) -> None:
+    frame, _ = render(near, offset_px=(300.0, 0.0))
+    res = analyze_frame(frame)
+    assert res.reason == Reason.OFF_EDGE
+    assert res.centroid_px is not None
+
+
+def test_linear_range_is_configurable(near) -> None:
+    frame, truth = render(near)
+    assert 100 < truth.expected_center_gray < 200
+    assert analyze_frame(frame, FrameConfig(linear_range_gray=(5, 100))).reason == Reason.SATURATED
+    assert analyze_frame(frame, FrameConfig(linear_range_gray=(200, 250))).reason == Reason.TOO_DARK
+
+
+def test_invalid_config_is_refused() -> None:
+    with pytest.raises(ValueError, match="linear_range_gray"):
+        FrameConfig(linear_range_gray=(240, 5))

@@ -1,0 +1,208 @@
+"""``camcal analyze`` end to end on simulated frame sets, good and broken."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from camcal.cli import app
+
+runner = CliRunner()
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
+    """The real command in a subprocess: exit status and stderr as a user sees them."""
+    return subprocess.run(
+        [sys.executable, "-c", "from camcal.cli import main; main()", *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+def test_analyze_writes_the_spec_json_and_plots(trex_small_set: Path, tmp_path: Path) -> None:
+    out = tmp_path / "result.json"
+    res = runner.invoke(
+        app,
+        [
+            "analyze",
+            str(trex_small_set),
+            "--json",
+            str(out),
+            "--plots",
+            str(tmp_path / "plots"),
+            "--workers",
+            "2",
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    doc = json.loads(out.read_text())
+    truth = json.loads((trex_small_set / "truth.json").read_text())
+    with (trex_small_set / "manifest.csv").open() as fh:
+        files = [row["file"] for row in csv.DictReader(fh)]
+    assert [f["file"] for f in doc["frames"]] == files  # one entry per row, in manifest order
+    for f in doc["frames"]:
+        assert f["status"] in ("ok", "rejected")
+        assert (f["reason"] is None) == (f["status"] == "ok")
+        if f["status"] == "ok":
+            assert len(f["centroid_px"]) == 2 and f["i_center"] > 0 and f["background"] > 0
+    wavelengths = {a["wavelength_nm"] for a in doc["attenuation"]}
+    assert wavelengths == {405, 460, 525}
+    for a in doc["attenuation"]:
+        true = truth["water"][str(a["wavelength_nm"])]["lambda_att_m"]
+        assert a["lambda_att_m"] == pytest.approx(true, rel=0.05)
+        assert a["stat_err_m"] > 0 and a["sys_err_m"] > 0 and a["n_pairs"] >= 1
+    assert "λ_att" in res.output and "accepted" in res.output
+    for name in ("profile_A.png", "profile_B.png", "attenuation.png"):
+        assert (tmp_path / "plots" / name).stat().st_size > 10_000
+
+
+def test_options_override_setup(trex_small_set: Path, tmp_path: Path) -> None:
+    base = tmp_path / "a.json"
+    moved = tmp_path / "b.json"
+    assert runner.invoke(app, ["analyze", str(trex_small_set), "--json", str(base), "--quiet"]).exit_code == 0
+    res = runner.invoke(
+        app,
+        [
+            "analyze",
+            str(trex_small_set),
+            "--json",
+            str(moved),
+            "--quiet",
+            "--distance",
+            "B=51.62",
+            "--ratio",
+            "460=1.0:0.01",
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    a = {x["wavelength_nm"]: x for x in json.loads(base.read_text())["attenuation"]}
+    b = {x["wavelength_nm"]: x for x in json.loads(moved.read_text())["attenuation"]}
+    # A longer baseline gives a longer λ for the same intensities (405 keeps its ratio).
+    assert b[405]["lambda_att_m"] == pytest.approx(a[405]["lambda_att_m"] * 30.06 / 20.06, rel=1e-3)
+    assert json.loads(moved.read_text())["inputs"]["setup"]["emission_ratio"]["460"]["value"] == 1.0
+
+
+@pytest.fixture
+def broken_set(trex_small_set: Path, tmp_path: Path) -> tuple[Path, dict[str, str]]:
+    """A copy of the small set with one frame of each kind of damage."""
+    folder = tmp_path / "broken"
+    shutil.copytree(trex_small_set, folder)
+    with (folder / "manifest.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    ok_files = [r["file"] for r in rows]
+    expected: dict[str, str] = {}
+    (folder / ok_files[0]).unlink()
+    expected[ok_files[0]] = "unreadable"
+    data = (folder / ok_files[1]).read_bytes()
+    (folder / ok_files[1]).write_bytes(data[: len(data) // 3])
+    expected[ok_files[1]] = "unreadable"
+    img = cv2.imread(str(folder / ok_files[2]), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(folder / ok_files[2]), img.astype(np.uint16) * 256)
+    expected[ok_files[2]] = "bad_format"
+    cv2.imwrite(str(folder / ok_files[3]), cv2.cvtColor(img, cv2.COLOR_GRAY2BGR))
+    expected[ok_files[3]] = "bad_format"
+    (folder / ok_files[4]).write_bytes(b"this is not an image")
+    expected[ok_files[4]] = "unreadable"
+    rows[5]["exposure_s"] = "-0.05"
+    expected[rows[5]["file"]] = "bad_metadata"
+    rows[6]["wavelength_nm"] = "blue"
+    expected[rows[6]["file"]] = "bad_metadata"
+    with (folder / "manifest.csv").open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    return folder, expected
+
+
+def test_bad_frames_are_rejected_with_reasons_and_the_run_goes_on(broken_set, tmp_path: Path) -> None:
+    folder, expected = broken_set
+    out = tmp_path / "r.json"
+    proc = run_cli("analyze", str(folder), "--json", str(out), "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    assert "Traceback" not in proc.stderr + proc.stdout
+    doc = json.loads(out.read_text())
+    by_file = {f["file"]: f for f in doc["frames"]}
+    for name, reason in expected.items():
+        assert by_file[name]["status"] == "rejected"
+        assert by_file[name]["reason"] == reason, by_file[name]
+        assert by_file[name]["detail"]
+    good = [f for name, f in by_file.items() if name not in expected]
+    assert sum(f["status"] == "ok" for f in good) >= len(good) // 2
+    assert {a["wavelength_nm"] for a in doc["attenuation"]} == {405, 460, 525}
+
+
+@pytest.mark.parametrize(
+    ("damage", "message"),
+    [
+        ("no_manifest", "manifest missing"),
+        ("no_column", "required column gain_db missing"),
+        ("no_folder", "no such frame-set folder"),
+        ("bad_setup", "setup.json"),
+    ],
+)
+def test_fatal_problems_exit_2_with_one_line(
+    trex_small_set: Path, tmp_path: Path, damage: str, message: str
+) -> None:
+    folder = tmp_path / "set"
+    shutil.copytree(trex_small_set, folder)
+    if damage == "no_manifest":
+        (folder / "manifest.csv").unlink()
+    elif damage == "no_column":
+        text = (folder / "manifest.csv").read_text().splitlines()
+        header = text[0].split(",")
+        idx = header.index("gain_db")
+        rows = [",".join(c for i, c in enumerate(line.split(",")) if i != idx) for line in text]
+        (folder / "manifest.csv").write_text("\n".join(rows) + "\n")
+    elif damage == "no_folder":
+        folder = tmp_path / "missing"
+    elif damage == "bad_setup":
+        (folder / "setup.json").write_text('{"cameras": {"A": {"distance_m": -3}}}')
+    proc = run_cli("analyze", str(folder))
+    assert proc.returncode == 2
+    assert message in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+    assert "Traceback" not in proc.stderr
+
+
+def test_simulate_set_is_deterministic_and_refuses_a_used_folder(tmp_path: Path) -> None:
+    args = [
+        "simulate-set",
+        "--width",
+        "320",
+        "--height",
+        "256",
+        "--fov-deg",
+        "2.1",
+        "--exposures",
+        "0.05",
+        "--gains",
+        "6",
+        "--repeats",
+        "1",
+        "--wavelengths",
+        "460",
+        "--workers",
+        "1",
+        "--quiet",
+    ]
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert runner.invoke(app, [*args, str(a)]).exit_code == 0
+    assert runner.invoke(app, [*args, str(b)]).exit_code == 0
+    for name in ("A_460_00001.png", "B_460_00001.png"):
+        assert (a / name).read_bytes() == (b / name).read_bytes()
+    truth = json.loads((a / "truth.json").read_text())
+    assert truth["water"]["460"]["lambda_att_m"] == pytest.approx(1 / (1 / 65 + 1 / 50))
+    again = run_cli(*args, str(a))
+    assert again.returncode == 2 and "already holds a frame set" in again.stderr
+    bad = run_cli(*args[:-3], "--exposures", "-1", str(tmp_path / "c"))
+    assert bad.returncode == 2 and "exposure" in bad.stderr and "Traceback" not in bad.stderr

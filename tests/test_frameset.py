@@ -1,0 +1,111 @@
+"""Reading and writing frame sets: manifest rows, setup, images, atomic writes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from camcal.frameset import (
+    FrameReadError,
+    FrameSetError,
+    FrameSetWriter,
+    ManifestRow,
+    Setup,
+    decode_frame,
+    encode_png,
+    read_frame,
+    read_manifest,
+    read_setup,
+)
+
+
+def write_manifest(folder: Path, text: str) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "manifest.csv").write_text(text)
+
+
+def test_columns_in_any_order_unknown_ones_kept(tmp_path: Path) -> None:
+    write_manifest(
+        tmp_path, "gain_db,exposure_s,note,file,camera,wavelength_nm,depth_m\n8,0.05,hello,a.png,A,460,3420\n"
+    )
+    (row,) = read_manifest(tmp_path)
+    assert (row.file, row.camera, row.wavelength_nm) == ("a.png", "A", 460)
+    assert (row.exposure_s, row.gain_db) == (0.05, 8.0)
+    assert row.depth_m == 3420 and row.error is None and row.extra == {"note": "hello"}
+
+
+@pytest.mark.parametrize(
+    ("cells", "fragment"),
+    [
+        ("a.png,A,460,-0.05,8", "exposure_s -0.05 must be > 0"),
+        ("a.png,A,blue,0.05,8", "wavelength_nm 'blue' is not a number"),
+        ("a.png,A,460.5,0.05,8", "not an integer"),
+        ("a.png,A,460,0.05,", "gain_db is empty"),
+        ("../etc/passwd,A,460,0.05,8", "inside the frame set"),
+        ("/abs.png,A,460,0.05,8", "inside the frame set"),
+        ("a.png,,460,0.05,8", "camera is empty"),
+        ("a.png,A,460,nan,8", "not finite"),
+    ],
+)
+def test_bad_rows_carry_an_error_not_an_exception(tmp_path: Path, cells: str, fragment: str) -> None:
+    write_manifest(tmp_path, f"file,camera,wavelength_nm,exposure_s,gain_db\n{cells}\n")
+    (row,) = read_manifest(tmp_path)
+    assert row.error is not None and fragment in row.error
+
+
+def test_missing_required_columns_are_fatal_and_named(tmp_path: Path) -> None:
+    write_manifest(tmp_path, "file,camera,wavelength_nm\na.png,A,460\n")
+    with pytest.raises(FrameSetError, match="required columns exposure_s, gain_db missing"):
+        read_manifest(tmp_path)
+
+
+def test_setup_defaults_to_trex_and_validates(tmp_path: Path) -> None:
+    setup = read_setup(tmp_path)
+    assert setup.cameras["A"].distance_m == 21.56 and setup.emission_ratio[460].value == 1.27
+    (tmp_path / "setup.json").write_text('{"emission_ratio": {"460": {"value": 1.3, "err": 0.02}}}')
+    setup = read_setup(tmp_path)
+    assert setup.emission_ratio[460].value == 1.3 and setup.cameras["B"].distance_m == 41.62
+    (tmp_path / "setup.json").write_text('{"linear_range": [250, 5]}')
+    with pytest.raises(FrameSetError, match="linear_range"):
+        read_setup(tmp_path)
+    (tmp_path / "setup.json").write_text("{not json")
+    with pytest.raises(FrameSetError, match="not valid JSON"):
+        read_setup(tmp_path)
+
+
+def test_writer_round_trip_and_resume(tmp_path: Path) -> None:
+    frame = (np.arange(64 * 48) % 251).astype(np.uint8).reshape(48, 64)
+    row = ManifestRow(
+        index=0,
+        file="A_460_00001.png",
+        camera="A",
+        wavelength_nm=460,
+        exposure_s=0.05,
+        gain_db=8.0,
+        seq=1,
+        timestamp="2021-09-10T04:00:00Z",
+    )
+    with FrameSetWriter(tmp_path, Setup()) as w:
+        w.add(frame, row)
+    with FrameSetWriter(tmp_path) as w:  # re-open: continues the manifest
+        assert len(w) == 1
+        w.add(encode_png(frame), ManifestRow(**{**row.__dict__, "file": "A_460_00002.png", "seq": 2}))
+    rows = read_manifest(tmp_path)
+    assert [r.file for r in rows] == ["A_460_00001.png", "A_460_00002.png"]
+    assert rows[0].timestamp == "2021-09-10T04:00:00Z"
+    np.testing.assert_array_equal(read_frame(tmp_path / rows[1].file), frame)
+    assert not list(tmp_path.glob(".*tmp*"))
+
+
+def test_decode_reports_each_problem() -> None:
+    with pytest.raises(FrameReadError) as info:
+        decode_frame(b"")
+    assert info.value.reason == "unreadable"
+    png = encode_png(np.zeros((10, 10), np.uint8))
+    with pytest.raises(FrameReadError, match="truncated"):
+        decode_frame(png[: len(png) // 2])
+    with pytest.raises(FrameReadError) as info:
+        read_frame(Path("/nonexistent/x.png"))
+    assert "file not found" in info.value.detail

@@ -31,6 +31,8 @@ OPTIONAL_COLUMNS = (
     "distance_err_m",
     "temperature_c",
     "medium",
+    "boot",
+    "schedule_version",
 )
 MANIFEST_COLUMNS = REQUIRED_COLUMNS + OPTIONAL_COLUMNS
 
@@ -142,6 +144,8 @@ class ManifestRow:
     distance_err_m: float | None = None
     temperature_c: float | None = None
     medium: str | None = None
+    boot: str | None = None
+    schedule_version: int | None = None
     error: str | None = None
     extra: Mapping[str, str] = field(default_factory=dict, repr=False, compare=False)
 
@@ -203,6 +207,7 @@ def _parse_row(index: int, raw: Mapping[str, str | None]) -> ManifestRow:
         problems.append(f"distance_m {distance:g} must be > 0")
     distance_err = num("distance_err_m")
     temperature = num("temperature_c")
+    schedule_version = num("schedule_version", integer=True)
     medium = get.get("medium") or None
     if medium is not None and medium not in ("air", "water"):
         problems.append(f"medium {medium!r} must be air or water")
@@ -221,6 +226,8 @@ def _parse_row(index: int, raw: Mapping[str, str | None]) -> ManifestRow:
         distance_err_m=distance_err,
         temperature_c=temperature,
         medium=medium,
+        boot=get.get("boot") or None,
+        schedule_version=int(schedule_version) if schedule_version is not None else None,
         error="; ".join(problems) or None,
         extra={k: v for k, v in get.items() if k not in known},
     )

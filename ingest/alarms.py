@@ -1,0 +1,187 @@
+"""Alarm rules: what the deck crew must see, with severities MINOR and MAJOR.
+
+The evaluator keeps a little state per module and, when asked, returns the
+full set of conditions that hold now; the service raises the new ones and
+clears the ones that stopped. (INVALID, for stale data, is the display's
+verdict on old values, not a rule here.)
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict, deque
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class AlarmLimits:
+    """Thresholds of the rules, all configurable."""
+
+    link_timeout_s: float = 5.0
+    tilt_minor_deg: float = 3.0
+    tilt_major_deg: float = 6.0
+    humidity_minor_pct: float = 50.0
+    humidity_major_pct: float = 70.0
+    humidity_rise_pct_per_min: float = 0.5
+    humidity_trend_s: float = 300.0
+    edge_margin_fraction: float = 0.08
+    reject_window_frames: int = 60
+    reject_fraction: float = 0.8
+    gap_age_s: float = 30.0
+
+
+@dataclass(frozen=True)
+class Condition:
+    """An alarm condition that holds now."""
+
+    key: str
+    kind: str
+    severity: str
+    message: str
+    module: str | None
+
+
+@dataclass
+class _ModuleState:
+    linked: bool = False
+    last_seen_unix_s: float | None = None
+    humidity: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=4000))
+    tilt_deg: float | None = None
+    outcomes: deque[str] = field(default_factory=deque)
+    near_edge: deque[bool] = field(default_factory=lambda: deque(maxlen=10))
+    open_gaps: list[tuple[int, int, float]] = field(default_factory=list)
+
+
+class AlarmEvaluator:
+    """Turns observations into the set of alarm conditions that hold."""
+
+    def __init__(self, limits: AlarmLimits | None = None) -> None:
+        self.limits = limits or AlarmLimits()
+        self._m: dict[str, _ModuleState] = defaultdict(_ModuleState)
+
+    # -- observations ----------------------------------------------------
+    def observe_link(self, module: str, linked: bool, last_seen_unix_s: float | None) -> None:
+        st = self._m[module]
+        st.linked, st.last_seen_unix_s = linked, last_seen_unix_s
+
+    def observe_humidity(self, module: str, t_unix_s: float, humidity_pct: float) -> None:
+        self._m[module].humidity.append((t_unix_s, humidity_pct))
+
+    def observe_tilt(self, module: str, tilt_deg: float) -> None:
+        self._m[module].tilt_deg = tilt_deg
+
+    def observe_frame(
+        self,
+        module: str,
+        status: str,
+        reason: str | None,
+        centroid_px: tuple[float, float] | None,
+        radius_px: float | None,
+        size_px: tuple[int, int],
+    ) -> None:
+        st = self._m[module]
+        st.outcomes.append("ok" if status == "ok" else (reason or "rejected"))
+        while len(st.outcomes) > self.limits.reject_window_frames:
+            st.outcomes.popleft()
+        if reason == "off_edge":
+            st.near_edge.append(True)
+        elif centroid_px is not None and radius_px is not None:
+            w, h = size_px
+            margin = self.limits.edge_margin_fraction * min(w, h)
+            x, y = centroid_px
+            edge = min(x, y, w - 1 - x, h - 1 - y) - radius_px
+            st.near_edge.append(edge < margin)
+        elif reason == "no_source":
+            st.near_edge.append(False)
+
+    def observe_gaps(self, module: str, gaps: list[tuple[int, int, float]]) -> None:
+        self._m[module].open_gaps = gaps
+
+    # -- evaluation ------------------------------------------------------
+    def evaluate(self, now_unix_s: float) -> dict[str, Condition]:
+        lim = self.limits
+        out: dict[str, Condition] = {}
+
+        def add(kind: str, module: str, severity: str, message: str) -> None:
+            key = f"{kind}:{module}"
+            out[key] = Condition(key, kind, severity, message, module)
+
+        for module, st in self._m.items():
+            if st.last_seen_unix_s is not None:
+                age = now_unix_s - st.last_seen_unix_s
+                if not st.linked or age > lim.link_timeout_s:
+                    add(
+                        "link_lost",
+                        module,
+                        "MAJOR",
+                        f"module {module}: no packet for {age:.0f} s; check the fibre link and power",
+                    )
+            if st.humidity:
+                t_last, h_last = st.humidity[-1]
+                recent = [(t, h) for t, h in st.humidity if t >= t_last - lim.humidity_trend_s]
+                rise = None
+                if len(recent) >= 10 and recent[-1][0] - recent[0][0] >= 60:
+                    rise = (recent[-1][1] - recent[0][1]) / ((recent[-1][0] - recent[0][0]) / 60.0)
+                if h_last >= lim.humidity_major_pct:
+                    add(
+                        "humidity",
+                        module,
+                        "MAJOR",
+                        f"module {module}: housing humidity {h_last:.0f} % — possible leak, "
+                        "recover the module",
+                    )
+                elif rise is not None and rise >= lim.humidity_rise_pct_per_min:
+                    add(
+                        "humidity",
+                        module,
+                        "MAJOR",
+                        f"module {module}: housing humidity rising {rise:.1f} %/min — possible leak",
+                    )
+                elif h_last >= lim.humidity_minor_pct:
+                    add("humidity", module, "MINOR", f"module {module}: housing humidity {h_last:.0f} %")
+            if st.tilt_deg is not None:
+                if st.tilt_deg >= lim.tilt_major_deg:
+                    add(
+                        "tilt",
+                        module,
+                        "MAJOR",
+                        f"module {module}: tilted {st.tilt_deg:.1f}° (limit {lim.tilt_major_deg:g}°)",
+                    )
+                elif st.tilt_deg >= lim.tilt_minor_deg:
+                    add(
+                        "tilt",
+                        module,
+                        "MINOR",
+                        f"module {module}: tilted {st.tilt_deg:.1f}° (limit {lim.tilt_minor_deg:g}°)",
+                    )
+            if len(st.near_edge) >= 3 and sum(st.near_edge) >= 0.6 * len(st.near_edge):
+                add(
+                    "lem_leaving_view",
+                    module,
+                    "MINOR",
+                    f"module {module}: the LEM is near or past the edge of the view",
+                )
+            n = len(st.outcomes)
+            if n >= max(10, lim.reject_window_frames // 3):
+                for reason, what, advice in (
+                    ("saturated", "saturated", "shorten exposures or lower gains"),
+                    ("too_dark", "too dark", "lengthen exposures or raise gains"),
+                ):
+                    frac = sum(1 for o in st.outcomes if o == reason) / n
+                    if frac >= lim.reject_fraction:
+                        add(
+                            f"frames_{reason}",
+                            module,
+                            "MINOR",
+                            f"module {module}: {100 * frac:.0f} % of the last {n} frames {what}; {advice}",
+                        )
+            old = [g for g in st.open_gaps if now_unix_s - g[2] >= lim.gap_age_s]
+            if old:
+                missing = sum(b - a + 1 for a, b, _ in old)
+                add(
+                    "sequence_gap",
+                    module,
+                    "MINOR",
+                    f"module {module}: {missing} message(s) missing in {len(old)} gap(s); "
+                    "they will arrive when the link recovers, or import the SD card",
+                )
+        return out

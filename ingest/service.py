@@ -1,0 +1,950 @@
+"""The ingest service: receive, commit, acknowledge, analyse, publish.
+
+Three kinds of worker, each owning what it touches:
+
+* the **network thread** owns the ZeroMQ ROUTER: it decodes and checks
+  every message (malformed ones are counted and dropped), answers ``hello``
+  with ``welcome``, keeps track of links and heartbeats, and sends whatever
+  the other threads hand it (acks, commands) through an inproc socket;
+* the **store thread** is the single database writer: it writes each
+  frame file (temporary name, fsync, rename), commits a batch of frames and
+  sensor samples in one transaction, and only then acknowledges them; it
+  also stores analysis results, the rolling λ_att, linearity, attitude and
+  alarms, and publishes every new result as an event;
+* a **process pool** (one process per core) decodes and analyses frames off
+  the receive loop.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import queue
+import threading
+import time
+import uuid
+from collections import Counter, defaultdict, deque
+from collections.abc import Callable
+from concurrent.futures import Future
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zmq
+
+from analysis import EmissionRatio, FrameConfig, Geometry, linearity_fit
+from analysis.attitude import attitude_from_samples
+from analysis.linearity import gain_factor
+from camcal import __version__, wire
+from camcal.frameset import Setup
+from camcal.parallel import process_pool
+from ingest.alarms import AlarmEvaluator, AlarmLimits
+from ingest.events import EventBus
+from ingest.rolling import RollingAttenuation, Sample
+from ingest.seqtrack import SeqTracker
+from ingest.worker import analyse_stored_frame
+from storage.store import FrameRow, SensorBatchRow, Store
+
+log = logging.getLogger("camcal.ingest")
+
+
+@dataclass(frozen=True)
+class IngestConfig:
+    """Settings of one ingest process."""
+
+    data_dir: Path
+    bind: str = "tcp://*:5555"
+    events_bind: str | None = "tcp://127.0.0.1:5556"
+    db_url: str | None = None
+    window: int = 8
+    heartbeat_s: float = 1.0
+    link_timeout_s: float = 5.0
+    ack_batch_s: float = 0.02
+    workers: int = 0
+    max_payload_bytes: int = wire.MAX_PAYLOAD_BYTES
+    fsync: bool = True
+    sqlite_synchronous: str = "FULL"
+    dive_name: str | None = None
+    setup: Setup = field(default_factory=Setup)
+    rolling_window_s: float = 300.0
+    rolling_interval_s: float = 10.0
+    thumbnails: bool = True
+    alarm_limits: AlarmLimits = field(default_factory=AlarmLimits)
+    modules: tuple[str, ...] = ()
+
+    @property
+    def n_workers(self) -> int:
+        return self.workers or os.cpu_count() or 1
+
+
+@dataclass
+class Link:
+    """What the ship knows of one module's connection."""
+
+    module: str
+    identity: bytes
+    boot: str = ""
+    up: bool = False
+    last_seen_mono: float = 0.0
+    last_seen_unix_s: float = 0.0
+    welcomed: bool = False
+    schedule: dict[str, Any] = field(default_factory=dict)
+    outbox_pending: int = 0
+    in_flight: int = 0
+    frames: deque[float] = field(default_factory=lambda: deque(maxlen=200))
+    last_heartbeat_sent: float = 0.0
+
+
+@dataclass
+class _Incoming:
+    kind: str
+    module: str
+    msg: Any
+    payload: Any = None
+    received_unix_s: float = 0.0
+    received_mono: float = 0.0
+
+
+class IngestService:
+    """One ingest process; `start` binds and runs it in background threads, `stop` ends it."""
+
+    def __init__(
+        self, config: IngestConfig, store: Store | None = None, ctx: zmq.Context[Any] | None = None
+    ) -> None:
+        self.config = config
+        self.store = store or Store.open(
+            config.data_dir, config.db_url, sqlite_synchronous=config.sqlite_synchronous
+        )
+        self.ctx = ctx or zmq.Context.instance()
+        self._own_ctx = ctx is None
+        self._stop = threading.Event()
+        self._q: queue.Queue[_Incoming] = queue.Queue()
+        self._out_endpoint = f"inproc://ingest-out-{uuid.uuid4().hex}"
+        self.links: dict[str, Link] = {}
+        self._links_lock = threading.Lock()
+        self.counters: Counter[str] = Counter()
+        self.malformed: Counter[str] = Counter()
+        self.window = config.window
+        self.endpoint = ""
+        self.events_endpoint = ""
+        self._threads: list[threading.Thread] = []
+        self._pool: Any = None
+        self._analysis_inflight = 0
+        self._analysis_backlog: deque[tuple[int, str, dict[str, Any]]] = deque()
+        self.latency_s: deque[float] = deque(maxlen=2000)
+        self.started = threading.Event()
+        self.error: BaseException | None = None
+
+    # ------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        """Bind the sockets (so `endpoint` is known), then run the threads."""
+        self.store.files.remove_temporaries()
+        self._router = wire.ship_socket(
+            self.ctx,
+            self.config.bind,
+            max_message_bytes=self.config.max_payload_bytes + wire.MAX_HEADER_BYTES,
+        )
+        self.endpoint = self._router.getsockopt(zmq.LAST_ENDPOINT).decode()
+        self._pull = self.ctx.socket(zmq.PULL)
+        self._pull.bind(self._out_endpoint)
+        self._pub = None
+        if self.config.events_bind:
+            self._pub = self.ctx.socket(zmq.PUB)
+            self._pub.setsockopt(zmq.SNDHWM, 10000)
+            self._pub.setsockopt(zmq.LINGER, 0)
+            self._pub.bind(self.config.events_bind)
+            self.events_endpoint = self._pub.getsockopt(zmq.LAST_ENDPOINT).decode()
+        setup = self.config.setup
+        self.dive = self.store.current_dive(create=True, name=self.config.dive_name, setup=setup.to_json())
+        assert self.dive is not None
+        self.run = self.store.analysis_run(
+            self.dive.id, "live", software_version=__version__, calibration=setup.to_json()
+        )
+        assert self.run is not None
+        self._pool = process_pool(self.config.n_workers)
+        for name, target in (("ingest-net", self._net_loop), ("ingest-store", self._store_loop)):
+            t = threading.Thread(target=self._guard(target), name=name, daemon=True)
+            t.start()
+            self._threads.append(t)
+        self.started.wait(10)
+        log.info(
+            "ingest listening on %s, events on %s, dive %s",
+            self.endpoint,
+            self.events_endpoint,
+            self.dive.name,
+        )
+
+    def _guard(self, fn: Callable[[], None]) -> Callable[[], None]:
+        def run() -> None:
+            try:
+                fn()
+            except BaseException as exc:  # a dead thread must not go unnoticed
+                log.exception("ingest thread %s failed", threading.current_thread().name)
+                self.error = exc
+                self._stop.set()
+
+        return run
+
+    def stop(self, timeout: float = 10.0) -> None:
+        """Stop receiving, finish storing what arrived, wait for running analyses."""
+        self._stop.set()
+        for t in self._threads:
+            t.join(timeout)
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+        for sock in (
+            getattr(self, "_router", None),
+            getattr(self, "_pull", None),
+            getattr(self, "_pub", None),
+        ):
+            if sock is not None:
+                sock.close(0)
+        self.store.close()
+
+    def wait(self) -> None:
+        while not self._stop.wait(0.5):
+            pass
+        if self.error is not None:
+            raise RuntimeError(f"ingest stopped: {self.error}") from self.error
+
+    # ------------------------------------------------------------ network thread
+    def _net_loop(self) -> None:
+        router, pull = self._router, self._pull
+        poller = zmq.Poller()
+        poller.register(router, zmq.POLLIN)
+        poller.register(pull, zmq.POLLIN)
+        self.started.set()
+        allowed = wire.MODULE_TYPES
+        while not self._stop.is_set():
+            events = dict(poller.poll(50))
+            if router in events:
+                for _ in range(256):
+                    try:
+                        parts = router.recv_multipart(zmq.NOBLOCK, copy=False)
+                    except zmq.Again:
+                        break
+                    self._on_message(router, parts, allowed)
+            if pull in events:
+                for _ in range(1024):
+                    try:
+                        parts = pull.recv_multipart(zmq.NOBLOCK)
+                    except zmq.Again:
+                        break
+                    self._send_to_module(router, parts[0].decode(), parts[1:])
+            self._net_timers(router)
+
+    def _on_message(self, router: Any, parts: list[zmq.Frame], allowed: frozenset[str]) -> None:
+        identity = parts[0].bytes
+        t_mono, t_unix = time.monotonic(), time.time()
+        self.counters["messages"] += 1
+        try:
+            msg, payload = wire.decode(
+                parts[1:], allowed=allowed, max_payload_bytes=self.config.max_payload_bytes
+            )
+        except wire.ProtocolError as exc:
+            self.malformed[exc.kind] += 1
+            self.counters["malformed"] += 1
+            if self.malformed[exc.kind] <= 5 or self.malformed[exc.kind] % 100 == 0:
+                log.warning("dropped malformed message from %r: %s", identity[:40], exc)
+            return
+        module = msg.module
+        with self._links_lock:
+            link = self.links.get(module)
+            if link is None or link.identity != identity:
+                link = self.links[module] = Link(module, identity, boot=getattr(msg, "boot", ""))
+            was_up = link.up
+            link.up = True
+            link.last_seen_mono, link.last_seen_unix_s = t_mono, t_unix
+        if not was_up:
+            self._q.put(_Incoming("link", module, {"up": True}, None, t_unix, t_mono))
+        kind = msg.type
+        if kind == "hello":
+            link.boot, link.welcomed = msg.boot, True
+            link.schedule = msg.schedule.model_dump()
+            link.outbox_pending = msg.outbox_pending
+            self._send(
+                router,
+                identity,
+                wire.Welcome(module="ship", window=self.window, heartbeat_s=self.config.heartbeat_s),
+            )
+            self._q.put(_Incoming("hello", module, msg, None, t_unix, t_mono))
+        elif kind == "heartbeat":
+            link.schedule = msg.schedule.model_dump()
+            link.outbox_pending, link.in_flight, link.boot = msg.outbox_pending, msg.in_flight, msg.boot
+            if not link.welcomed:  # the ship restarted under a running module: greet it again
+                link.welcomed = True
+                self._send(
+                    router,
+                    identity,
+                    wire.Welcome(module="ship", window=self.window, heartbeat_s=self.config.heartbeat_s),
+                )
+            self._q.put(_Incoming("heartbeat", module, msg, None, t_unix, t_mono))
+        elif kind in ("frame", "sensors"):
+            self.counters["frames_received" if kind == "frame" else "sensor_batches_received"] += 1
+            if kind == "frame":
+                link.frames.append(t_mono)
+            self._q.put(_Incoming(kind, module, msg, payload, t_unix, t_mono))
+        elif kind == "command_status":
+            self._q.put(_Incoming(kind, module, msg, None, t_unix, t_mono))
+        elif kind == "bye":
+            link.up = False
+            self._q.put(_Incoming("link", module, {"up": False, "reason": "bye"}, None, t_unix, t_mono))
+
+    def _send(self, router: Any, identity: bytes, msg: Any) -> None:
+        try:
+            router.send_multipart([identity, *wire.encode(msg)], zmq.NOBLOCK)
+        except zmq.Again:
+            self.counters["send_dropped"] += 1
+
+    def _send_to_module(self, router: Any, module: str, frames: list[bytes]) -> None:
+        link = self.links.get(module)
+        if link is None:
+            self.counters["send_unknown_module"] += 1
+            return
+        try:
+            router.send_multipart([link.identity, *frames], zmq.NOBLOCK)
+        except zmq.Again:
+            self.counters["send_dropped"] += 1
+
+    def _net_timers(self, router: Any) -> None:
+        now = time.monotonic()
+        for link in list(self.links.values()):
+            if link.up and now - link.last_seen_mono > self.config.link_timeout_s:
+                link.up, link.welcomed = False, False
+                self._q.put(
+                    _Incoming("link", link.module, {"up": False, "reason": "timeout"}, None, time.time(), now)
+                )
+            if link.up and now - link.last_heartbeat_sent >= self.config.heartbeat_s:
+                link.last_heartbeat_sent = now
+                self._send(router, link.identity, wire.ShipHeartbeat(module="ship", window=self.window))
+
+    # ------------------------------------------------------------ store thread
+    def _store_loop(self) -> None:
+        push = self.ctx.socket(zmq.PUSH)
+        push.setsockopt(zmq.LINGER, 1000)
+        push.connect(self._out_endpoint)
+        self._push = push
+        self.events = EventBus(self.store, self._pub)
+        st = _StoreState(self)
+        self._recover_unanalysed()
+        last_tick = 0.0
+        try:
+            while True:
+                items = self._drain(timeout=0.05)
+                if items:
+                    st.handle(items)
+                self._feed_pool()
+                now = time.monotonic()
+                if now - last_tick >= 1.0:
+                    last_tick = now
+                    st.tick()
+                self.events.flush()
+                if self._stop.is_set() and self._q.empty():
+                    break
+        finally:
+            push.close()
+
+    def _drain(self, timeout: float) -> list[_Incoming]:
+        try:
+            first = self._q.get(timeout=timeout)
+        except queue.Empty:
+            return []
+        items = [first]
+        deadline = time.monotonic() + self.config.ack_batch_s
+        while len(items) < 64:
+            left = deadline - time.monotonic()
+            try:
+                items.append(self._q.get(timeout=max(left, 0)) if left > 0 else self._q.get_nowait())
+            except queue.Empty:
+                break
+        return items
+
+    def send_to_module(self, module: str, msg: Any) -> None:
+        """Queue a message for a module (from the store thread)."""
+        self._push.send_multipart([module.encode(), *wire.encode(msg)])
+
+    # -- analysis pool ---------------------------------------------------
+    def _analysis_config(self) -> FrameConfig:
+        lo, hi = self.config.setup.linear_range
+        return FrameConfig(linear_range_gray=(lo, hi))
+
+    def queue_analysis(self, frame_id: int, path: str, meta: dict[str, Any]) -> None:
+        self._analysis_backlog.append((frame_id, path, meta))
+
+    def _feed_pool(self) -> None:
+        limit = 2 * self.config.n_workers
+        config = self._analysis_config()
+        while self._analysis_backlog and self._analysis_inflight < limit:
+            frame_id, path, meta = self._analysis_backlog.popleft()
+            thumb = None
+            if self.config.thumbnails:
+                thumb = str(self.store.files.root / "thumbs" / f"{frame_id}.jpg")
+            fut = self._pool.submit(analyse_stored_frame, str(self.store.files.resolve(path)), config, thumb)
+            self._analysis_inflight += 1
+            fut.add_done_callback(self._result_callback(frame_id, meta))
+
+    def _result_callback(self, frame_id: int, meta: dict[str, Any]) -> Callable[[Future[Any]], None]:
+        def done(fut: Future[Any]) -> None:
+            self._q.put(
+                _Incoming(
+                    "result", meta["module"], (frame_id, meta, fut), None, time.time(), time.monotonic()
+                )
+            )
+
+        return done
+
+    def _recover_unanalysed(self) -> None:
+        """Frames committed before a crash but never analysed go back in the queue."""
+        for f in self.store.frames_without_result(self.dive.id, self.run.id):
+            self.queue_analysis(f.id, f.path, _frame_meta_from_row(f))
+
+    # -- status ----------------------------------------------------------
+    def health(self) -> dict[str, Any]:
+        """Per-module link state, last packet age, frames/s, queue depths, counters."""
+        now = time.monotonic()
+        modules = {}
+        for m, link in sorted(self.links.items()):
+            recent = [t for t in link.frames if now - t <= 10.0]
+            modules[m] = {
+                "link": "up" if link.up else "down",
+                "last_packet_age_s": round(now - link.last_seen_mono, 2) if link.last_seen_mono else None,
+                "frames_per_s": round(len(recent) / 10.0, 2),
+                "boot": link.boot,
+                "schedule": link.schedule,
+                "outbox_pending": link.outbox_pending,
+                "in_flight": link.in_flight,
+            }
+        return {
+            "modules": modules,
+            "queues": {
+                "store": self._q.qsize(),
+                "analysis_backlog": len(self._analysis_backlog),
+                "analysis_in_flight": self._analysis_inflight,
+            },
+            "window": self.window,
+            "counters": dict(self.counters),
+            "malformed": dict(self.malformed),
+            "dive": {"id": self.dive.id, "name": self.dive.name},
+            "latency_p50_s": _pct(self.latency_s, 50),
+            "latency_p95_s": _pct(self.latency_s, 95),
+        }
+
+
+def _pct(values: deque[float], q: float) -> float | None:
+    return round(float(np.percentile(list(values), q)), 4) if values else None
+
+
+def _frame_meta_from_row(f: Any) -> dict[str, Any]:
+    return {
+        "module": f.module_id,
+        "seq": f.seq,
+        "boot": f.boot,
+        "wavelength_nm": f.wavelength_nm,
+        "exposure_s": f.exposure_s,
+        "gain_db": f.gain_db,
+        "depth_m": f.depth_m,
+        "captured_unix_s": f.captured_unix_s,
+        "width_px": f.width_px,
+        "height_px": f.height_px,
+        "received_mono": None,
+    }
+
+
+class _StoreState:
+    """State of the store thread: sequence tracking, rolling λ_att, alarms, sensor buffers."""
+
+    def __init__(self, svc: IngestService) -> None:
+        self.svc = svc
+        self.store = svc.store
+        self.seqs = SeqTracker()
+        setup = svc.config.setup
+        cams = sorted(setup.cameras.items(), key=lambda kv: kv[1].distance_m)
+        self.rolling: RollingAttenuation | None = None
+        if len(cams) >= 2:
+            (near, dn), (far, df) = cams[0], cams[-1]
+            geometry = Geometry(near, far, dn.distance_m, dn.distance_err_m, df.distance_m, df.distance_err_m)
+            ratios = {wl: EmissionRatio(r.value, r.err) for wl, r in setup.emission_ratio.items()}
+            self.rolling = RollingAttenuation(
+                geometry, ratios, svc.config.rolling_window_s, svc.config.rolling_interval_s
+            )
+        self.alarms = AlarmEvaluator(svc.config.alarm_limits)
+        self.active_alarms = {a.key for a in self.store.active_alarms()}
+        self.sensors: dict[str, deque[tuple[float, float, float, float, float, float, float]]] = defaultdict(
+            lambda: deque(maxlen=20000)
+        )
+        self.linearity: dict[tuple[str, int], dict[tuple[float, float], list[float]]] = defaultdict(
+            lambda: defaultdict(list)
+        )
+        self.linearity_dirty: set[tuple[str, int]] = set()
+        self.recent_committed: deque[tuple[str, str, int]] = deque(maxlen=4096)
+        self.recent_set: set[tuple[str, str, int]] = set()
+        self.last_sensor_event: dict[str, float] = {}
+        self.gappy: set[tuple[str, str]] = {(g.module_id, g.boot) for g in self.store.open_gaps()}
+
+    # -- batches ---------------------------------------------------------
+    def handle(self, items: list[_Incoming]) -> None:
+        data = [i for i in items if i.kind in ("frame", "sensors")]
+        if data:
+            self._commit(data)
+        results = [i for i in items if i.kind == "result"]
+        if results:
+            self._results(results)
+        for i in items:
+            if i.kind == "link":
+                self._link(i)
+            elif i.kind in ("hello", "heartbeat"):
+                self._module_info(i)
+
+    def _commit(self, items: list[_Incoming]) -> None:
+        svc, files = self.svc, self.store.files
+        frames: list[FrameRow] = []
+        sensors: list[SensorBatchRow] = []
+        for it in items:
+            m = it.msg
+            key = (m.module, m.boot, m.seq)
+            if it.kind == "frame":
+                rel = files.relative_path(svc.dive.id, m.module, m.boot, m.seq, m.encoding)
+                if key not in self.recent_set:
+                    files.write(rel, it.payload, fsync=svc.config.fsync)
+                frames.append(
+                    FrameRow(
+                        module_id=m.module,
+                        boot=m.boot,
+                        seq=m.seq,
+                        captured_unix_s=m.captured_at.timestamp(),
+                        received_unix_s=it.received_unix_s,
+                        wavelength_nm=m.wavelength_nm,
+                        exposure_s=m.exposure_s,
+                        gain_db=m.gain_db,
+                        depth_m=m.depth_m,
+                        width_px=m.width_px,
+                        height_px=m.height_px,
+                        path=rel,
+                        size_bytes=m.size,
+                        sha256=m.sha256,
+                        schedule_version=m.schedule_version,
+                    )
+                )
+            else:
+                try:
+                    rows = wire.parse_sensor_rows(m, it.payload)
+                except wire.ProtocolError as exc:
+                    svc.malformed[exc.kind] += 1
+                    svc.send_to_module(
+                        m.module, wire.Nack(module="ship", boot=m.boot, seq=m.seq, reason=exc.detail)
+                    )
+                    continue
+                samples = [_sample_columns(r) for r in rows]
+                sensors.append(SensorBatchRow(m.module, m.boot, m.seq, it.received_unix_s, samples))
+        outcome = self.store.commit_batch(svc.dive.id, frames, sensors)
+        svc.counters["frames_stored"] += len(outcome.new_frames)
+        svc.counters["duplicates"] += len(outcome.duplicate_frames) + len(outcome.duplicate_sensor_batches)
+        self._ack(items)
+        by_key = {(f.module_id, f.boot, f.seq): f for f in frames}
+        t_done = time.monotonic()
+        for it in items:
+            m = it.msg
+            key = (m.module, m.boot, m.seq)
+            self._remember(key)
+            gap = (
+                self.seqs.add(m.module, m.boot, m.seq)
+                if self.seqs.known(m.module, m.boot)
+                else self._seed(m.module, m.boot, m.seq)
+            )
+            if gap:
+                self.store.record_gap(m.module, m.boot, *gap)
+                self.gappy.add((m.module, m.boot))
+                svc.events.emit(
+                    "gap",
+                    {"boot": m.boot, "first_seq": gap[0], "last_seq": gap[1]},
+                    module=m.module,
+                    dive_id=svc.dive.id,
+                )
+            if it.kind == "frame" and key in outcome.new_frames:
+                fid = outcome.new_frames[key]
+                f = by_key[key]
+                meta = {
+                    "module": m.module,
+                    "seq": m.seq,
+                    "boot": m.boot,
+                    "wavelength_nm": m.wavelength_nm,
+                    "exposure_s": m.exposure_s,
+                    "gain_db": m.gain_db,
+                    "depth_m": m.depth_m,
+                    "captured_unix_s": f.captured_unix_s,
+                    "width_px": m.width_px,
+                    "height_px": m.height_px,
+                    "received_mono": it.received_mono,
+                }
+                svc.queue_analysis(fid, f.path, meta)
+                svc.events.emit(
+                    "frame",
+                    {
+                        "frame_id": fid,
+                        **{k: v for k, v in meta.items() if k != "received_mono"},
+                        "stored_latency_s": round(t_done - it.received_mono, 4),
+                    },
+                    module=m.module,
+                    dive_id=svc.dive.id,
+                )
+        for b in sensors:
+            if (b.module_id, b.boot, b.seq) in outcome.new_sensor_batches:
+                self._sensor_samples(b)
+        for mod, boot in {(i.msg.module, i.msg.boot) for i in items} & self.gappy:
+            for gid in self.store.fill_gaps(mod, boot, self.seqs.arrived(mod, boot)):
+                svc.events.emit("gap_filled", {"gap_id": gid, "boot": boot}, module=mod, dive_id=svc.dive.id)
+            if not self.seqs.missing(mod, boot):
+                self.gappy.discard((mod, boot))
+
+    def _seed(self, module: str, boot: str, seq: int) -> tuple[int, int] | None:
+        known = self.store.known_seqs(module, boot)
+        known.discard(seq)
+        self.seqs.seed(module, boot, known)
+        return self.seqs.add(module, boot, seq)
+
+    def _remember(self, key: tuple[str, str, int]) -> None:
+        if key in self.recent_set:
+            return
+        if len(self.recent_committed) == self.recent_committed.maxlen:
+            self.recent_set.discard(self.recent_committed[0])
+        self.recent_committed.append(key)
+        self.recent_set.add(key)
+
+    def _ack(self, items: list[_Incoming]) -> None:
+        """Acknowledge every committed message, new or duplicate, as ranges per module."""
+        per_module: dict[str, dict[str, list[int]]] = defaultdict(lambda: defaultdict(list))
+        for it in items:
+            per_module[it.msg.module][it.msg.boot].append(it.msg.seq)
+        for module, boots in per_module.items():
+            ranges: list[tuple[str, int, int]] = []
+            for boot, seqs in boots.items():
+                seqs = sorted(set(seqs))
+                start = prev = seqs[0]
+                for q in seqs[1:]:
+                    if q != prev + 1:
+                        ranges.append((boot, start, prev))
+                        start = q
+                    prev = q
+                ranges.append((boot, start, prev))
+            self.svc.send_to_module(
+                module, wire.Ack(module="ship", ranges=tuple(ranges), window=self.svc.window)
+            )
+            self.svc.counters["acks_sent"] += 1
+
+    def _sensor_samples(self, b: SensorBatchRow) -> None:
+        buf = self.sensors[b.module_id]
+        for s in b.samples:
+            t = s.get("t_unix_s")
+            ax, ay, az = s.get("acc_x_m_s2"), s.get("acc_y_m_s2"), s.get("acc_z_m_s2")
+            if t is None or ax is None or ay is None or az is None:
+                continue
+            buf.append(
+                (
+                    t,
+                    ax,
+                    ay,
+                    az,
+                    s.get("gyro_x_dps") or 0.0,
+                    s.get("gyro_y_dps") or 0.0,
+                    s.get("gyro_z_dps") or 0.0,
+                )
+            )
+            if s.get("humidity_pct") is not None:
+                self.alarms.observe_humidity(b.module_id, t, s["humidity_pct"])
+        if b.samples:
+            last = b.samples[-1]
+            tlast = last.get("t_unix_s") or 0.0
+            if tlast - self.last_sensor_event.get(b.module_id, -1e18) >= 0.5:
+                self.last_sensor_event[b.module_id] = tlast
+                self.svc.events.transient("sensors", {k: v for k, v in last.items()}, module=b.module_id)
+
+    # -- results ---------------------------------------------------------
+    def _results(self, items: list[_Incoming]) -> None:
+        svc = self.svc
+        rows = []
+        done = []
+        for it in items:
+            frame_id, meta, fut = it.msg
+            svc._analysis_inflight -= 1
+            try:
+                row = fut.result()
+            except Exception as exc:  # the worker died or raised: record it, keep going
+                log.exception("analysis of frame %s failed", frame_id)
+                row = {"status": "rejected", "reason": "analysis_error", "detail": str(exc)[:500]}
+            analysis_s = row.pop("analysis_s", None)
+            row.pop("width_px", None)
+            row.pop("height_px", None)
+            rows.append({**row, "frame_id": frame_id, "analysed_unix_s": time.time()})
+            done.append((frame_id, meta, row, analysis_s))
+        self.store.save_results(svc.run.id, rows)
+        now_mono = time.monotonic()
+        points = []
+        for frame_id, meta, row, analysis_s in done:
+            module = meta["module"]
+            if meta.get("received_mono") is not None:
+                svc.latency_s.append(now_mono - meta["received_mono"])
+            svc.counters["frames_analysed"] += 1
+            svc.counters[f"result_{row['status'] if row['status'] == 'ok' else row['reason']}"] += 1
+            centroid = (
+                (row["centroid_x_px"], row["centroid_y_px"]) if row.get("centroid_x_px") is not None else None
+            )
+            self.alarms.observe_frame(
+                module,
+                row["status"],
+                row.get("reason"),
+                centroid,
+                row.get("radius_px"),
+                (meta.get("width_px") or 1, meta.get("height_px") or 1),
+            )
+            svc.events.emit(
+                "result",
+                {
+                    "frame_id": frame_id,
+                    "seq": meta["seq"],
+                    "wavelength_nm": meta["wavelength_nm"],
+                    "exposure_s": meta["exposure_s"],
+                    "gain_db": meta["gain_db"],
+                    "depth_m": meta["depth_m"],
+                    "captured_unix_s": meta["captured_unix_s"],
+                    "status": row["status"],
+                    "reason": row.get("reason"),
+                    "centroid_px": list(centroid) if centroid else None,
+                    "radius_px": row.get("radius_px"),
+                    "i_center_gray": row.get("i_center_gray"),
+                    "i_center_err_gray": row.get("i_center_err_gray"),
+                    "background_gray": row.get("background_gray"),
+                    "width_px": meta.get("width_px"),
+                    "height_px": meta.get("height_px"),
+                    "thumb": f"/api/frames/{frame_id}/thumbnail",
+                    "analysis_s": round(analysis_s, 4) if analysis_s else None,
+                },
+                module=module,
+                dive_id=svc.dive.id,
+            )
+            if row.get("center_gray") is not None:
+                key = (module, meta["wavelength_nm"])
+                self.linearity[key][(meta["exposure_s"], meta["gain_db"])].append(row["center_gray"])
+                self.linearity_dirty.add(key)
+            if row["status"] == "ok" and self.rolling is not None:
+                point = self.rolling.add(
+                    module,
+                    meta["wavelength_nm"],
+                    meta["exposure_s"],
+                    meta["gain_db"],
+                    Sample(
+                        meta["captured_unix_s"],
+                        row["i_center_gray"],
+                        row["i_center_err_gray"],
+                        meta["depth_m"],
+                    ),
+                )
+                if point is not None:
+                    points.append(point)
+        if points:
+            self._store_points(points)
+
+    def _store_points(self, points: list[Any]) -> None:
+        svc = self.svc
+        rows = []
+        for res, t, depth in points:
+            rows.append(
+                {
+                    "run_id": svc.run.id,
+                    "dive_id": svc.dive.id,
+                    "wavelength_nm": res.wavelength_nm,
+                    "t_unix_s": t,
+                    "depth_m": depth,
+                    "lambda_att_m": res.lambda_att_m,
+                    "stat_err_m": res.stat_err_m,
+                    "sys_err_m": res.sys_err_m,
+                    "n_pairs": res.n_pairs,
+                    "chi2_ndof": res.chi2_ndof,
+                    "window_s": svc.config.rolling_window_s,
+                    "details": {
+                        "pairs": [
+                            [p.exposure_s, p.gain_db, p.n_near, p.n_far, p.lambda_att_m] for p in res.pairs
+                        ],
+                        "note": res.note,
+                    },
+                }
+            )
+        ids = self.store.add_attenuation_points(rows)
+        for pid, r in zip(ids, rows, strict=True):
+            svc.events.emit(
+                "attenuation",
+                {"point_id": pid, **{k: v for k, v in r.items() if k != "details"}},
+                dive_id=svc.dive.id,
+            )
+
+    # -- links and modules ----------------------------------------------
+    def _link(self, it: _Incoming) -> None:
+        info = it.msg
+        self.svc.events.emit(
+            "link",
+            {"state": "up" if info["up"] else "down", "reason": info.get("reason")},
+            module=it.module,
+            dive_id=self.svc.dive.id,
+        )
+
+    def _module_info(self, it: _Incoming) -> None:
+        m = it.msg
+        sched = m.schedule
+        self.store.touch_module(
+            m.module,
+            seen_unix_s=it.received_unix_s,
+            boot=m.boot,
+            software=getattr(m, "software", None) or None,
+            schedule_name=sched.name,
+            schedule_version=sched.version,
+            schedule_state=sched.state,
+            distance_m=(
+                self.svc.config.setup.cameras[m.module].distance_m
+                if m.module in self.svc.config.setup.cameras
+                else None
+            ),
+        )
+
+    # -- once a second ---------------------------------------------------
+    def tick(self) -> None:
+        svc = self.svc
+        now = time.time()
+        mono = time.monotonic()
+        att_rows = []
+        for module, buf in self.sensors.items():
+            if len(buf) < 5:
+                continue
+            arr = np.array(buf)
+            recent = arr[arr[:, 0] >= arr[-1, 0] - 120.0]
+            est = attitude_from_samples(recent[:, 0], recent[:, 1:4], recent[:, 4:7])
+            self.alarms.observe_tilt(module, est.tilt_deg)
+            row = {
+                "module_id": module,
+                "dive_id": svc.dive.id,
+                "t_unix_s": float(arr[-1, 0]),
+                "tilt_deg": est.tilt_deg,
+                "tilt_x_deg": est.tilt_x_deg,
+                "tilt_y_deg": est.tilt_y_deg,
+                "rotation_rate_dps": est.rotation_rate_dps,
+                "heave_period_s": est.heave_period_s,
+                "heave_amplitude_m_s2": est.heave_amplitude_m_s2,
+            }
+            att_rows.append(row)
+            svc.events.transient(
+                "attitude", {k: v for k, v in row.items() if k != "module_id"}, module=module
+            )
+        svc.store.add_attitude(att_rows)
+        for link in list(svc.links.values()):
+            age_up = link.up and mono - link.last_seen_mono <= svc.config.link_timeout_s
+            self.alarms.observe_link(link.module, age_up, link.last_seen_unix_s or None)
+        for module in {g.module_id for g in self.store.open_gaps()} | set(svc.links):
+            gaps = [(g.first_seq, g.last_seq, g.detected_unix_s) for g in self.store.open_gaps(module)]
+            self.alarms.observe_gaps(module, gaps)
+        self._apply_alarms(self.alarms.evaluate(now))
+        self._update_linearity()
+        self._adapt_window()
+        svc.events.transient("health", svc.health())
+
+    def _apply_alarms(self, conditions: dict[str, Any]) -> None:
+        svc = self.svc
+        for key, c in conditions.items():
+            alarm, changed = self.store.raise_alarm(key, c.kind, c.severity, c.message, c.module)
+            if changed or key not in self.active_alarms:
+                svc.events.emit(
+                    "alarm",
+                    {
+                        "alarm_id": alarm.id,
+                        "state": "raised",
+                        "kind": c.kind,
+                        "severity": c.severity,
+                        "message": c.message,
+                    },
+                    module=c.module,
+                    dive_id=svc.dive.id,
+                )
+            self.active_alarms.add(key)
+        for key in list(self.active_alarms - set(conditions)):
+            alarm = self.store.clear_alarm(key)
+            self.active_alarms.discard(key)
+            if alarm is not None:
+                svc.events.emit(
+                    "alarm",
+                    {
+                        "alarm_id": alarm.id,
+                        "state": "cleared",
+                        "kind": alarm.kind,
+                        "severity": alarm.severity,
+                        "message": alarm.message,
+                    },
+                    module=alarm.module_id,
+                    dive_id=svc.dive.id,
+                )
+
+    def _update_linearity(self) -> None:
+        svc = self.svc
+        lo, hi = svc.config.setup.linear_range
+        for module, wl in list(self.linearity_dirty):
+            points = {k: float(np.mean(v)) for k, v in self.linearity[(module, wl)].items()}
+            for sweep, vary in (("exposure", 0), ("gain", 1)):
+                best = None
+                groups: dict[float, list[tuple[float, float]]] = defaultdict(list)
+                for key, gray in points.items():
+                    groups[key[1 - vary]].append((key[vary], gray))
+                for fixed, pts in groups.items():
+                    n_in = sum(1 for _, g in pts if lo <= g <= hi)
+                    if n_in >= 3 and (best is None or n_in > best[0]):
+                        best = (n_in, fixed, pts)
+                if best is None:
+                    continue
+                _, fixed, pts = best
+                xs = [p[0] if vary == 0 else float(gain_factor(p[0])) for p in pts]
+                try:
+                    fit = linearity_fit(xs, [p[1] for p in pts], (lo, hi))
+                except ValueError:
+                    continue
+                self.store.upsert_linearity(
+                    {
+                        "run_id": svc.run.id,
+                        "module_id": module,
+                        "wavelength_nm": wl,
+                        "sweep": sweep,
+                        "fixed_value": fixed,
+                        "slope": fit.slope,
+                        "slope_err": _finite(fit.slope_err),
+                        "intercept_gray": fit.intercept_gray,
+                        "r2": fit.r2,
+                        "n_used": fit.n_used,
+                        "linear_max_gray": fit.linear_max_gray,
+                        "knee_x": fit.knee_x,
+                        "points": {"x": list(fit.x), "gray": list(fit.gray), "used": list(fit.used)},
+                        "updated_unix_s": time.time(),
+                    }
+                )
+        self.linearity_dirty.clear()
+
+    def _adapt_window(self) -> None:
+        """Credit: shrink the window while the store queue or analysis backlog is deep."""
+        svc = self.svc
+        backlog = svc._q.qsize() + len(svc._analysis_backlog)
+        base = svc.config.window
+        svc.window = base if backlog < 4 * base else max(1, base // 4)
+
+
+def _finite(x: float | None) -> float | None:
+    return x if x is not None and np.isfinite(x) else None
+
+
+def _sample_columns(row: dict[str, Any]) -> dict[str, Any]:
+    keys = (
+        "t_unix_s",
+        "temperature_c",
+        "humidity_pct",
+        "acc_x_m_s2",
+        "acc_y_m_s2",
+        "acc_z_m_s2",
+        "gyro_x_dps",
+        "gyro_y_dps",
+        "gyro_z_dps",
+        "depth_m",
+    )
+    return {k: row.get(k) for k in keys}

@@ -1,0 +1,98 @@
+"""What runs in the analysis processes: decode a stored frame, analyse it, make its thumbnail."""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from analysis import FrameAnalysis, FrameConfig, analyze_frame, rejected
+from camcal.frameset import FrameReadError, read_frame, write_atomic
+
+THUMB_WIDTH_PX = 512
+
+
+def _num(x: float | None, digits: int = 4) -> float | None:
+    if x is None or not math.isfinite(x):
+        return None
+    return round(float(x), digits)
+
+
+def thumbnail_jpeg(frame: np.ndarray, width_px: int = THUMB_WIDTH_PX, quality: int = 85) -> bytes:
+    """A small JPEG of a frame: a quarter first by striding, then an area resize."""
+    step = max(1, frame.shape[1] // (width_px * 2))
+    small = frame[::step, ::step]
+    height_px = max(1, round(small.shape[0] * width_px / small.shape[1]))
+    small = cv2.resize(small, (width_px, height_px), interpolation=cv2.INTER_AREA)
+    ok, buf = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise ValueError("JPEG encoding failed")
+    return buf.tobytes()
+
+
+def result_row(res: FrameAnalysis) -> dict[str, Any]:
+    """A `FrameAnalysis` as the columns of a stored frame result."""
+    row: dict[str, Any] = {
+        "status": res.status,
+        "reason": res.reason,
+        "detail": res.detail,
+        "centroid_x_px": _num(res.centroid_px[0], 3) if res.centroid_px else None,
+        "centroid_y_px": _num(res.centroid_px[1], 3) if res.centroid_px else None,
+        "radius_px": _num(res.radius_px, 3),
+        "elongation": _num(res.elongation),
+        "center_gray": _num(res.center_gray),
+        "center_err_gray": _num(res.center_err_gray),
+        "background_gray": _num(res.background_gray),
+        "background_err_gray": _num(res.background_err_gray),
+        "i_center_gray": _num(res.i_center_gray),
+        "i_center_err_gray": _num(res.i_center_err_gray),
+        "fit": None,
+        "profile": None,
+    }
+    if res.fit is not None:
+        f = res.fit
+        row["fit"] = {
+            "amplitude_gray": _num(f.amplitude_gray),
+            "scale_px": _num(f.scale_px),
+            "background_gray": _num(f.background_gray),
+            "background_err_gray": _num(f.background_err_gray),
+            "r_min_px": _num(f.r_min_px, 2),
+            "chi2_ndof": _num(f.chi2_ndof, 3),
+            "converged": f.converged,
+        }
+    if res.profile is not None:
+        p = res.profile
+        row["profile"] = {
+            "radius_px": [_num(v, 1) for v in p.radius_px],
+            "mean_gray": [_num(v, 3) for v in p.mean_gray],
+            "sem_gray": [_num(v, 4) for v in p.sem_gray],
+            "count": [int(c) for c in p.count],
+        }
+    return row
+
+
+def analyse_stored_frame(path: str, config: FrameConfig, thumb_path: str | None) -> dict[str, Any]:
+    """Analyse the frame file at ``path``; write its thumbnail; return the result columns.
+
+    Never raises for a bad file: an unreadable frame is a rejected result.
+    """
+    t0 = time.perf_counter()
+    try:
+        frame = read_frame(Path(path))
+    except FrameReadError as exc:
+        row = result_row(rejected(exc.reason, exc.detail))
+        row["analysis_s"] = time.perf_counter() - t0
+        return row
+    res = analyze_frame(frame, config)
+    row = result_row(res)
+    row["width_px"], row["height_px"] = frame.shape[1], frame.shape[0]
+    if thumb_path:
+        out = Path(thumb_path)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        write_atomic(out, thumbnail_jpeg(frame), fsync=False)
+    row["analysis_s"] = time.perf_counter() - t0
+    return row

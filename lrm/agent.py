@@ -1,0 +1,404 @@
+"""The LRM agent: runs the schedule, samples the sensors, writes the outbox, talks to the ship.
+
+Three threads: **capture** (the schedule runner on the camera backend, or a
+replayed frame set), **sensors** (samples at 10 Hz or more, one message a
+second), and **comm**, which alone owns the ZeroMQ DEALER socket. Every
+frame and sensor packet goes to the outbox (SD card) first and is sent
+afterwards; it stays pending until the ship acknowledges it, and everything
+pending is sent again after a reconnect or when its acknowledgement is late.
+Commands from the ship are answered and applied exactly once.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import secrets
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import zmq
+from pydantic import ValidationError
+
+from camcal import __version__, wire
+from camcal.frameset import encode_png
+from camcal.schedule import Schedule
+from lrm.outbox import Outbox
+from lrm.runner import Capture, ScheduleRunner
+
+log = logging.getLogger("camcal.lrm")
+
+
+def new_boot_id(now: datetime | None = None) -> str:
+    """A boot id: UTC start time and random digits, unique per start of the agent."""
+    t = (now or datetime.now(UTC)).strftime("%Y%m%dT%H%M%S")
+    return f"{t}-{secrets.token_hex(3)}"
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    module: str
+    connect: str
+    outbox: Path
+    heartbeat_s: float = 1.0
+    link_timeout_s: float = 5.0
+    ack_timeout_s: float = 15.0
+    hello_interval_s: float = 1.0
+    sensor_rate_hz: float = 10.0
+    sensor_batch_s: float = 1.0
+    initial_window: int = 2
+    fsync: bool = True
+
+
+class Agent:
+    """One module's agent. `start` runs it in background threads; `stop` ends it cleanly."""
+
+    def __init__(
+        self,
+        config: AgentConfig,
+        *,
+        clock: Any,
+        runner: ScheduleRunner | None = None,
+        source: Callable[[threading.Event], Capture | None] | None = None,
+        sensors: Any | None = None,
+        camera_limits: tuple[tuple[float, float], tuple[float, float], float] | None = None,
+        ctx: zmq.Context[Any] | None = None,
+        depth: Callable[[], float | None] | None = None,
+    ) -> None:
+        if (runner is None) == (source is None):
+            raise ValueError("give the agent either a schedule runner or a replay source")
+        self.config = config
+        self.clock = clock
+        self.runner = runner
+        self._source = source or (lambda stop: runner.next_capture(stop))  # type: ignore[union-attr]
+        self.sensors = sensors
+        self.camera_limits = camera_limits
+        self.ctx = ctx or zmq.Context.instance()
+        self.depth = depth
+        self.boot = new_boot_id()
+        self.outbox = Outbox(config.outbox, config.module, fsync=config.fsync)
+        self._seq = 0
+        self._seq_lock = threading.Lock()
+        self._new: queue.SimpleQueue[tuple[str, int]] = queue.SimpleQueue()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self.counters: Counter[str] = Counter()
+        self.linked = threading.Event()
+        self._commands: dict[str, dict[str, Any]] = {
+            c["command_id"]: c for c in self.outbox.read_jsonl("commands.jsonl")
+        }
+        self._status_out: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        if runner is not None:
+            saved = self.outbox.load_json("schedule.json")
+            if saved and saved.get("schedule"):
+                try:
+                    sched = Schedule.model_validate(saved["schedule"])
+                    if sched.version >= runner.schedule.version:
+                        runner.set_schedule(sched)
+                        if saved.get("state") in ("paused", "stopped"):
+                            runner._set_state(saved["state"])
+                except ValidationError:
+                    log.warning("ignoring an unreadable saved schedule")
+            runner.on_change = self._schedule_changed
+            self._schedule_changed(runner.schedule, runner.state)
+
+    # ------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        for name, fn in (("lrm-comm", self._comm_loop), ("lrm-capture", self._capture_loop),
+                         ("lrm-sensors", self._sensor_loop)):
+            if fn == self._sensor_loop and self.sensors is None:
+                continue
+            t = threading.Thread(target=self._guard(fn), name=f"{name}-{self.config.module}", daemon=True)
+            t.start()
+            self._threads.append(t)
+
+    def _guard(self, fn: Callable[[], None]) -> Callable[[], None]:
+        def run() -> None:
+            try:
+                fn()
+            except Exception:
+                log.exception("agent thread %s failed", threading.current_thread().name)
+                self._stop.set()
+        return run
+
+    def stop(self, timeout: float = 10.0) -> None:
+        self._stop.set()
+        for t in self._threads:
+            t.join(timeout)
+        self.outbox.close()
+
+    @property
+    def stopped(self) -> bool:
+        return self._stop.is_set()
+
+    def capture_done(self) -> bool:
+        """True when the capture thread has finished (a replay reached its end)."""
+        return not any(t.is_alive() for t in self._threads if t.name.startswith("lrm-capture"))
+
+    def wait_drained(self, timeout: float) -> bool:
+        """Wait until the ship has acknowledged everything in the outbox."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if self.outbox.pending_count() == 0:
+                return True
+            time.sleep(0.05)
+        return self.outbox.pending_count() == 0
+
+    def _next_seq(self) -> int:
+        with self._seq_lock:
+            if self._seq == 0:
+                self._seq = self.outbox.last_seq(self.boot)
+            self._seq += 1
+            return self._seq
+
+    # ------------------------------------------------------------ capture
+    def _capture_loop(self) -> None:
+        while not self._stop.is_set():
+            cap = self._source(self._stop)
+            if cap is None:
+                return
+            f = cap.frame
+            png = f.png if getattr(f, "png", None) else encode_png(f.pixels)
+            seq = self._next_seq()
+            depth = f.depth_m if f.depth_m is not None else (self.depth() if self.depth else None)
+            self.outbox.add_frame(
+                self.boot, seq, png, captured_at=f.captured_at, camera=f.camera or self.config.module,
+                wavelength_nm=cap.wavelength_nm, exposure_s=f.exposure_s, gain_db=f.gain_db,
+                depth_m=depth, schedule_version=cap.schedule_version,
+            )
+            self.counters["frames_captured"] += 1
+            self._new.put((self.boot, seq))
+
+    # ------------------------------------------------------------ sensors
+    def _sensor_loop(self) -> None:
+        period = 1.0 / self.config.sensor_rate_hz
+        rows: list[list[float | None]] = []
+        batch_start = self.clock.monotonic()
+        next_t = self.clock.monotonic()
+        while not self._stop.is_set():
+            s = self.sensors.read()
+            acc, gyro = s.acc_m_s2, s.gyro_dps
+            rows.append([s.t.timestamp(), s.temperature_c, s.humidity_pct, acc[0], acc[1], acc[2],
+                         gyro[0], gyro[1], gyro[2], s.depth_m])
+            if self.clock.monotonic() - batch_start >= self.config.sensor_batch_s:
+                seq = self._next_seq()
+                self.outbox.add_sensors(self.boot, seq, rows)
+                self.counters["sensor_batches"] += 1
+                self._new.put((self.boot, seq))
+                rows, batch_start = [], self.clock.monotonic()
+            next_t += period
+            wait = next_t - self.clock.monotonic()
+            if wait > 0:
+                self.clock.sleep(wait)
+            else:
+                next_t = self.clock.monotonic()
+
+    # ------------------------------------------------------------ comm
+    def _comm_loop(self) -> None:
+        cfg = self.config
+        sock = wire.module_socket(self.ctx, cfg.connect, cfg.module)
+        send_q: deque[tuple[str, int]] = deque((e.boot, e.seq) for e in self.outbox.pending())
+        queued = set(send_q)
+        in_flight: dict[tuple[str, int], float] = {}
+        window = cfg.initial_window
+        welcomed = False
+        last_ship = last_hello = last_beat = 0.0
+        poller = zmq.Poller()
+        poller.register(sock, zmq.POLLIN)
+
+        def requeue(keys: list[tuple[str, int]]) -> None:
+            for k in sorted(keys, reverse=True):
+                in_flight.pop(k, None)
+                if k not in queued:
+                    send_q.appendleft(k)
+                    queued.add(k)
+            self.counters["resends_queued"] += len(keys)
+
+        try:
+            while not self._stop.is_set():
+                while True:
+                    try:
+                        k = self._new.get_nowait()
+                    except queue.Empty:
+                        break
+                    if k not in queued and k not in in_flight:
+                        send_q.append(k)
+                        queued.add(k)
+                now = time.monotonic()
+                if dict(poller.poll(20)).get(sock):
+                    for _ in range(256):
+                        try:
+                            parts = sock.recv_multipart(zmq.NOBLOCK)
+                        except zmq.Again:
+                            break
+                        try:
+                            msg, _ = wire.decode(parts, allowed=wire.SHIP_TYPES)
+                        except wire.ProtocolError as exc:
+                            self.counters[f"bad_{exc.kind}"] += 1
+                            continue
+                        last_ship = time.monotonic()
+                        if msg.type == "welcome":
+                            window = msg.window
+                            if in_flight:
+                                requeue(list(in_flight))
+                            welcomed = True
+                            self.linked.set()
+                        elif msg.type == "ack":
+                            window = msg.window
+                            for boot, first, last in msg.ranges:
+                                self.outbox.ack(boot, first, last)
+                                for q in range(first, last + 1):
+                                    if in_flight.pop((boot, q), None) is not None:
+                                        self.counters["acked"] += 1
+                        elif msg.type == "nack":
+                            self.counters["nacked"] += 1
+                            requeue([(msg.boot, msg.seq)])
+                        elif msg.type == "ship_heartbeat":
+                            window = msg.window
+                        elif msg.type == "command":
+                            self._on_command(msg)
+                now = time.monotonic()
+                if welcomed and now - last_ship > cfg.link_timeout_s:
+                    welcomed = False
+                    self.linked.clear()
+                    self.counters["link_lost"] += 1
+                    requeue(list(in_flight))
+                if not welcomed and now - last_hello >= cfg.hello_interval_s:
+                    last_hello = now
+                    self._send(sock, wire.Hello(module=cfg.module, boot=self.boot, software=f"camcal {__version__}",
+                                                schedule=self._schedule_state(),
+                                                outbox_pending=self.outbox.pending_count(), last_seq=self._seq))
+                if now - last_beat >= cfg.heartbeat_s:
+                    last_beat = now
+                    self._send(sock, wire.ModuleHeartbeat(
+                        module=cfg.module, boot=self.boot, schedule=self._schedule_state(),
+                        outbox_pending=self.outbox.pending_count(), in_flight=len(in_flight), last_seq=self._seq))
+                late = [k for k, t in in_flight.items() if now - t > cfg.ack_timeout_s]
+                if late:
+                    requeue(late)
+                while True:
+                    try:
+                        status = self._status_out.get_nowait()
+                    except queue.Empty:
+                        break
+                    self._send(sock, status)
+                while welcomed and send_q and len(in_flight) < window:
+                    key = send_q.popleft()
+                    queued.discard(key)
+                    entry = self.outbox.get(*key)
+                    if entry is None:  # acknowledged meanwhile
+                        continue
+                    header, payload = self.outbox.message(entry, cfg.module)
+                    try:
+                        sock.send_multipart(wire.encode(header, payload), zmq.NOBLOCK)
+                    except zmq.Again:
+                        send_q.appendleft(key)
+                        queued.add(key)
+                        break
+                    in_flight[key] = time.monotonic()
+                    self.counters["sent"] += 1
+            if welcomed:
+                self._send(sock, wire.Bye(module=cfg.module, boot=self.boot))
+                time.sleep(0.05)
+        finally:
+            sock.close(0)
+
+    def _send(self, sock: Any, msg: Any) -> None:
+        try:
+            sock.send_multipart(wire.encode(msg), zmq.NOBLOCK)
+        except zmq.Again:
+            self.counters["control_dropped"] += 1
+
+    # ------------------------------------------------------------ schedule and commands
+    def _schedule_state(self) -> wire.ScheduleState:
+        if self.runner is None:
+            return wire.ScheduleState(name="replay", version=0, state="running")
+        return wire.ScheduleState(**self.runner.status())
+
+    def _schedule_changed(self, schedule: Schedule, state: str) -> None:
+        self.outbox.save_json("schedule.json", {"schedule": schedule.model_dump(mode="json"), "state": state})
+        for cid, rec in list(self._commands.items()):
+            if rec.get("state") == "in_progress" and rec.get("target_version") == schedule.version:
+                self._status(cid, "done", target_version=schedule.version)
+
+    def _status(self, command_id: str, state: str, reason: str | None = None, **extra: Any) -> None:
+        rec = {**self._commands.get(command_id, {}), "command_id": command_id, "state": state,
+               "reason": reason, **extra}
+        self._commands[command_id] = rec
+        self.outbox.append_jsonl("commands.jsonl", rec)
+        self._status_out.put(wire.CommandStatus(module=self.config.module, boot=self.boot, command_id=command_id,
+                                                state=state, reason=reason, schedule=self._schedule_state()))
+
+    def _on_command(self, cmd: wire.Command) -> None:
+        """Validate and apply a command once; a repeated command only gets its status again."""
+        self.counters["commands"] += 1
+        known = self._commands.get(cmd.command_id)
+        if known is not None:
+            self.counters["commands_repeated"] += 1
+            self._status_out.put(wire.CommandStatus(
+                module=self.config.module, boot=self.boot, command_id=cmd.command_id, state=known["state"],
+                reason=known.get("reason"), schedule=self._schedule_state()))
+            return
+        runner = self.runner
+        if runner is None:
+            self._status(cmd.command_id, "rejected", "this module replays a recorded frame set")
+            return
+        current = runner.schedule.version
+        if cmd.action == "set_schedule":
+            try:
+                sched = Schedule.model_validate(cmd.schedule or {})
+            except ValidationError as exc:
+                e = exc.errors()[0]
+                self._status(cmd.command_id, "rejected",
+                             f"schedule.{'.'.join(str(p) for p in e['loc'])}: {e['msg']}")
+                return
+            problem = self._check_limits(sched)
+            if problem:
+                self._status(cmd.command_id, "rejected", problem)
+                return
+            if sched.version != cmd.target_version:
+                self._status(cmd.command_id, "rejected",
+                             f"target_version {cmd.target_version} differs from the schedule's version {sched.version}")
+                return
+            if sched.version <= current:
+                self._status(cmd.command_id, "rejected",
+                             f"version {sched.version} is not newer than the running version {current}")
+                return
+            self._commands[cmd.command_id] = {"command_id": cmd.command_id, "target_version": sched.version}
+            self._status(cmd.command_id, "accepted", target_version=sched.version)
+            if cmd.apply == "end_of_setting":
+                self._status(cmd.command_id, "in_progress", target_version=sched.version)
+                runner.set_schedule(sched, "end_of_setting")
+            else:
+                self._commands[cmd.command_id]["state"] = "in_progress"
+                runner.set_schedule(sched, "now")
+                if self._commands[cmd.command_id].get("state") != "done":
+                    self._status(cmd.command_id, "done", target_version=sched.version)
+            return
+        if cmd.target_version and cmd.target_version != current:
+            self._status(cmd.command_id, "rejected",
+                         f"{cmd.action} targets schedule version {cmd.target_version}, the module runs {current}")
+            return
+        self._status(cmd.command_id, "accepted")
+        {"start": runner.start, "pause": runner.pause, "resume": runner.resume, "stop": runner.stop}[cmd.action]()
+        self._status(cmd.command_id, "done")
+
+    def _check_limits(self, sched: Schedule) -> str | None:
+        if self.camera_limits is None:
+            return None
+        (elo, ehi), (glo, ghi), step = self.camera_limits
+        for e in sched.exposures_s:
+            if not elo <= e <= ehi:
+                return f"exposure {e} s outside the camera's range [{elo}, {ehi}] s"
+        for g in sched.gains_db:
+            if not glo <= g <= ghi:
+                return f"gain {g} dB outside the camera's range [{glo}, {ghi}] dB"
+            if step > 0 and abs(round(g / step) * step - g) > 1e-6:
+                return f"gain {g} dB is not a multiple of the camera's {step} dB step"
+        return None

@@ -1,0 +1,215 @@
+"""The SD-card outbox: everything a module produces is written here first, then sent.
+
+Layout of an outbox folder::
+
+    frames/          a frame set (docs/frameset.md) with the extra columns
+                     ``boot`` and ``schedule_version``; ``seq`` is the wire
+                     sequence number of the frame
+    sensors.jsonl    one line per sensors message: {"boot", "seq", "columns", "rows"}
+    acked.log        one line per acknowledgement: "BOOT FIRST LAST"
+    commands.jsonl   every command this module has answered, with its last state
+    schedule.json    the schedule the module runs (resumed after a reboot)
+
+Nothing is deleted when the ship acknowledges it: the SD card is the copy
+scientists import after the dive. The outbox only remembers what is
+acknowledged, so that after a reconnect (or a reboot) it resends exactly
+what the ship does not have.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import threading
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+from camcal import wire
+from camcal.frameset import MANIFEST, FrameSetWriter, ManifestRow, Setup, read_manifest
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One data message kept in the outbox."""
+
+    kind: str  # frame | sensors
+    boot: str
+    seq: int
+    ref: Any  # ManifestRow for a frame, the parsed JSON line for sensors
+
+
+def png_size(data: bytes) -> tuple[int, int]:
+    """(width, height) from a PNG's IHDR chunk, without decoding the image."""
+    if len(data) < 24 or data[:8] != b"\x89PNG\r\n\x1a\n" or data[12:16] != b"IHDR":
+        raise ValueError("not a PNG")
+    return struct.unpack(">II", data[16:24])
+
+
+class Outbox:
+    """Write-first, send-later store of a module's frames and sensor packets. Thread-safe."""
+
+    def __init__(self, root: Path, module: str, *, fsync: bool = True, setup: Setup | None = None) -> None:
+        self.root = Path(root)
+        self.module = module
+        self.fsync = fsync
+        self.root.mkdir(parents=True, exist_ok=True)
+        self._lock = threading.RLock()
+        frames_dir = self.root / "frames"
+        fresh = not (frames_dir / MANIFEST).exists()
+        self._writer = FrameSetWriter(frames_dir, setup if fresh else None, fsync=fsync)
+        self._sensors = (self.root / "sensors.jsonl").open("a", encoding="utf-8")
+        self._acked_fh = (self.root / "acked.log").open("a", encoding="utf-8")
+        self._acked: set[tuple[str, int]] = set()
+        self._pending: dict[tuple[str, int], Entry] = {}
+        self._last_seq: dict[str, int] = {}
+        self._load()
+
+    # ------------------------------------------------------------ loading
+    def _load(self) -> None:
+        path = self.root / "acked.log"
+        for line in path.read_text(encoding="utf-8").splitlines():
+            parts = line.split()
+            if len(parts) == 3:
+                boot, first, last = parts[0], int(parts[1]), int(parts[2])
+                self._acked.update((boot, q) for q in range(first, last + 1))
+        for row in read_manifest(self.root / "frames"):
+            if row.boot and row.seq is not None:
+                self._index(Entry("frame", row.boot, row.seq, row))
+        sensors = self.root / "sensors.jsonl"
+        for line in sensors.read_text(encoding="utf-8").splitlines():
+            try:
+                obj = json.loads(line)
+            except json.JSONDecodeError:
+                continue  # a line cut by a power loss: its message was never sent
+            self._index(Entry("sensors", obj["boot"], int(obj["seq"]), obj))
+
+    def _index(self, e: Entry) -> None:
+        self._last_seq[e.boot] = max(self._last_seq.get(e.boot, 0), e.seq)
+        if (e.boot, e.seq) not in self._acked:
+            self._pending[(e.boot, e.seq)] = e
+
+    # ------------------------------------------------------------ writing
+    def last_seq(self, boot: str) -> int:
+        with self._lock:
+            return self._last_seq.get(boot, 0)
+
+    def add_frame(self, boot: str, seq: int, png: bytes, *, captured_at: datetime, camera: str,
+                  wavelength_nm: int, exposure_s: float, gain_db: float, depth_m: float | None,
+                  schedule_version: int) -> Entry:
+        """Store a frame (image, then its manifest row) before it is sent."""
+        name = f"{boot}/{camera}_{wavelength_nm}_{seq:07d}.png"
+        row = ManifestRow(
+            index=seq, file=name, camera=camera, wavelength_nm=wavelength_nm, exposure_s=exposure_s,
+            gain_db=gain_db, timestamp=captured_at.isoformat().replace("+00:00", "Z"), depth_m=depth_m,
+            seq=seq, boot=boot, schedule_version=schedule_version,
+        )
+        with self._lock:
+            self._writer.add(png, row)
+            e = Entry("frame", boot, seq, row)
+            self._index(e)
+            return e
+
+    def add_sensors(self, boot: str, seq: int, rows: list[list[float | None]]) -> Entry:
+        obj = {"boot": boot, "seq": seq, "columns": list(wire.SENSOR_COLUMNS), "rows": rows}
+        with self._lock:
+            self._sensors.write(json.dumps(obj, separators=(",", ":")) + "\n")
+            self._sensors.flush()
+            if self.fsync:
+                os.fsync(self._sensors.fileno())
+            e = Entry("sensors", boot, seq, obj)
+            self._index(e)
+            return e
+
+    def ack(self, boot: str, first: int, last: int) -> int:
+        """Record an acknowledged range; returns how many pending entries it settled."""
+        with self._lock:
+            settled = 0
+            for q in range(first, last + 1):
+                if self._pending.pop((boot, q), None) is not None:
+                    settled += 1
+                self._acked.add((boot, q))
+            self._acked_fh.write(f"{boot} {first} {last}\n")
+            self._acked_fh.flush()
+            if self.fsync:
+                os.fsync(self._acked_fh.fileno())
+            return settled
+
+    # ------------------------------------------------------------ reading
+    def pending(self) -> list[Entry]:
+        """Unacknowledged entries, oldest boot first, in sequence order."""
+        with self._lock:
+            return sorted(self._pending.values(), key=lambda e: (e.boot, e.seq))
+
+    def pending_count(self) -> int:
+        with self._lock:
+            return len(self._pending)
+
+    def get(self, boot: str, seq: int) -> Entry | None:
+        with self._lock:
+            return self._pending.get((boot, seq))
+
+    def message(self, e: Entry, module: str) -> tuple[Any, bytes]:
+        """The wire message (header, payload) of an entry, rebuilt from the SD card."""
+        if e.kind == "frame":
+            row: ManifestRow = e.ref
+            data = (self.root / "frames" / row.file).read_bytes()
+            width, height = png_size(data)
+            header = wire.FrameMsg(
+                module=module, boot=e.boot, seq=e.seq,
+                captured_at=datetime.fromisoformat(row.timestamp.replace("Z", "+00:00"))
+                if row.timestamp else wire.utc_now(),
+                camera=row.camera, wavelength_nm=row.wavelength_nm, exposure_s=row.exposure_s,
+                gain_db=row.gain_db, depth_m=row.depth_m, width_px=width, height_px=height,
+                encoding="png", size=len(data), sha256=wire.sha256_hex(data),
+                schedule_version=row.schedule_version or 0, file=row.file,
+            )
+            return header, data
+        obj = e.ref
+        payload = wire.sensors_payload(obj["rows"])
+        header = wire.SensorsMsg(module=module, boot=e.boot, seq=e.seq, columns=tuple(obj["columns"]),
+                                 count=len(obj["rows"]), size=len(payload), sha256=wire.sha256_hex(payload))
+        return header, payload
+
+    # ------------------------------------------------------------ state files
+    def load_json(self, name: str) -> Any:
+        path = self.root / name
+        if not path.exists():
+            return None
+        try:
+            return json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError):
+            return None
+
+    def save_json(self, name: str, obj: Any) -> None:
+        from camcal.frameset import write_atomic
+
+        write_atomic(self.root / name, (json.dumps(obj, indent=1, default=str) + "\n").encode(),
+                     fsync=self.fsync)
+
+    def append_jsonl(self, name: str, obj: Any) -> None:
+        with self._lock, (self.root / name).open("a", encoding="utf-8") as fh:
+            fh.write(json.dumps(obj, default=str) + "\n")
+            fh.flush()
+            if self.fsync:
+                os.fsync(fh.fileno())
+
+    def read_jsonl(self, name: str) -> list[Any]:
+        path = self.root / name
+        if not path.exists():
+            return []
+        out = []
+        for line in path.read_text(encoding="utf-8").splitlines():
+            try:
+                out.append(json.loads(line))
+            except json.JSONDecodeError:
+                continue
+        return out
+
+    def close(self) -> None:
+        with self._lock:
+            self._writer.close()
+            self._sensors.close()
+            self._acked_fh.close()

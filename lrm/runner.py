@@ -1,0 +1,180 @@
+"""Running an exposure schedule on a camera, and changing it safely while it runs."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import datetime, timedelta
+from typing import Any, Protocol
+
+from camcal.schedule import Schedule, Shot
+
+
+class LemClock(Protocol):
+    """Which wavelength the LEM shows when (its timetable, in wall-clock terms)."""
+
+    def wavelength_at(self, t: datetime) -> int: ...
+
+    def next_start_of(self, wavelength_nm: int, after: datetime) -> datetime: ...
+
+
+@dataclass(frozen=True)
+class Capture:
+    """A frame the runner took, with the shot of the schedule it belongs to."""
+
+    frame: Any  # lrm.camera.CapturedFrame
+    shot: Shot
+    wavelength_nm: int
+    schedule_version: int
+
+
+class ScheduleRunner:
+    """Takes the schedule's shots one after the other, pass after pass.
+
+    The LEM cycles its wavelengths on its own timetable: before a shot at
+    405 nm the runner waits until the LEM shows 405 nm. ``gate`` (if given)
+    must be true for capturing (e.g. only at the test stops and on station).
+    States: ``running``, ``paused`` (resumes where it stopped), ``stopped``
+    (restarts the pass from the beginning on ``start``). A new schedule
+    applies at once, or at the end of the current setting (after the last
+    repeat of the exposure and gain being taken).
+    """
+
+    def __init__(self, camera: Any, clock: Any, schedule: Schedule, *, lem: LemClock | None = None,
+                 gate: Callable[[], bool] | None = None, state: str = "running") -> None:
+        self.camera = camera
+        self.clock = clock
+        self.lem = lem
+        self.gate = gate
+        self._cv = threading.Condition()
+        self._schedule = schedule
+        self._shots = list(schedule.shots())
+        self._index = 0
+        self._state = state
+        self._pending: Schedule | None = None
+        self.on_change: Callable[[Schedule, str], None] | None = None
+
+    # ------------------------------------------------------------ status
+    @property
+    def schedule(self) -> Schedule:
+        return self._schedule
+
+    @property
+    def state(self) -> str:
+        return self._state
+
+    def status(self) -> dict[str, Any]:
+        with self._cv:
+            return {"name": self._schedule.name, "version": self._schedule.version, "state": self._state}
+
+    # ------------------------------------------------------------ control
+    def set_schedule(self, schedule: Schedule, apply: str = "now") -> None:
+        with self._cv:
+            if apply == "end_of_setting":
+                self._pending = schedule
+            else:
+                self._swap(schedule)
+            self._cv.notify_all()
+
+    def _swap(self, schedule: Schedule) -> None:
+        self._schedule = schedule
+        self._shots = list(schedule.shots())
+        self._index = 0
+        self._pending = None
+        if self.on_change:
+            self.on_change(schedule, self._state)
+
+    def pause(self) -> None:
+        self._set_state("paused")
+
+    def resume(self) -> None:
+        self._set_state("running")
+
+    def stop(self) -> None:
+        with self._cv:
+            self._index = 0
+        self._set_state("stopped")
+
+    def start(self) -> None:
+        self._set_state("running")
+
+    def _set_state(self, state: str) -> None:
+        with self._cv:
+            self._state = state
+            self._cv.notify_all()
+            if self.on_change:
+                self.on_change(self._schedule, state)
+
+    # ------------------------------------------------------------ capturing
+    def next_capture(self, stop: threading.Event) -> Capture | None:
+        """Block until the next shot is taken; None when ``stop`` is set."""
+        while not stop.is_set():
+            with self._cv:
+                if self._state != "running":
+                    self._cv.wait(0.2)
+                    continue
+                if not self._shots:
+                    self._cv.wait(0.2)
+                    continue
+                if self._index >= len(self._shots):
+                    self._index = 0
+                    pause = self._schedule.pause_s
+                else:
+                    pause = 0.0
+                shot = self._shots[self._index]
+                version = self._schedule.version
+            if pause > 0 and self._sleep(pause, stop):
+                continue
+            if self.gate is not None and not self.gate():
+                self._sleep(1.0, stop)
+                continue
+            if self.lem is not None:
+                now = self.clock.now()
+                if self.lem.wavelength_at(now) != shot.wavelength_nm:
+                    start = self.lem.next_start_of(shot.wavelength_nm, now)
+                    self._sleep(max((start - now).total_seconds(), 0.0) + 1e-3, stop)
+                    continue
+            frame = self.camera.capture(shot.exposure_s, shot.gain_db)
+            wavelength = frame.wavelength_nm
+            if wavelength is None:
+                wavelength = self.lem.wavelength_at(frame.captured_at) if self.lem else shot.wavelength_nm
+            with self._cv:
+                if version == self._schedule.version and self._index < len(self._shots):
+                    self._index += 1
+                    following = self._shots[self._index] if self._index < len(self._shots) else None
+                    end_of_setting = following is None or (
+                        following.wavelength_nm, following.exposure_s, following.gain_db
+                    ) != (shot.wavelength_nm, shot.exposure_s, shot.gain_db)
+                    if end_of_setting and self._pending is not None:
+                        self._swap(self._pending)
+            return Capture(frame, shot, int(wavelength), version)
+        return None
+
+    def _sleep(self, seconds: float, stop: threading.Event) -> bool:
+        """Sleep clock time in slices, waking for stop or a change; True if interrupted."""
+        end = self.clock.monotonic() + seconds
+        version, state = self._schedule.version, self._state
+        while not stop.is_set():
+            left = end - self.clock.monotonic()
+            if left <= 0:
+                return False
+            self.clock.sleep(min(left, 0.5))
+            if self._schedule.version != version or self._state != state:
+                return True
+        return True
+
+
+class LemTimetableClock:
+    """A `LemClock` from a timetable in seconds since ``epoch`` (e.g. the dive start)."""
+
+    def __init__(self, timetable: Any, epoch: datetime) -> None:
+        self.timetable = timetable
+        self.epoch = epoch
+
+    def wavelength_at(self, t: datetime) -> int:
+        return int(self.timetable.wavelength_at((t - self.epoch).total_seconds()))
+
+    def next_start_of(self, wavelength_nm: int, after: datetime) -> datetime:
+        s = self.timetable.next_start_of(wavelength_nm, (after - self.epoch).total_seconds())
+        return self.epoch + timedelta(seconds=float(s))

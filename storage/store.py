@@ -1,0 +1,483 @@
+"""The store: every database access of camcal goes through here.
+
+One writer (the ingest's store thread, or an import) and any number of
+readers (the server). Batches are written in one transaction each.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from sqlalchemy import Engine, Table, func, select, update
+from sqlalchemy.dialects import postgresql, sqlite
+from sqlalchemy.orm import Session, sessionmaker
+
+from storage.db import DataPaths, make_engine, migrate
+from storage.files import FrameFiles
+from storage.models import (
+    Alarm,
+    AnalysisRun,
+    AttenuationPoint,
+    AttitudeSample,
+    AuditEntry,
+    Dive,
+    Event,
+    Frame,
+    FrameResult,
+    Gap,
+    LinearityCheck,
+    Module,
+    SensorBatch,
+    SensorSample,
+)
+
+
+def now_unix_s() -> float:
+    return time.time()
+
+
+@dataclass
+class FrameRow:
+    """A frame to store: the ``frames`` columns (``dive_id`` is set by the store)."""
+
+    module_id: str
+    boot: str
+    seq: int
+    captured_unix_s: float
+    received_unix_s: float
+    wavelength_nm: int
+    exposure_s: float
+    gain_db: float
+    depth_m: float | None
+    width_px: int
+    height_px: int
+    path: str
+    size_bytes: int
+    sha256: str
+    schedule_version: int = 0
+    source: str = "live"
+    dive_id: int | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+@dataclass
+class SensorBatchRow:
+    """A ``sensors`` message: its identity and its samples (dicts of column -> value)."""
+
+    module_id: str
+    boot: str
+    seq: int
+    received_unix_s: float
+    samples: list[dict[str, Any]] = field(default_factory=list)
+
+
+@dataclass
+class BatchOutcome:
+    """What a batch commit did: ids of new frames by (module, boot, seq); duplicates skipped."""
+
+    new_frames: dict[tuple[str, str, int], int]
+    duplicate_frames: list[tuple[str, str, int]]
+    new_sensor_batches: list[tuple[str, str, int]]
+    duplicate_sensor_batches: list[tuple[str, str, int]]
+
+
+class Store:
+    """The database (any SQLAlchemy URL; SQLite by default) and the frame files."""
+
+    def __init__(self, engine: Engine, files: FrameFiles) -> None:
+        self.engine = engine
+        self.files = files
+        self._sessions = sessionmaker(engine, expire_on_commit=False)
+
+    @classmethod
+    def open(
+        cls,
+        data_dir: Path,
+        url: str | None = None,
+        *,
+        run_migrations: bool = True,
+        sqlite_synchronous: str = "FULL",
+    ) -> Store:
+        """Open (and by default migrate) the store of a data folder."""
+        paths = DataPaths(Path(data_dir))
+        paths.root.mkdir(parents=True, exist_ok=True)
+        engine = make_engine(url or paths.sqlite_url(), sqlite_synchronous=sqlite_synchronous)
+        if run_migrations:
+            migrate(engine)
+        return cls(engine, FrameFiles(paths.root))
+
+    def close(self) -> None:
+        self.engine.dispose()
+
+    @contextmanager
+    def session(self) -> Iterator[Session]:
+        """A session in a transaction: committed on success, rolled back on error."""
+        with self._sessions() as s, s.begin():
+            yield s
+
+    def read(self) -> Session:
+        """A session for reading (the caller closes it)."""
+        return self._sessions()
+
+    # ------------------------------------------------------------ helpers
+    def _insert(self, table: Table) -> Any:
+        name = self.engine.dialect.name
+        if name == "sqlite":
+            return sqlite.insert(table)
+        if name == "postgresql":
+            return postgresql.insert(table)
+        raise NotImplementedError(f"conflict-free inserts are written for SQLite and PostgreSQL, not {name}")
+
+    # ------------------------------------------------------------ dives
+    def current_dive(
+        self, *, create: bool = True, name: str | None = None, setup: dict[str, Any] | None = None
+    ) -> Dive | None:
+        """The open dive (not ended), the most recent first; created if there is none."""
+        with self.session() as s:
+            dive = s.scalars(
+                select(Dive).where(Dive.ended_unix_s.is_(None)).order_by(Dive.id.desc()).limit(1)
+            ).first()
+            if dive is None and create:
+                t = now_unix_s()
+                dive = Dive(
+                    name=name or time.strftime("dive-%Y%m%d-%H%M%S", time.gmtime(t)),
+                    started_unix_s=t,
+                    notes="",
+                    setup=setup or {},
+                )
+                s.add(dive)
+                s.flush()
+            return dive
+
+    def create_dive(
+        self, name: str, setup: dict[str, Any] | None = None, started_unix_s: float | None = None
+    ) -> Dive:
+        with self.session() as s:
+            dive = Dive(name=name, started_unix_s=started_unix_s or now_unix_s(), notes="", setup=setup or {})
+            s.add(dive)
+            s.flush()
+            return dive
+
+    def dive_by_name(self, name: str) -> Dive | None:
+        with self.read() as s:
+            return s.scalars(select(Dive).where(Dive.name == name)).first()
+
+    def end_dive(self, dive_id: int, t: float | None = None) -> None:
+        with self.session() as s:
+            s.execute(update(Dive).where(Dive.id == dive_id).values(ended_unix_s=t or now_unix_s()))
+
+    # ------------------------------------------------------------ modules
+    def touch_module(self, module_id: str, *, seen_unix_s: float | None = None, **values: Any) -> None:
+        """Create or update a module row (last seen, boot, schedule, distance...)."""
+        t = seen_unix_s or now_unix_s()
+        with self.session() as s:
+            mod = s.get(Module, module_id)
+            if mod is None:
+                mod = Module(id=module_id, first_seen_unix_s=t, last_seen_unix_s=t)
+                s.add(mod)
+            mod.last_seen_unix_s = max(mod.last_seen_unix_s, t)
+            for k, v in values.items():
+                if v is not None:
+                    setattr(mod, k, v)
+
+    def _ensure_modules(self, s: Session, module_ids: Iterable[str], t: float) -> None:
+        for mid in set(module_ids):
+            if s.get(Module, mid) is None:
+                s.add(Module(id=mid, first_seen_unix_s=t, last_seen_unix_s=t))
+        s.flush()
+
+    # ------------------------------------------------------------ ingest
+    def commit_batch(
+        self, dive_id: int, frames: Sequence[FrameRow], sensors: Sequence[SensorBatchRow] = ()
+    ) -> BatchOutcome:
+        """Insert frames and sensor batches in one transaction, skipping any already stored.
+
+        (module, boot, seq) is unique for frames and for sensor batches, so a
+        resend after a lost acknowledgement changes nothing.
+        """
+        t = now_unix_s()
+        new_frames: dict[tuple[str, str, int], int] = {}
+        new_sensors: list[tuple[str, str, int]] = []
+        with self.session() as s:
+            self._ensure_modules(s, [f.module_id for f in frames] + [b.module_id for b in sensors], t)
+            if frames:
+                rows = []
+                for f in frames:
+                    d = f.as_dict()
+                    d["dive_id"] = f.dive_id or dive_id
+                    rows.append(d)
+                stmt = (
+                    self._insert(Frame.__table__)
+                    .values(rows)
+                    .on_conflict_do_nothing(index_elements=["module_id", "boot", "seq"])
+                    .returning(Frame.id, Frame.module_id, Frame.boot, Frame.seq)
+                )
+                for fid, mid, boot, seq in s.execute(stmt):
+                    new_frames[(mid, boot, int(seq))] = int(fid)
+            for b in sensors:
+                stmt = (
+                    self._insert(SensorBatch.__table__)
+                    .values(
+                        module_id=b.module_id,
+                        boot=b.boot,
+                        seq=b.seq,
+                        count=len(b.samples),
+                        received_unix_s=b.received_unix_s,
+                    )
+                    .on_conflict_do_nothing(index_elements=["module_id", "boot", "seq"])
+                    .returning(SensorBatch.id)
+                )
+                if s.execute(stmt).first() is None:
+                    continue
+                new_sensors.append((b.module_id, b.boot, b.seq))
+                if b.samples:
+                    s.execute(
+                        SensorSample.__table__.insert(),
+                        [{**smp, "module_id": b.module_id, "dive_id": dive_id} for smp in b.samples],
+                    )
+        keys = [(f.module_id, f.boot, f.seq) for f in frames]
+        skeys = [(b.module_id, b.boot, b.seq) for b in sensors]
+        return BatchOutcome(
+            new_frames=new_frames,
+            duplicate_frames=[k for k in keys if k not in new_frames],
+            new_sensor_batches=new_sensors,
+            duplicate_sensor_batches=[k for k in skeys if k not in new_sensors],
+        )
+
+    def known_seqs(self, module_id: str, boot: str) -> set[int]:
+        """Every sequence number of a module's boot that is stored (frames and sensor batches)."""
+        with self.read() as s:
+            a = s.scalars(select(Frame.seq).where(Frame.module_id == module_id, Frame.boot == boot))
+            b = s.scalars(
+                select(SensorBatch.seq).where(SensorBatch.module_id == module_id, SensorBatch.boot == boot)
+            )
+            return {int(x) for x in a} | {int(x) for x in b}
+
+    def record_gap(self, module_id: str, boot: str, first_seq: int, last_seq: int) -> int:
+        with self.session() as s:
+            gap = Gap(
+                module_id=module_id,
+                boot=boot,
+                first_seq=first_seq,
+                last_seq=last_seq,
+                detected_unix_s=now_unix_s(),
+            )
+            s.add(gap)
+            s.flush()
+            return gap.id
+
+    def fill_gaps(self, module_id: str, boot: str, seqs: Iterable[int]) -> list[int]:
+        """Mark open gaps as filled when every sequence number in them has arrived."""
+        seqs = set(seqs)
+        filled = []
+        with self.session() as s:
+            gaps = s.scalars(
+                select(Gap).where(Gap.module_id == module_id, Gap.boot == boot, Gap.filled_unix_s.is_(None))
+            ).all()
+            for g in gaps:
+                if all(q in seqs for q in range(g.first_seq, g.last_seq + 1)):
+                    g.filled_unix_s = now_unix_s()
+                    filled.append(g.id)
+        return filled
+
+    def open_gaps(self, module_id: str | None = None) -> list[Gap]:
+        with self.read() as s:
+            q = select(Gap).where(Gap.filled_unix_s.is_(None))
+            if module_id:
+                q = q.where(Gap.module_id == module_id)
+            return list(s.scalars(q.order_by(Gap.id)))
+
+    # ------------------------------------------------------------ analysis
+    def analysis_run(
+        self,
+        dive_id: int,
+        kind: str = "live",
+        *,
+        label: str = "",
+        calibration: dict[str, Any] | None = None,
+        calibration_id: int | None = None,
+        software_version: str = "",
+        create: bool = True,
+    ) -> AnalysisRun | None:
+        """The dive's live run (one per dive), or a new run of another kind."""
+        with self.session() as s:
+            if kind == "live":
+                run = s.scalars(
+                    select(AnalysisRun).where(AnalysisRun.dive_id == dive_id, AnalysisRun.kind == "live")
+                ).first()
+                if run is not None or not create:
+                    return run
+            run = AnalysisRun(
+                dive_id=dive_id,
+                kind=kind,
+                label=label,
+                calibration=calibration or {},
+                calibration_id=calibration_id,
+                software_version=software_version,
+                created_unix_s=now_unix_s(),
+                status="running",
+            )
+            s.add(run)
+            s.flush()
+            return run
+
+    def finish_run(self, run_id: int, status: str = "done", n_frames: int | None = None) -> None:
+        with self.session() as s:
+            values: dict[str, Any] = {"status": status}
+            if n_frames is not None:
+                values["n_frames"] = n_frames
+            s.execute(update(AnalysisRun).where(AnalysisRun.id == run_id).values(**values))
+
+    def save_results(self, run_id: int, results: Sequence[dict[str, Any]]) -> int:
+        """Store frame results (dicts of `FrameResult` columns with ``frame_id``); duplicates skipped."""
+        if not results:
+            return 0
+        rows = [{**r, "run_id": run_id} for r in results]
+        with self.session() as s:
+            stmt = (
+                self._insert(FrameResult.__table__)
+                .values(rows)
+                .on_conflict_do_nothing(index_elements=["frame_id", "run_id"])
+            )
+            return s.execute(stmt).rowcount or 0
+
+    def frames_without_result(self, dive_id: int, run_id: int, limit: int = 100_000) -> list[Frame]:
+        """Stored frames of a dive that the run has not analysed (e.g. after a crash)."""
+        with self.read() as s:
+            done = select(FrameResult.frame_id).where(FrameResult.run_id == run_id)
+            return list(
+                s.scalars(
+                    select(Frame)
+                    .where(Frame.dive_id == dive_id, Frame.id.not_in(done))
+                    .order_by(Frame.id)
+                    .limit(limit)
+                )
+            )
+
+    def add_attenuation_points(self, points: Sequence[dict[str, Any]]) -> list[int]:
+        if not points:
+            return []
+        with self.session() as s:
+            objs = [AttenuationPoint(**p) for p in points]
+            s.add_all(objs)
+            s.flush()
+            return [o.id for o in objs]
+
+    def add_attitude(self, samples: Sequence[dict[str, Any]]) -> None:
+        if samples:
+            with self.session() as s:
+                s.execute(AttitudeSample.__table__.insert(), list(samples))
+
+    def upsert_linearity(self, row: dict[str, Any]) -> None:
+        keys = {k: row[k] for k in ("run_id", "module_id", "wavelength_nm", "sweep")}
+        with self.session() as s:
+            obj = s.scalars(select(LinearityCheck).filter_by(**keys)).first()
+            if obj is None:
+                s.add(LinearityCheck(**row))
+            else:
+                for k, v in row.items():
+                    setattr(obj, k, v)
+
+    # ------------------------------------------------------------ events, alarms
+    def add_events(self, events: Sequence[dict[str, Any]]) -> list[int]:
+        """Append events (kind, payload, module_id, dive_id, t_unix_s); returns their ids."""
+        if not events:
+            return []
+        with self.session() as s:
+            objs = [Event(**e) for e in events]
+            s.add_all(objs)
+            s.flush()
+            return [o.id for o in objs]
+
+    def events_after(self, after_id: int, limit: int = 1000) -> list[Event]:
+        with self.read() as s:
+            return list(s.scalars(select(Event).where(Event.id > after_id).order_by(Event.id).limit(limit)))
+
+    def last_event_id(self) -> int:
+        with self.read() as s:
+            return int(s.scalar(select(func.max(Event.id))) or 0)
+
+    def active_alarms(self) -> list[Alarm]:
+        with self.read() as s:
+            return list(s.scalars(select(Alarm).where(Alarm.active.is_(True)).order_by(Alarm.id)))
+
+    def raise_alarm(
+        self,
+        key: str,
+        kind: str,
+        severity: str,
+        message: str,
+        module_id: str | None = None,
+        details: dict[str, Any] | None = None,
+    ) -> tuple[Alarm, bool]:
+        """Raise (or update) the active alarm with ``key``; returns it and whether it is new or changed."""
+        t = now_unix_s()
+        with self.session() as s:
+            alarm = s.scalars(select(Alarm).where(Alarm.key == key, Alarm.active.is_(True))).first()
+            if alarm is None:
+                alarm = Alarm(
+                    key=key,
+                    kind=kind,
+                    module_id=module_id,
+                    severity=severity,
+                    message=message,
+                    raised_unix_s=t,
+                    active=True,
+                    details=details or {},
+                )
+                s.add(alarm)
+                s.flush()
+                return alarm, True
+            changed = alarm.severity != severity or alarm.message != message
+            alarm.severity, alarm.message, alarm.details = severity, message, details or {}
+            return alarm, changed
+
+    def clear_alarm(self, key: str) -> Alarm | None:
+        with self.session() as s:
+            alarm = s.scalars(select(Alarm).where(Alarm.key == key, Alarm.active.is_(True))).first()
+            if alarm is not None:
+                alarm.active = False
+                alarm.cleared_unix_s = now_unix_s()
+            return alarm
+
+    def ack_alarm(self, alarm_id: int, user: str) -> Alarm | None:
+        with self.session() as s:
+            alarm = s.get(Alarm, alarm_id)
+            if alarm is None:
+                return None
+            if alarm.acked_unix_s is None:
+                alarm.acked_unix_s, alarm.acked_by = now_unix_s(), user
+                s.add(
+                    AuditEntry(
+                        t_unix_s=now_unix_s(),
+                        actor=user,
+                        action="alarm.ack",
+                        target=f"alarm:{alarm_id}",
+                        details={"kind": alarm.kind, "key": alarm.key},
+                    )
+                )
+            return alarm
+
+    def audit(self, actor: str, action: str, target: str = "", details: dict[str, Any] | None = None) -> int:
+        with self.session() as s:
+            entry = AuditEntry(
+                t_unix_s=now_unix_s(), actor=actor, action=action, target=target, details=details or {}
+            )
+            s.add(entry)
+            s.flush()
+            return entry.id
+
+    # ------------------------------------------------------------ checks
+    def integrity_check(self) -> str:
+        """``PRAGMA integrity_check`` on SQLite ("ok" when sound); "ok" elsewhere."""
+        if self.engine.dialect.name != "sqlite":
+            return "ok"
+        with self.engine.connect() as conn:
+            return str(conn.exec_driver_sql("PRAGMA integrity_check").scalar())

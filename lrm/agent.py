@@ -110,8 +110,11 @@ class Agent:
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
-        for name, fn in (("lrm-comm", self._comm_loop), ("lrm-capture", self._capture_loop),
-                         ("lrm-sensors", self._sensor_loop)):
+        for name, fn in (
+            ("lrm-comm", self._comm_loop),
+            ("lrm-capture", self._capture_loop),
+            ("lrm-sensors", self._sensor_loop),
+        ):
             if fn == self._sensor_loop and self.sensors is None:
                 continue
             t = threading.Thread(target=self._guard(fn), name=f"{name}-{self.config.module}", daemon=True)
@@ -125,6 +128,7 @@ class Agent:
             except Exception:
                 log.exception("agent thread %s failed", threading.current_thread().name)
                 self._stop.set()
+
         return run
 
     def stop(self, timeout: float = 10.0) -> None:
@@ -168,9 +172,16 @@ class Agent:
             seq = self._next_seq()
             depth = f.depth_m if f.depth_m is not None else (self.depth() if self.depth else None)
             self.outbox.add_frame(
-                self.boot, seq, png, captured_at=f.captured_at, camera=f.camera or self.config.module,
-                wavelength_nm=cap.wavelength_nm, exposure_s=f.exposure_s, gain_db=f.gain_db,
-                depth_m=depth, schedule_version=cap.schedule_version,
+                self.boot,
+                seq,
+                png,
+                captured_at=f.captured_at,
+                camera=f.camera or self.config.module,
+                wavelength_nm=cap.wavelength_nm,
+                exposure_s=f.exposure_s,
+                gain_db=f.gain_db,
+                depth_m=depth,
+                schedule_version=cap.schedule_version,
             )
             self.counters["frames_captured"] += 1
             self._new.put((self.boot, seq))
@@ -184,8 +195,20 @@ class Agent:
         while not self._stop.is_set():
             s = self.sensors.read()
             acc, gyro = s.acc_m_s2, s.gyro_dps
-            rows.append([s.t.timestamp(), s.temperature_c, s.humidity_pct, acc[0], acc[1], acc[2],
-                         gyro[0], gyro[1], gyro[2], s.depth_m])
+            rows.append(
+                [
+                    s.t.timestamp(),
+                    s.temperature_c,
+                    s.humidity_pct,
+                    acc[0],
+                    acc[1],
+                    acc[2],
+                    gyro[0],
+                    gyro[1],
+                    gyro[2],
+                    s.depth_m,
+                ]
+            )
             if self.clock.monotonic() - batch_start >= self.config.sensor_batch_s:
                 seq = self._next_seq()
                 self.outbox.add_sensors(self.boot, seq, rows)
@@ -271,14 +294,30 @@ class Agent:
                     requeue(list(in_flight))
                 if not welcomed and now - last_hello >= cfg.hello_interval_s:
                     last_hello = now
-                    self._send(sock, wire.Hello(module=cfg.module, boot=self.boot, software=f"camcal {__version__}",
-                                                schedule=self._schedule_state(),
-                                                outbox_pending=self.outbox.pending_count(), last_seq=self._seq))
+                    self._send(
+                        sock,
+                        wire.Hello(
+                            module=cfg.module,
+                            boot=self.boot,
+                            software=f"camcal {__version__}",
+                            schedule=self._schedule_state(),
+                            outbox_pending=self.outbox.pending_count(),
+                            last_seq=self._seq,
+                        ),
+                    )
                 if now - last_beat >= cfg.heartbeat_s:
                     last_beat = now
-                    self._send(sock, wire.ModuleHeartbeat(
-                        module=cfg.module, boot=self.boot, schedule=self._schedule_state(),
-                        outbox_pending=self.outbox.pending_count(), in_flight=len(in_flight), last_seq=self._seq))
+                    self._send(
+                        sock,
+                        wire.ModuleHeartbeat(
+                            module=cfg.module,
+                            boot=self.boot,
+                            schedule=self._schedule_state(),
+                            outbox_pending=self.outbox.pending_count(),
+                            in_flight=len(in_flight),
+                            last_seq=self._seq,
+                        ),
+                    )
                 late = [k for k, t in in_flight.items() if now - t > cfg.ack_timeout_s]
                 if late:
                     requeue(late)
@@ -328,12 +367,25 @@ class Agent:
                 self._status(cid, "done", target_version=schedule.version)
 
     def _status(self, command_id: str, state: str, reason: str | None = None, **extra: Any) -> None:
-        rec = {**self._commands.get(command_id, {}), "command_id": command_id, "state": state,
-               "reason": reason, **extra}
+        rec = {
+            **self._commands.get(command_id, {}),
+            "command_id": command_id,
+            "state": state,
+            "reason": reason,
+            **extra,
+        }
         self._commands[command_id] = rec
         self.outbox.append_jsonl("commands.jsonl", rec)
-        self._status_out.put(wire.CommandStatus(module=self.config.module, boot=self.boot, command_id=command_id,
-                                                state=state, reason=reason, schedule=self._schedule_state()))
+        self._status_out.put(
+            wire.CommandStatus(
+                module=self.config.module,
+                boot=self.boot,
+                command_id=command_id,
+                state=state,
+                reason=reason,
+                schedule=self._schedule_state(),
+            )
+        )
 
     def _on_command(self, cmd: wire.Command) -> None:
         """Validate and apply a command once; a repeated command only gets its status again."""
@@ -341,9 +393,16 @@ class Agent:
         known = self._commands.get(cmd.command_id)
         if known is not None:
             self.counters["commands_repeated"] += 1
-            self._status_out.put(wire.CommandStatus(
-                module=self.config.module, boot=self.boot, command_id=cmd.command_id, state=known["state"],
-                reason=known.get("reason"), schedule=self._schedule_state()))
+            self._status_out.put(
+                wire.CommandStatus(
+                    module=self.config.module,
+                    boot=self.boot,
+                    command_id=cmd.command_id,
+                    state=known["state"],
+                    reason=known.get("reason"),
+                    schedule=self._schedule_state(),
+                )
+            )
             return
         runner = self.runner
         if runner is None:
@@ -355,20 +414,28 @@ class Agent:
                 sched = Schedule.model_validate(cmd.schedule or {})
             except ValidationError as exc:
                 e = exc.errors()[0]
-                self._status(cmd.command_id, "rejected",
-                             f"schedule.{'.'.join(str(p) for p in e['loc'])}: {e['msg']}")
+                self._status(
+                    cmd.command_id, "rejected", f"schedule.{'.'.join(str(p) for p in e['loc'])}: {e['msg']}"
+                )
                 return
             problem = self._check_limits(sched)
             if problem:
                 self._status(cmd.command_id, "rejected", problem)
                 return
             if sched.version != cmd.target_version:
-                self._status(cmd.command_id, "rejected",
-                             f"target_version {cmd.target_version} differs from the schedule's version {sched.version}")
+                self._status(
+                    cmd.command_id,
+                    "rejected",
+                    f"target_version {cmd.target_version} differs from the schedule's "
+                    f"version {sched.version}",
+                )
                 return
             if sched.version <= current:
-                self._status(cmd.command_id, "rejected",
-                             f"version {sched.version} is not newer than the running version {current}")
+                self._status(
+                    cmd.command_id,
+                    "rejected",
+                    f"version {sched.version} is not newer than the running version {current}",
+                )
                 return
             self._commands[cmd.command_id] = {"command_id": cmd.command_id, "target_version": sched.version}
             self._status(cmd.command_id, "accepted", target_version=sched.version)
@@ -382,11 +449,16 @@ class Agent:
                     self._status(cmd.command_id, "done", target_version=sched.version)
             return
         if cmd.target_version and cmd.target_version != current:
-            self._status(cmd.command_id, "rejected",
-                         f"{cmd.action} targets schedule version {cmd.target_version}, the module runs {current}")
+            self._status(
+                cmd.command_id,
+                "rejected",
+                f"{cmd.action} targets schedule version {cmd.target_version}, the module runs {current}",
+            )
             return
         self._status(cmd.command_id, "accepted")
-        {"start": runner.start, "pause": runner.pause, "resume": runner.resume, "stop": runner.stop}[cmd.action]()
+        {"start": runner.start, "pause": runner.pause, "resume": runner.resume, "stop": runner.stop}[
+            cmd.action
+        ]()
         self._status(cmd.command_id, "done")
 
     def _check_limits(self, sched: Schedule) -> str | None:

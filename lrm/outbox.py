@@ -96,15 +96,34 @@ class Outbox:
         with self._lock:
             return self._last_seq.get(boot, 0)
 
-    def add_frame(self, boot: str, seq: int, png: bytes, *, captured_at: datetime, camera: str,
-                  wavelength_nm: int, exposure_s: float, gain_db: float, depth_m: float | None,
-                  schedule_version: int) -> Entry:
+    def add_frame(
+        self,
+        boot: str,
+        seq: int,
+        png: bytes,
+        *,
+        captured_at: datetime,
+        camera: str,
+        wavelength_nm: int,
+        exposure_s: float,
+        gain_db: float,
+        depth_m: float | None,
+        schedule_version: int,
+    ) -> Entry:
         """Store a frame (image, then its manifest row) before it is sent."""
         name = f"{boot}/{camera}_{wavelength_nm}_{seq:07d}.png"
         row = ManifestRow(
-            index=seq, file=name, camera=camera, wavelength_nm=wavelength_nm, exposure_s=exposure_s,
-            gain_db=gain_db, timestamp=captured_at.isoformat().replace("+00:00", "Z"), depth_m=depth_m,
-            seq=seq, boot=boot, schedule_version=schedule_version,
+            index=seq,
+            file=name,
+            camera=camera,
+            wavelength_nm=wavelength_nm,
+            exposure_s=exposure_s,
+            gain_db=gain_db,
+            timestamp=captured_at.isoformat().replace("+00:00", "Z"),
+            depth_m=depth_m,
+            seq=seq,
+            boot=boot,
+            schedule_version=schedule_version,
         )
         with self._lock:
             self._writer.add(png, row)
@@ -158,19 +177,37 @@ class Outbox:
             data = (self.root / "frames" / row.file).read_bytes()
             width, height = png_size(data)
             header = wire.FrameMsg(
-                module=module, boot=e.boot, seq=e.seq,
+                module=module,
+                boot=e.boot,
+                seq=e.seq,
                 captured_at=datetime.fromisoformat(row.timestamp.replace("Z", "+00:00"))
-                if row.timestamp else wire.utc_now(),
-                camera=row.camera, wavelength_nm=row.wavelength_nm, exposure_s=row.exposure_s,
-                gain_db=row.gain_db, depth_m=row.depth_m, width_px=width, height_px=height,
-                encoding="png", size=len(data), sha256=wire.sha256_hex(data),
-                schedule_version=row.schedule_version or 0, file=row.file,
+                if row.timestamp
+                else wire.utc_now(),
+                camera=row.camera,
+                wavelength_nm=row.wavelength_nm,
+                exposure_s=row.exposure_s,
+                gain_db=row.gain_db,
+                depth_m=row.depth_m,
+                width_px=width,
+                height_px=height,
+                encoding="png",
+                size=len(data),
+                sha256=wire.sha256_hex(data),
+                schedule_version=row.schedule_version or 0,
+                file=row.file,
             )
             return header, data
         obj = e.ref
         payload = wire.sensors_payload(obj["rows"])
-        header = wire.SensorsMsg(module=module, boot=e.boot, seq=e.seq, columns=tuple(obj["columns"]),
-                                 count=len(obj["rows"]), size=len(payload), sha256=wire.sha256_hex(payload))
+        header = wire.SensorsMsg(
+            module=module,
+            boot=e.boot,
+            seq=e.seq,
+            columns=tuple(obj["columns"]),
+            count=len(obj["rows"]),
+            size=len(payload),
+            sha256=wire.sha256_hex(payload),
+        )
         return header, payload
 
     # ------------------------------------------------------------ state files
@@ -186,8 +223,9 @@ class Outbox:
     def save_json(self, name: str, obj: Any) -> None:
         from camcal.frameset import write_atomic
 
-        write_atomic(self.root / name, (json.dumps(obj, indent=1, default=str) + "\n").encode(),
-                     fsync=self.fsync)
+        write_atomic(
+            self.root / name, (json.dumps(obj, indent=1, default=str) + "\n").encode(), fsync=self.fsync
+        )
 
     def append_jsonl(self, name: str, obj: Any) -> None:
         with self._lock, (self.root / name).open("a", encoding="utf-8") as fh:

@@ -41,8 +41,16 @@ class ScheduleRunner:
     repeat of the exposure and gain being taken).
     """
 
-    def __init__(self, camera: Any, clock: Any, schedule: Schedule, *, lem: LemClock | None = None,
-                 gate: Callable[[], bool] | None = None, state: str = "running") -> None:
+    def __init__(
+        self,
+        camera: Any,
+        clock: Any,
+        schedule: Schedule,
+        *,
+        lem: LemClock | None = None,
+        gate: Callable[[], bool] | None = None,
+        state: str = "running",
+    ) -> None:
         self.camera = camera
         self.clock = clock
         self.lem = lem
@@ -144,7 +152,9 @@ class ScheduleRunner:
                     self._index += 1
                     following = self._shots[self._index] if self._index < len(self._shots) else None
                     end_of_setting = following is None or (
-                        following.wavelength_nm, following.exposure_s, following.gain_db
+                        following.wavelength_nm,
+                        following.exposure_s,
+                        following.gain_db,
                     ) != (shot.wavelength_nm, shot.exposure_s, shot.gain_db)
                     if end_of_setting and self._pending is not None:
                         self._swap(self._pending)

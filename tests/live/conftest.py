@@ -1,0 +1,35 @@
+"""Fixtures for the live path: a real ingest service on 127.0.0.1 with a SQLite store."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from ingest.alarms import AlarmLimits
+from ingest.service import IngestConfig, IngestService
+
+
+def ingest_config(data: Path, **over) -> IngestConfig:
+    base = dict(
+        data_dir=data,
+        bind="tcp://127.0.0.1:*",
+        events_bind="tcp://127.0.0.1:*",
+        workers=1,
+        sqlite_synchronous="NORMAL",
+        link_timeout_s=2.0,
+        rolling_interval_s=0.0,
+        rolling_window_s=600.0,
+        alarm_limits=AlarmLimits(link_timeout_s=2.0),
+    )
+    base.update(over)
+    return IngestConfig(**base)
+
+
+@pytest.fixture
+def service(tmp_path: Path) -> Iterator[IngestService]:
+    svc = IngestService(ingest_config(tmp_path / "data"))
+    svc.start()
+    yield svc
+    svc.stop()

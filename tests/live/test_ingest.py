@@ -1,0 +1,131 @@
+"""Modules stream into the ingest over real TCP: everything stored once, analysed, and faults survived."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import pytest
+import zmq
+from sqlalchemy import func, select
+
+from camcal import wire
+from ingest.service import IngestService
+from storage.models import AttenuationPoint, Event, Frame, FrameResult, SensorSample
+from tests.utils.live import TcpProxy, make_agent
+
+
+def wait_for(predicate, timeout: float, interval: float = 0.05) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(interval)
+    return predicate()
+
+
+def stored_keys(svc: IngestService, module: str) -> list[tuple[str, int]]:
+    with svc.store.read() as s:
+        return [(b, q) for b, q in s.execute(select(Frame.boot, Frame.seq).where(Frame.module_id == module))]
+
+
+def count(svc: IngestService, model) -> int:
+    with svc.store.read() as s:
+        return int(s.scalar(select(func.count(model.id))))
+
+
+def finish(agents) -> None:
+    for a in agents:
+        a.runner.stop()
+    time.sleep(0.3)
+
+
+def test_two_modules_every_frame_stored_once_analysed_with_attenuation(
+    service: IngestService, tmp_path: Path
+) -> None:
+    agents = [make_agent(m, service.endpoint, tmp_path / f"outbox-{m}")[0] for m in ("A", "B")]
+    for a in agents:
+        a.start()
+    assert wait_for(lambda: all(a.counters["frames_captured"] >= 12 for a in agents), 30)
+    finish(agents)
+    assert all(a.wait_drained(20) for a in agents)
+    for a in agents:
+        keys = stored_keys(service, a.config.module)
+        assert len(keys) == len(set(keys)) == a.counters["frames_captured"]
+    n_frames = count(service, Frame)
+    assert wait_for(lambda: count(service, FrameResult) == n_frames, 30)
+    assert count(service, SensorSample) > 10
+    with service.store.read() as s:
+        points = list(s.scalars(select(AttenuationPoint).where(AttenuationPoint.wavelength_nm == 460)))
+        kinds = {k for (k,) in s.execute(select(Event.kind).distinct())}
+    assert points, "no λ_att point"
+    truth = 1 / (1 / 65 + 1 / 50)
+    assert points[-1].lambda_att_m == pytest.approx(truth, rel=0.05)
+    assert points[-1].stat_err_m > 0 and points[-1].sys_err_m > 0
+    assert {"frame", "result", "attenuation", "link"} <= kinds
+    health = service.health()
+    assert health["modules"]["A"]["link"] == "up" and health["counters"]["frames_stored"] == n_frames
+    for a in agents:
+        a.stop()
+
+
+def test_malformed_messages_are_counted_dropped_and_the_good_stream_goes_on(
+    service: IngestService, tmp_path: Path
+) -> None:
+    agent, _ = make_agent("A", service.endpoint, tmp_path / "outbox")
+    agent.start()
+    ctx = zmq.Context.instance()
+    rogue = ctx.socket(zmq.DEALER)
+    rogue.connect(service.endpoint)
+    good = wire.encode(wire.Hello(module="R", boot="x"))
+    bad = [
+        [b"not json at all"],
+        [json.dumps({"v": 9, "type": "hello", "module": "R", "boot": "x"}).encode()],
+        [json.dumps({"v": 1, "type": "frame", "module": "R"}).encode(), b"payload"],
+        [bytes(good[0]), b"unexpected payload"],
+        [b"{" * (wire.MAX_HEADER_BYTES + 10)],
+        [b"\x00\xff" * 50, b"\x01", b"\x02"],
+    ]
+    for _ in range(3):
+        for parts in bad:
+            rogue.send_multipart(parts)
+    assert wait_for(lambda: sum(service.malformed.values()) >= 3 * len(bad), 10)
+    assert set(service.malformed) == {
+        "bad_header",
+        "bad_version",
+        "invalid_field",
+        "bad_framing",
+        "oversized",
+    }
+    assert wait_for(lambda: agent.counters["frames_captured"] >= 6, 20)
+    finish([agent])
+    assert agent.wait_drained(20)
+    assert len(stored_keys(service, "A")) == agent.counters["frames_captured"]
+    rogue.close(0)
+    agent.stop()
+
+
+def test_a_cut_link_buffers_in_the_outbox_and_catches_up(service: IngestService, tmp_path: Path) -> None:
+    port = int(service.endpoint.rsplit(":", 1)[1])
+    proxy = TcpProxy(port)
+    agent, _ = make_agent("A", proxy.endpoint, tmp_path / "outbox", link_timeout_s=2.0, ack_timeout_s=5.0)
+    agent.start()
+    assert wait_for(lambda: agent.counters["acked"] >= 4, 20)
+    proxy.cut()
+    assert wait_for(lambda: not agent.linked.is_set(), 10), "the agent did not notice the cut"
+    assert wait_for(lambda: agent.outbox.pending_count() >= 5, 20), "nothing buffered during the cut"
+    assert wait_for(lambda: service.health()["modules"]["A"]["link"] == "down", 10)
+    buffered = agent.outbox.pending_count()
+    proxy.restore()
+    assert wait_for(lambda: agent.linked.is_set(), 15)
+    finish([agent])
+    assert agent.wait_drained(30), f"{agent.outbox.pending_count()} of {buffered} still pending"
+    keys = stored_keys(service, "A")
+    assert len(keys) == len(set(keys)) == agent.counters["frames_captured"]
+    assert agent.counters["link_lost"] >= 1 and agent.counters["resends_queued"] >= 0
+    with service.store.read() as s:
+        states = [e.payload["state"] for e in s.scalars(select(Event).where(Event.kind == "link"))]
+    assert states[:3] == ["up", "down", "up"]
+    agent.stop()
+    proxy.close()

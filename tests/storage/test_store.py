@@ -1,0 +1,114 @@
+"""The store: migrations, idempotent batches, gaps, alarms, safe file paths."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from alembic.autogenerate import compare_metadata
+from alembic.runtime.migration import MigrationContext
+
+from storage.db import current_revision, head_revision
+from storage.files import UnsafePath
+from storage.models import Base
+from storage.store import FrameRow, SensorBatchRow, Store
+
+
+@pytest.fixture
+def store(tmp_path: Path) -> Store:
+    s = Store.open(tmp_path / "data", sqlite_synchronous="NORMAL")
+    yield s
+    s.close()
+
+
+def frame_row(seq: int, module: str = "A", boot: str = "b1") -> FrameRow:
+    return FrameRow(
+        module_id=module,
+        boot=boot,
+        seq=seq,
+        captured_unix_s=1000.0 + seq,
+        received_unix_s=1001.0 + seq,
+        wavelength_nm=460,
+        exposure_s=0.05,
+        gain_db=8.0,
+        depth_m=3398.0,
+        width_px=64,
+        height_px=48,
+        path=f"frames/1/{module}/{boot}/{seq:08d}.png",
+        size_bytes=10,
+        sha256="0" * 64,
+    )
+
+
+def test_migrations_build_exactly_the_models(store: Store) -> None:
+    assert current_revision(store.engine) == head_revision()
+    with store.engine.connect() as conn:
+        diff = compare_metadata(MigrationContext.configure(conn), Base.metadata)
+    assert diff == []
+    assert store.integrity_check() == "ok"
+
+
+def test_resent_frames_and_sensor_batches_are_no_ops(store: Store) -> None:
+    dive = store.current_dive()
+    samples = [{"t_unix_s": 1.0, "temperature_c": 4.0, "humidity_pct": 30.0}]
+    first = store.commit_batch(
+        dive.id, [frame_row(1), frame_row(2)], [SensorBatchRow("A", "b1", 3, 1.0, samples)]
+    )
+    assert set(first.new_frames) == {("A", "b1", 1), ("A", "b1", 2)}
+    assert first.new_sensor_batches == [("A", "b1", 3)]
+    again = store.commit_batch(
+        dive.id, [frame_row(2), frame_row(4)], [SensorBatchRow("A", "b1", 3, 1.0, samples)]
+    )
+    assert set(again.new_frames) == {("A", "b1", 4)}
+    assert again.duplicate_frames == [("A", "b1", 2)]
+    assert again.duplicate_sensor_batches == [("A", "b1", 3)]
+    assert store.known_seqs("A", "b1") == {1, 2, 3, 4}
+    from sqlalchemy import func, select
+
+    from storage.models import SensorSample
+
+    with store.read() as s:
+        assert s.scalar(select(func.count(SensorSample.id))) == 1
+
+
+def test_gap_is_filled_when_every_number_arrives(store: Store) -> None:
+    gid = store.record_gap("A", "b1", 5, 7)
+    assert [g.id for g in store.open_gaps("A")] == [gid]
+    assert store.fill_gaps("A", "b1", {5, 6}) == []
+    assert store.fill_gaps("A", "b1", {5, 6, 7}) == [gid]
+    assert store.open_gaps("A") == []
+
+
+def test_alarm_raise_update_clear_and_ack_is_audited(store: Store) -> None:
+    alarm, new = store.raise_alarm("tilt:A", "tilt", "MINOR", "tilted 3.5°", "A")
+    assert new
+    again, changed = store.raise_alarm("tilt:A", "tilt", "MINOR", "tilted 3.5°", "A")
+    assert again.id == alarm.id and not changed
+    _, changed = store.raise_alarm("tilt:A", "tilt", "MAJOR", "tilted 7°", "A")
+    assert changed
+    acked = store.ack_alarm(alarm.id, "deck")
+    assert acked.acked_by == "deck"
+    assert store.clear_alarm("tilt:A").active is False
+    assert store.active_alarms() == []
+    from sqlalchemy import select
+
+    from storage.models import AuditEntry
+
+    with store.read() as s:
+        entry = s.scalars(select(AuditEntry)).one()
+    assert entry.action == "alarm.ack" and entry.actor == "deck"
+
+
+@pytest.mark.parametrize("bad", ["../x.png", "/etc/passwd", "frames/../../x", "", "a\x00b"])
+def test_file_paths_cannot_leave_the_data_folder(store: Store, bad: str) -> None:
+    with pytest.raises(UnsafePath):
+        store.files.resolve(bad)
+
+
+def test_file_write_is_atomic_and_temporaries_are_cleaned(store: Store) -> None:
+    rel = store.files.relative_path(1, "A", "b1", 3)
+    store.files.write(rel, b"data")
+    assert store.files.read(rel) == b"data"
+    stale = store.files.resolve(rel).with_name(".00000004.png.tmp-123")
+    stale.write_bytes(b"half")
+    assert store.files.remove_temporaries() == 1 and not stale.exists()

@@ -1,0 +1,230 @@
+"""Test doubles for the hardware a module has (camera, sensors, clock) and a cuttable TCP link.
+
+The camera renders small simulated frames of the LEM (the camera hardware is
+what cannot run here); everything else in the live tests is real: ZeroMQ
+over TCP on 127.0.0.1, SQLite files, PNG codecs, processes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import selectors
+import socket
+import threading
+import time
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from camcal.schedule import Schedule
+from lrm.agent import Agent, AgentConfig
+from lrm.runner import ScheduleRunner
+from tests.utils.sim import SMALL_CAMERA, renderer
+
+TREX_DISTANCES = {"A": (21.56, False), "B": (41.62, True)}
+
+
+class RealClock:
+    def now(self) -> datetime:
+        return datetime.now(UTC)
+
+    def monotonic(self) -> float:
+        return time.monotonic()
+
+    def sleep(self, seconds: float) -> None:
+        time.sleep(seconds)
+
+
+@dataclass
+class Frame:
+    pixels: np.ndarray
+    captured_at: datetime
+    exposure_s: float
+    gain_db: float
+    camera: str
+    wavelength_nm: int | None
+    depth_m: float | None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+class SmallSimCamera:
+    """Renders the LEM on a 640 x 512 sensor at the T-REX plate scale (stands in for the hardware)."""
+
+    exposure_range_s = (1e-4, 2.0)
+    gain_range_db = (0.0, 24.0)
+    gain_step_db = 0.1
+
+    def __init__(self, camera_id: str, frame_interval_s: float = 0.05, water: str = "trex") -> None:
+        dist, far = TREX_DISTANCES[camera_id]
+        self.camera_id = camera_id
+        self.renderer = renderer(water, dist, far_side=far, camera=SMALL_CAMERA, camera_id=camera_id)
+        self.interval = frame_interval_s
+        self.count = 0
+        self.settings: list[tuple[float, float]] = []
+
+    def capture(self, exposure_s: float, gain_db: float) -> Frame:
+        self.count += 1
+        self.settings.append((exposure_s, gain_db))
+        pixels, _ = self.renderer.render(460, exposure_s, gain_db, rng=np.random.default_rng(self.count))
+        time.sleep(self.interval)
+        return Frame(pixels, datetime.now(UTC), exposure_s, gain_db, self.camera_id, 460, 3400.0)
+
+    def close(self) -> None:
+        pass
+
+
+@dataclass
+class Sample:
+    t: datetime
+    temperature_c: float
+    humidity_pct: float
+    acc_m_s2: tuple[float, float, float]
+    gyro_dps: tuple[float, float, float]
+    depth_m: float
+
+
+class SteadySensors:
+    def __init__(self, humidity_pct: float = 30.0, tilt_deg: float = 0.5) -> None:
+        self.humidity_pct = humidity_pct
+        self.tilt = np.radians(tilt_deg)
+
+    def read(self) -> Sample:
+        t = time.time()
+        g = 9.81
+        return Sample(
+            datetime.now(UTC),
+            4.0,
+            self.humidity_pct,
+            (g * np.sin(self.tilt), 0.0, g * np.cos(self.tilt) + 0.2 * np.sin(2 * np.pi * t / 7.0)),
+            (0.05, 0.0, 0.02),
+            3400.0,
+        )
+
+
+def quick_schedule(version: int = 1, name: str = "quick") -> Schedule:
+    return Schedule(
+        name=name, version=version, exposures_s=(0.05,), gains_db=(6.0, 8.0), repeats=2, wavelengths_nm=(460,)
+    )
+
+
+def make_agent(
+    module: str,
+    endpoint: str,
+    outbox: Path,
+    *,
+    schedule: Schedule | None = None,
+    sensors: bool = True,
+    **config: Any,
+) -> tuple[Agent, SmallSimCamera]:
+    camera = SmallSimCamera(module)
+    clock = RealClock()
+    runner = ScheduleRunner(camera, clock, schedule or quick_schedule())
+    cfg = AgentConfig(module=module, connect=endpoint, outbox=outbox, fsync=False, **config)
+    agent = Agent(
+        cfg,
+        clock=clock,
+        runner=runner,
+        sensors=SteadySensors() if sensors else None,
+        camera_limits=(camera.exposure_range_s, camera.gain_range_db, camera.gain_step_db),
+    )
+    return agent, camera
+
+
+class TcpProxy:
+    """A TCP relay between modules and the ship whose link can be cut and restored."""
+
+    def __init__(self, upstream_port: int) -> None:
+        self.upstream = ("127.0.0.1", upstream_port)
+        probe = socket.socket()
+        probe.bind(("127.0.0.1", 0))
+        self.port = probe.getsockname()[1]
+        probe.close()
+        self._stop = threading.Event()
+        self._cut = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    @property
+    def endpoint(self) -> str:
+        return f"tcp://127.0.0.1:{self.port}"
+
+    def cut(self) -> None:
+        self._cut.set()
+
+    def restore(self) -> None:
+        self._cut.clear()
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(5)
+
+    def _run(self) -> None:
+        sel = selectors.DefaultSelector()
+        listener: socket.socket | None = None
+        peers: dict[socket.socket, socket.socket] = {}
+
+        def drop_all() -> None:
+            for s in list(peers):
+                with contextlib.suppress(KeyError, ValueError):
+                    sel.unregister(s)
+                s.close()
+            peers.clear()
+
+        while not self._stop.is_set():
+            if self._cut.is_set():
+                if listener is not None:
+                    sel.unregister(listener)
+                    listener.close()
+                    listener = None
+                drop_all()
+                time.sleep(0.05)
+                continue
+            if listener is None:
+                listener = socket.socket()
+                listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                listener.bind(("127.0.0.1", self.port))
+                listener.listen()
+                listener.setblocking(False)
+                sel.register(listener, selectors.EVENT_READ)
+            for key, _ in sel.select(0.05):
+                s = key.fileobj
+                if s is listener:
+                    client, _ = listener.accept()
+                    try:
+                        up = socket.create_connection(self.upstream, timeout=2)
+                    except OSError:
+                        client.close()
+                        continue
+                    for a, b in ((client, up), (up, client)):
+                        a.setblocking(False)
+                        peers[a] = b
+                        sel.register(a, selectors.EVENT_READ)
+                    continue
+                other = peers.get(s)
+                if other is None:
+                    continue
+                try:
+                    data = s.recv(1 << 16)
+                except (BlockingIOError, InterruptedError):
+                    continue
+                except OSError:
+                    data = b""
+                if not data:
+                    for x in (s, other):
+                        peers.pop(x, None)
+                        with contextlib.suppress(KeyError, ValueError):
+                            sel.unregister(x)
+                        x.close()
+                    continue
+                try:
+                    other.setblocking(True)
+                    other.sendall(data)
+                    other.setblocking(False)
+                except OSError:
+                    pass
+        drop_all()
+        if listener is not None:
+            listener.close()

@@ -23,14 +23,16 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Protocol, Self, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, Self, runtime_checkable
 
 import cv2
 import numpy as np
 
 from lrm.clock import Clock, SystemClock
-from lrm.dive import DiveSimulation
 from lrm.sensors import SensorSample
+
+if TYPE_CHECKING:  # the simulator (SciPy, the renderer) is not needed to drive a real camera
+    from lrm.dive import DiveSimulation
 
 log = logging.getLogger(__name__)
 

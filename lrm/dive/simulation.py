@@ -93,7 +93,8 @@ class DiveSimulation:
         Mean number of bioluminescent specks per frame.
     renderer_cache_size
         Renderers kept (least recently used are dropped). One renderer serves
-        one module in one quantised water state, see `render`.
+        one module in one quantised water state, see `render`; at full size
+        each holds ~30 MB (its noise bank) and takes ~0.3 s to build.
     water_weight_step, drift_step
         Quantisation of the water column's depth weight and drift factor
         between renderers (`water_state`): a step changes λ_att by at most
@@ -123,7 +124,7 @@ class DiveSimulation:
         leak_at_s: Mapping[str, float] | None = None,
         double_image_cameras: Sequence[str] = ("A",),
         flashes_per_frame: float = 0.0,
-        renderer_cache_size: int = 12,
+        renderer_cache_size: int = 8,
         water_weight_step: float = 0.004,
         drift_step: float = 0.004,
         acc_noise_m_s2: float = 0.02,
@@ -370,9 +371,12 @@ class DiveSimulation:
           phase (the camera decides when to shoot, see
           `DiveProfile.captures_enabled`);
         * the light crosses the water of the column at the path's midpoint
-          depth (`WaterColumn`), quantised so that a dive builds a few dozen
-          renderers at most; ``lambda_att_m`` in the result is the value
-          rendered, ``lambda_att_column_m`` the exact column value;
+          depth (`WaterColumn`), quantised (`water_state`) so that the test
+          stops and the station need a few dozen renderers at most (frames
+          taken while the cable moves, where the water changes continuously,
+          build a new one every few metres near the surface);
+          ``lambda_att_m`` in the result is the value rendered,
+          ``lambda_att_column_m`` the exact column value;
         * the LEM sits where the module's attitude and sway put it at
           mid-exposure (`ModuleMotion.pointing_offset_px`) and is smeared
           along its track during the exposure (`ModuleMotion.blur_px`).

@@ -103,3 +103,13 @@ def trex_schedule() -> Schedule:
 def trex_subsampled(repeats: int = 2, gains_db: tuple[float, ...] = (2.0, 8.0, 14.0, 20.0)) -> Schedule:
     """The T-REX exposures at a few of its gains and repeats: a quick, representative set."""
     return Schedule(name="trex-subsampled", exposures_s=TREX_EXPOSURES_S, gains_db=gains_db, repeats=repeats)
+
+
+def quick_check() -> Schedule:
+    """A quick λ_att check: the three settings that suit each wavelength, a few repeats."""
+    return Schedule(name="quick-check", exposures_s=(0.05, 0.07, 0.11), gains_db=(8.0,), repeats=5)
+
+
+def presets() -> dict[str, Schedule]:
+    """The named schedules an operator can start from."""
+    return {"trex": trex_schedule(), "trex-subsampled": trex_subsampled(), "quick-check": quick_check()}

@@ -87,6 +87,7 @@ class Agent:
         self._seq_lock = threading.Lock()
         self._new: queue.SimpleQueue[tuple[str, int]] = queue.SimpleQueue()
         self._stop = threading.Event()
+        self._produce_stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self.counters: Counter[str] = Counter()
         self.linked = threading.Event()
@@ -131,7 +132,12 @@ class Agent:
 
         return run
 
+    def stop_producing(self) -> None:
+        """Take no more frames or sensor samples; keep sending what the outbox holds."""
+        self._produce_stop.set()
+
     def stop(self, timeout: float = 10.0) -> None:
+        self._produce_stop.set()
         self._stop.set()
         for t in self._threads:
             t.join(timeout)
@@ -163,8 +169,8 @@ class Agent:
 
     # ------------------------------------------------------------ capture
     def _capture_loop(self) -> None:
-        while not self._stop.is_set():
-            cap = self._source(self._stop)
+        while not self._produce_stop.is_set():
+            cap = self._source(self._produce_stop)
             if cap is None:
                 return
             f = cap.frame
@@ -192,7 +198,7 @@ class Agent:
         rows: list[list[float | None]] = []
         batch_start = self.clock.monotonic()
         next_t = self.clock.monotonic()
-        while not self._stop.is_set():
+        while not self._produce_stop.is_set():
             s = self.sensors.read()
             acc, gyro = s.acc_m_s2, s.gyro_dps
             rows.append(

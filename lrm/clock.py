@@ -88,6 +88,20 @@ class SimClock:
         self._base_sim_s = 0.0
         self._base_real_s = time.monotonic()
 
+    @classmethod
+    def synced(cls, start: datetime, speed: float, real_epoch_unix_s: float) -> SimClock:
+        """A clock whose simulated ``start`` happened at wall-clock time ``real_epoch_unix_s``.
+
+        Processes that build their clocks from the same start, speed and
+        epoch agree on the simulated time (to the precision of the host
+        clock), so two simulated modules in separate processes stay in step.
+        """
+        clock = cls(start, speed)
+        with clock._lock:
+            clock._base_sim_s = (time.time() - real_epoch_unix_s) * clock._speed
+            clock._base_real_s = time.monotonic()
+        return clock
+
     @staticmethod
     def _check_speed(speed: float) -> float:
         speed = float(speed)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from camcal.cli import analyze, demo, ingest, simulate
+from camcal.cli import analyze, data, demo, ingest, lrm, simulate
 
 app = typer.Typer(
     name="camcal",
@@ -17,6 +17,8 @@ simulate.register(app)
 analyze.register(app)
 demo.register(app)
 ingest.register(app)
+lrm.register(app)
+data.register(app)
 
 
 def main() -> None:

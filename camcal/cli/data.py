@@ -1,0 +1,116 @@
+"""``camcal import`` and ``camcal export``: SD cards into the store, dives out of it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from camcal.cli.common import console, fail, progress_bar
+from camcal.frameset import FrameSetError
+
+
+def register(app: typer.Typer) -> None:
+    app.command("import")(import_cmd)
+    app.command("export")(export_cmd)
+
+
+def open_store(data: Path, db_url: str | None, *, create: bool = False):
+    from storage.store import Store
+
+    if not create and db_url is None and not (data / "camcal.db").exists():
+        raise fail(f"{data}: no camcal store here (run `camcal ingest --data {data}` or pass --db-url)")
+    try:
+        return Store.open(data, db_url)
+    except Exception as exc:
+        raise fail(f"cannot open the store: {exc}") from None
+
+
+def pick_dive(store, name: str | None, *, create_as: str | None = None):
+    if name:
+        dive = store.dive_by_name(name)
+        if dive is None:
+            if create_as is not None:
+                return store.create_dive(name)
+            raise fail(f"no dive named {name!r}")
+        return dive
+    dive = store.current_dive(create=False)
+    if dive is None:
+        from sqlalchemy import select
+
+        from storage.models import Dive
+
+        with store.read() as s:
+            dive = s.scalars(select(Dive).order_by(Dive.id.desc())).first()
+    if dive is None:
+        if create_as is not None:
+            return store.create_dive(create_as)
+        raise fail("the store holds no dive yet")
+    return dive
+
+
+def import_cmd(
+    folder: Annotated[Path, typer.Argument(help="An SD-card outbox or any frame set.")],
+    data: Annotated[Path, typer.Option(help="Data folder of the store.")] = Path("camcal-data"),
+    db_url: Annotated[
+        str | None, typer.Option(help="SQLAlchemy URL (default: SQLite in the data folder).")
+    ] = None,
+    dive: Annotated[str | None, typer.Option(help="Dive to import into (default: the latest).")] = None,
+    workers: Annotated[int, typer.Option(help="Analysis processes.")] = 2,
+    analyse: Annotated[bool, typer.Option(help="Analyse the imported frames.")] = True,
+) -> None:
+    """Load an SD-card frame set into a dive: frames already stored are skipped, gaps are filled."""
+    from camcal import __version__
+    from ingest.importer import import_frame_set
+
+    store = open_store(data, db_url, create=True)
+    try:
+        d = pick_dive(store, dive, create_as=dive or folder.name)
+        run = store.analysis_run(d.id, "live", software_version=__version__)
+        with progress_bar("importing") as update:
+            report = import_frame_set(
+                store, folder, dive_id=d.id, run_id=run.id, analyse=analyse, workers=workers, progress=update
+            )
+    except FrameSetError as exc:
+        raise fail(str(exc)) from None
+    finally:
+        store.close()
+    console.print(
+        f"dive {d.name}: {report.imported} frames imported, {report.already_present} already present, "
+        f"{report.sensor_batches} sensor batches, {report.analysed} analysed, "
+        f"{report.gaps_filled} gaps closed"
+    )
+    if report.problems:
+        t = Table(title=f"{len(report.problems)} not imported", title_justify="left")
+        t.add_column("file")
+        t.add_column("why")
+        for name, why in report.problems:
+            t.add_row(name, why)
+        console.print(t)
+
+
+def export_cmd(
+    out: Annotated[Path, typer.Option(help="Folder to write the tables into.")] = Path("export"),
+    data: Annotated[Path, typer.Option(help="Data folder of the store.")] = Path("camcal-data"),
+    db_url: Annotated[
+        str | None, typer.Option(help="SQLAlchemy URL (default: SQLite in the data folder).")
+    ] = None,
+    dive: Annotated[str | None, typer.Option(help="Dive to export (default: the latest).")] = None,
+    fmt: Annotated[str, typer.Option("--format", help="csv, parquet, or csv,parquet.")] = "csv,parquet",
+) -> None:
+    """Write a dive's tables (frames with results, sensors, attitude, λ_att, alarms...) to CSV and Parquet."""
+    from storage.export import export_dive
+
+    store = open_store(data, db_url)
+    try:
+        d = pick_dive(store, dive)
+        run = store.analysis_run(d.id, "live", create=False)
+        formats = tuple(f.strip() for f in fmt.split(",") if f.strip())
+        files = export_dive(store, d.id, out, formats, run.id if run else None)
+    except ValueError as exc:
+        raise fail(str(exc)) from None
+    finally:
+        store.close()
+    console.print(f"dive {d.name}: wrote {len(files)} files to {out}")

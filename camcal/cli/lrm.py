@@ -1,0 +1,199 @@
+"""``camcal lrm``: run a module — simulated, or replaying a recorded frame set."""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from camcal.cli.common import console, fail
+from camcal.frameset import FrameSetError
+from camcal.schedule import Schedule
+
+app = typer.Typer(
+    help="Run a light receiver module: simulated, or replaying a frame set.", no_args_is_help=True
+)
+
+
+def register(parent: typer.Typer) -> None:
+    parent.add_typer(app, name="lrm")
+
+
+def load_schedule(name: str) -> Schedule:
+    """A preset name or a JSON file with a schedule."""
+    from camcal.schedule import presets
+
+    table = presets()
+    if name in table:
+        return table[name]
+    path = Path(name)
+    if path.is_file():
+        try:
+            return Schedule.model_validate_json(path.read_text())
+        except ValueError as exc:
+            raise fail(f"{path}: not a valid schedule: {str(exc).splitlines()[0]}") from None
+    raise fail(f"--schedule: {name!r} is neither a preset ({', '.join(table)}) nor a schedule file")
+
+
+def _run_until_signal(agent: object, finished: object) -> None:
+    done = threading.Event()
+
+    def on_signal(signum: int, _frame: object) -> None:
+        done.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    while not done.wait(0.5):
+        if agent.stopped or finished():  # type: ignore[attr-defined]
+            break
+
+
+@app.command("simulate")
+def simulate(
+    camera: Annotated[str, typer.Option(help="Module / camera id: A (21.56 m) or B (41.62 m).")] = "A",
+    connect: Annotated[
+        str, typer.Option(help="The ship's ingest: tcp://HOST:PORT.")
+    ] = "tcp://127.0.0.1:5555",
+    outbox: Annotated[
+        Path | None, typer.Option(help="SD-card outbox folder (default lrm-<camera>-outbox).")
+    ] = None,
+    speed: Annotated[float, typer.Option(help="Simulated seconds per real second.")] = 1.0,
+    schedule: Annotated[str, typer.Option(help="Schedule preset or JSON file.")] = "trex",
+    seed: Annotated[
+        int, typer.Option(help="Seed of the simulated dive (use one seed for both modules).")
+    ] = 0,
+    frame_scale: Annotated[
+        float, typer.Option(help="Sensor scale for fast runs (1 = 5 MP, 0.25 = 612x512).")
+    ] = 1.0,
+    station_s: Annotated[float, typer.Option(help="Time on station at 3420 m [s].")] = 1800.0,
+    test_stop_s: Annotated[float, typer.Option(help="Time at each test stop (1200 m, 2021 m) [s].")] = 120.0,
+    deck_s: Annotated[float, typer.Option(help="Time on deck before the descent [s].")] = 60.0,
+    winch_m_per_s: Annotated[float, typer.Option(help="Descent and ascent speed [m/s].")] = 1.0,
+    readout_s: Annotated[float, typer.Option(help="Camera readout and transfer time per frame [s].")] = 0.8,
+    epoch: Annotated[
+        float | None, typer.Option(help="Wall-clock UNIX time of dive time 0 (shared by modules).")
+    ] = None,
+    tilt_scale: Annotated[float, typer.Option(help="Factor on this module's tilt (alarm tests).")] = 1.0,
+    leak_at_s: Annotated[
+        float | None, typer.Option(help="Dive time at which the housing starts leaking.")
+    ] = None,
+    exit_when_recovered: Annotated[
+        bool, typer.Option(help="Exit once the dive is over and all is sent.")
+    ] = True,
+    log_level: Annotated[str, typer.Option(help="debug, info, warning.")] = "info",
+) -> None:
+    """Run a simulated module through a whole T-REX dive and stream it to the ship."""
+    from lrm.agent import Agent, AgentConfig
+    from lrm.camera import SimulatedCamera, SimulatedSensors
+    from lrm.clock import SimClock
+    from lrm.dive import DiveProfile, DiveSimulation, WaterColumn
+    from lrm.runner import LemTimetableClock, ScheduleRunner
+
+    logging.basicConfig(level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    sched = load_schedule(schedule)
+    try:
+        profile = DiveProfile(
+            deck_s=deck_s,
+            descent_m_per_s=winch_m_per_s,
+            ascent_m_per_s=winch_m_per_s,
+            test_stop_s=test_stop_s,
+            station_s=station_s,
+        )
+        epoch_s = epoch if epoch is not None else time.time()
+        start = datetime.fromtimestamp(epoch_s, UTC)
+        sim = DiveSimulation(
+            profile,
+            water_column=WaterColumn.with_station_drift(profile, 0.04),
+            seed=seed,
+            frame_scale=frame_scale,
+            start=start,
+            tilt_scale={camera: tilt_scale} if tilt_scale != 1.0 else None,
+            leak_at_s={camera: leak_at_s} if leak_at_s is not None else None,
+        )
+        if camera not in sim.module_ids:
+            raise ValueError(f"--camera must be one of {', '.join(sim.module_ids)}, got {camera!r}")
+        clock = SimClock.synced(start, speed, epoch_s)
+    except ValueError as exc:
+        raise fail(str(exc)) from None
+    cam = SimulatedCamera(sim, camera, clock, readout_s=readout_s)
+    runner = ScheduleRunner(
+        cam,
+        clock,
+        sched,
+        lem=LemTimetableClock(sim.timetable, sim.start),
+        gate=lambda: profile.captures_enabled(sim.dive_time_s(clock.now())),
+    )
+    cfg = AgentConfig(module=camera, connect=connect, outbox=outbox or Path(f"lrm-{camera}-outbox"))
+    agent = Agent(
+        cfg,
+        clock=clock,
+        runner=runner,
+        sensors=SimulatedSensors(sim, camera, clock),
+        camera_limits=(cam.exposure_range_s, cam.gain_range_db, cam.gain_step_db),
+    )
+    agent.start()
+    console.print(
+        f"module {camera}: dive of {profile.duration_s / 60:.0f} min at {speed:g}x "
+        f"({profile.duration_s / speed / 60:.1f} min real), schedule {sched.name} v{sched.version}, "
+        f"sending to {connect}, outbox {cfg.outbox}"
+    )
+
+    def finished() -> bool:
+        if not exit_when_recovered or sim.dive_time_s(clock.now()) < profile.duration_s:
+            return False
+        agent.stop_producing()  # the dive is over: send what is left, then exit
+        return agent.outbox.pending_count() == 0
+
+    _run_until_signal(agent, finished)
+    agent.stop()
+    console.print(
+        f"module {camera}: stopped; {agent.counters['frames_captured']} frames captured, "
+        f"{agent.outbox.pending_count()} not yet acknowledged (kept in {cfg.outbox})"
+    )
+
+
+@app.command("replay")
+def replay(
+    folder: Annotated[Path, typer.Argument(help="A recorded frame set.")],
+    camera: Annotated[str, typer.Option(help="Which camera's frames to replay.")] = "A",
+    connect: Annotated[
+        str, typer.Option(help="The ship's ingest: tcp://HOST:PORT.")
+    ] = "tcp://127.0.0.1:5555",
+    outbox: Annotated[Path | None, typer.Option(help="Outbox folder (default lrm-<camera>-replay).")] = None,
+    speed: Annotated[
+        float, typer.Option(help="1 = recorded pace, 10 = ten times faster, 0 = as fast as possible.")
+    ] = 1.0,
+    log_level: Annotated[str, typer.Option(help="debug, info, warning.")] = "info",
+) -> None:
+    """Stream a recorded frame set over the module protocol, then exit when the ship has it all."""
+    from lrm.agent import Agent, AgentConfig
+    from lrm.clock import SystemClock
+    from lrm.replay import ReplaySource
+
+    logging.basicConfig(level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    if speed < 0:
+        raise fail("--speed must be >= 0")
+    clock = SystemClock()
+    try:
+        source = ReplaySource(folder, camera, clock, speed)
+    except FrameSetError as exc:
+        raise fail(str(exc)) from None
+    if not len(source):
+        raise fail(f"{folder}: no usable frame of camera {camera!r} in the manifest")
+    cfg = AgentConfig(module=camera, connect=connect, outbox=outbox or Path(f"lrm-{camera}-replay"))
+    agent = Agent(cfg, clock=clock, source=source)
+    agent.start()
+    console.print(f"replaying {len(source)} frames of camera {camera} from {folder} to {connect}")
+    _run_until_signal(agent, lambda: agent.capture_done() and agent.outbox.pending_count() == 0)
+    agent.stop()
+    for name, why in source.skipped:
+        console.print(f"[yellow]skipped[/] {name}: {why}")
+    console.print(
+        f"sent {agent.counters['frames_captured']} frames; {agent.outbox.pending_count()} not acknowledged"
+    )

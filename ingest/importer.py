@@ -1,0 +1,202 @@
+"""Importing an SD-card frame set into a dive: idempotent, and it fills the gaps a broken link left."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from datetime import datetime
+from pathlib import Path
+
+from analysis import FrameConfig
+from camcal.frameset import FrameReadError, decode_frame, read_manifest, read_setup
+from camcal.parallel import process_pool
+from ingest.worker import analyse_stored_frame
+from storage.store import FrameRow, SensorBatchRow, Store
+
+
+@dataclass
+class ImportReport:
+    """What an import did."""
+
+    folder: Path
+    dive_id: int
+    imported: int = 0
+    already_present: int = 0
+    sensor_batches: int = 0
+    analysed: int = 0
+    problems: list[tuple[str, str]] = field(default_factory=list)
+    gaps_filled: int = 0
+
+
+def _frames_folder(folder: Path) -> Path:
+    """An outbox root holds its frame set in ``frames/``; a plain frame set is the folder itself."""
+    return folder / "frames" if (folder / "frames" / "manifest.csv").exists() else folder
+
+
+def _fallback_boot(folder: Path) -> str:
+    """A stable boot id for a frame set without one: importing it twice gives the same keys."""
+    digest = hashlib.sha256((folder / "manifest.csv").read_bytes()).hexdigest()[:12]
+    return f"import-{digest}"
+
+
+def import_frame_set(
+    store: Store,
+    folder: Path,
+    *,
+    dive_id: int,
+    run_id: int,
+    analyse: bool = True,
+    workers: int = 1,
+    progress: Callable[[int, int], None] | None = None,
+) -> ImportReport:
+    """Store every readable frame of ``folder`` not yet in the store, then analyse the new ones.
+
+    Frames are keyed by (module, boot, seq) exactly as live frames are, so a
+    frame that already arrived over the link is skipped, and one the link
+    lost is added (and its gap closed). Unreadable files are reported and
+    skipped; sensor batches of an outbox (``sensors.jsonl``) come along.
+    """
+    folder = Path(folder)
+    frames_dir = _frames_folder(folder)
+    rows = read_manifest(frames_dir)
+    read_setup(frames_dir)  # a broken setup.json should stop the import early
+    report = ImportReport(folder, dive_id)
+    fallback = _fallback_boot(frames_dir)
+    batch: list[FrameRow] = []
+    new: list[tuple[int, str]] = []
+    touched: set[tuple[str, str]] = set()
+
+    def flush() -> None:
+        if not batch:
+            return
+        outcome = store.commit_batch(dive_id, batch)
+        report.imported += len(outcome.new_frames)
+        report.already_present += len(outcome.duplicate_frames)
+        by_key = {(f.module_id, f.boot, f.seq): f for f in batch}
+        new.extend((fid, by_key[k].path) for k, fid in outcome.new_frames.items())
+        batch.clear()
+
+    for i, row in enumerate(rows):
+        if progress:
+            progress(i, len(rows))
+        if row.error:
+            report.problems.append((row.file or f"row {i + 1}", row.error))
+            continue
+        boot = row.boot or fallback
+        seq = row.seq if row.seq is not None else i + 1
+        try:
+            data = (frames_dir / row.file).read_bytes()
+            frame = decode_frame(data, row.file)
+        except FileNotFoundError:
+            report.problems.append((row.file, "file not found"))
+            continue
+        except (OSError, FrameReadError) as exc:
+            report.problems.append((row.file, getattr(exc, "detail", str(exc))))
+            continue
+        encoding = "png" if data.startswith(b"\x89PNG") else "tiff"
+        rel = store.files.relative_path(dive_id, row.camera, boot, seq, encoding)
+        store.files.write(rel, data)
+        captured = _unix(row.timestamp) or time.time()
+        batch.append(
+            FrameRow(
+                module_id=row.camera,
+                boot=boot,
+                seq=seq,
+                captured_unix_s=captured,
+                received_unix_s=time.time(),
+                wavelength_nm=row.wavelength_nm,
+                exposure_s=row.exposure_s,
+                gain_db=row.gain_db,
+                depth_m=row.depth_m,
+                width_px=frame.shape[1],
+                height_px=frame.shape[0],
+                path=rel,
+                size_bytes=len(data),
+                sha256=hashlib.sha256(data).hexdigest(),
+                schedule_version=row.schedule_version or 0,
+                source="import",
+            )
+        )
+        touched.add((row.camera, boot))
+        if len(batch) >= 64:
+            flush()
+    flush()
+    if progress:
+        progress(len(rows), len(rows))
+    sensors = folder / "sensors.jsonl"
+    if sensors.exists():
+        module = rows[0].camera if rows else None
+        batches = []
+        for line in sensors.read_text(encoding="utf-8").splitlines():
+            try:
+                obj = json.loads(line)
+                samples = [dict(zip(obj["columns"], r, strict=True)) for r in obj["rows"]]
+            except (json.JSONDecodeError, KeyError, ValueError, TypeError):
+                report.problems.append(("sensors.jsonl", "an unreadable line was skipped"))
+                continue
+            if module:
+                batches.append(SensorBatchRow(module, obj["boot"], int(obj["seq"]), time.time(), samples))
+                touched.add((module, obj["boot"]))
+        if batches:
+            out = store.commit_batch(dive_id, [], batches)
+            report.sensor_batches = len(out.new_sensor_batches)
+    for module, boot in touched:
+        report.gaps_filled += len(store.fill_gaps(module, boot, store.known_seqs(module, boot)))
+    if analyse and new:
+        report.analysed = analyse_frames(store, run_id, new, workers=workers)
+    return report
+
+
+def analyse_frames(
+    store: Store,
+    run_id: int,
+    frames: list[tuple[int, str]],
+    *,
+    workers: int = 1,
+    config: FrameConfig | None = None,
+) -> int:
+    """Analyse stored frames ``(frame_id, path)`` into a run, on ``workers`` processes."""
+    config = config or FrameConfig()
+    thumbs = store.files.root / "thumbs"
+    results = []
+    if workers <= 1:
+        for fid, path in frames:
+            results.append(
+                (
+                    fid,
+                    analyse_stored_frame(str(store.files.resolve(path)), config, str(thumbs / f"{fid}.jpg")),
+                )
+            )
+    else:
+        with process_pool(workers) as pool:
+            futures = [
+                (
+                    fid,
+                    pool.submit(
+                        analyse_stored_frame,
+                        str(store.files.resolve(path)),
+                        config,
+                        str(thumbs / f"{fid}.jpg"),
+                    ),
+                )
+                for fid, path in frames
+            ]
+            results = [(fid, f.result()) for fid, f in futures]
+    rows = []
+    for fid, row in results:
+        for k in ("analysis_s", "width_px", "height_px"):
+            row.pop(k, None)
+        rows.append({**row, "frame_id": fid, "analysed_unix_s": time.time()})
+    return store.save_results(run_id, rows)
+
+
+def _unix(text: str | None) -> float | None:
+    if not text:
+        return None
+    try:
+        return datetime.fromisoformat(text.replace("Z", "+00:00")).timestamp()
+    except ValueError:
+        return None

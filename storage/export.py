@@ -1,0 +1,91 @@
+"""Export a dive's tables to CSV and Parquet (one file per table)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+import pyarrow.csv as pa_csv
+import pyarrow.parquet as pq
+from sqlalchemy import select
+
+from storage.models import (
+    Alarm,
+    AttenuationPoint,
+    AttitudeSample,
+    AuditEntry,
+    Frame,
+    FrameResult,
+    LinearityCheck,
+    SensorSample,
+)
+from storage.store import Store
+
+FORMATS = ("csv", "parquet")
+_SKIP = {"profile", "fit", "points", "details", "payload"}
+
+
+def _columns(model: Any) -> list[Any]:
+    return [c for c in model.__table__.columns if c.name not in _SKIP]
+
+
+def dive_tables(store: Store, dive_id: int, run_id: int | None = None) -> dict[str, pa.Table]:
+    """The dive's tables as Arrow tables: frames (with their results in ``run_id``), sensors,
+    attitude, λ_att series, linearity, alarms and the audit log."""
+    out: dict[str, pa.Table] = {}
+    with store.read() as s:
+        fcols = _columns(Frame)
+        rcols = [c for c in _columns(FrameResult) if c.name not in ("id", "frame_id")]
+        q = select(*fcols, *rcols).select_from(Frame)
+        if run_id is not None:
+            q = q.outerjoin(FrameResult, (FrameResult.frame_id == Frame.id) & (FrameResult.run_id == run_id))
+        else:
+            q = select(*fcols).select_from(Frame)
+            rcols = []
+        names = [c.name for c in fcols] + [c.name for c in rcols]
+        rows = s.execute(q.where(Frame.dive_id == dive_id).order_by(Frame.captured_unix_s)).all()
+        out["frames"] = _table(names, rows)
+        for name, model, where in (
+            ("sensor_samples", SensorSample, SensorSample.dive_id == dive_id),
+            ("attitude", AttitudeSample, AttitudeSample.dive_id == dive_id),
+            ("attenuation", AttenuationPoint, AttenuationPoint.dive_id == dive_id),
+        ):
+            cols = _columns(model)
+            rows = s.execute(select(*cols).where(where).order_by(model.id)).all()
+            out[name] = _table([c.name for c in cols], rows)
+        if run_id is not None:
+            cols = _columns(LinearityCheck)
+            rows = s.execute(select(*cols).where(LinearityCheck.run_id == run_id)).all()
+            out["linearity"] = _table([c.name for c in cols], rows)
+        for name, model in (("alarms", Alarm), ("audit_log", AuditEntry)):
+            cols = _columns(model)
+            out[name] = _table([c.name for c in cols], s.execute(select(*cols).order_by(model.id)).all())
+    return out
+
+
+def _table(names: list[str], rows: list[Any]) -> pa.Table:
+    columns = list(zip(*rows, strict=True)) if rows else [[] for _ in names]
+    return pa.table({n: pa.array(list(col)) for n, col in zip(names, columns, strict=True)})
+
+
+def export_dive(
+    store: Store, dive_id: int, out: Path, formats: tuple[str, ...] = FORMATS, run_id: int | None = None
+) -> list[Path]:
+    """Write each table as ``<out>/<table>.csv`` and/or ``.parquet``; returns the files."""
+    unknown = set(formats) - set(FORMATS)
+    if unknown:
+        raise ValueError(f"unknown export format(s) {sorted(unknown)}; choose from {', '.join(FORMATS)}")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, table in dive_tables(store, dive_id, run_id).items():
+        if "csv" in formats:
+            path = out / f"{name}.csv"
+            pa_csv.write_csv(table, path)
+            written.append(path)
+        if "parquet" in formats:
+            path = out / f"{name}.parquet"
+            pq.write_table(table, path)
+            written.append(path)
+    return written

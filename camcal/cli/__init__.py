@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from camcal.cli import analyze, demo, simulate
+from camcal.cli import analyze, calibrate, demo, simulate, simulate_lab
 
 app = typer.Typer(
     name="camcal",
@@ -16,6 +16,8 @@ app = typer.Typer(
 simulate.register(app)
 analyze.register(app)
 demo.register(app)
+simulate_lab.register(app)
+calibrate.register(app)
 
 
 def main() -> None:

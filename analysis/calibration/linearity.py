@@ -127,6 +127,44 @@ def _longest_run(
     return best
 
 
+#: An end point of the fitted run that its neighbours' line misses by more
+#: than this many sigma is trimmed: the ends are where a sensor bends.
+END_SIGMA = 2.0
+
+
+def _trim_ends(
+    xs: np.ndarray,
+    gs: np.ndarray,
+    es: np.ndarray,
+    i: int,
+    j: int,
+    fit: LineFit,
+    *,
+    min_points: int,
+    end_sigma: float,
+) -> tuple[int, int, LineFit]:
+    """Drop end points of the run ``[i, j]`` that the line through the rest predicts badly.
+
+    Inside a run every point agrees with the run's line within 3 sigma, but
+    a point just under the knee, compressed by 2-3 sigma, pulls the line
+    (the slope by about its own error). Each end is tested against the
+    line of the other points, prediction error included, and dropped
+    beyond ``end_sigma``; repeated until both ends hold.
+    """
+    changed = True
+    while changed and j - i + 1 > min_points:
+        changed = False
+        for end in (j, i):
+            rest = slice(i, j) if end == j else slice(i + 1, j + 1)
+            line = fit_line(xs[rest], gs[rest], es[rest])
+            pred, pred_err = float(line.predict(xs[end])), float(line.predict_err(xs[end]))
+            if abs(gs[end] - pred) > end_sigma * math.hypot(es[end], pred_err):
+                i, j = (i, j - 1) if end == j else (i + 1, j)
+                fit, changed = line, True
+                break
+    return i, j, fit
+
+
 def response_linearity(
     x: ArrayLike,
     gray: ArrayLike,
@@ -148,11 +186,12 @@ def response_linearity(
     2. the line: among all contiguous runs of at least ``min_points``
        points, the longest whose every point agrees with the run's own
        weighted line within ``n_sigma`` errors, with a significantly positive
-       slope. Taking the longest run rather than assuming a range lets the
-       data say where the response is straight; requiring agreement within
-       the errors keeps slightly compressed points out of the slope and the
-       dark level. (If noise leaves no such run, the tolerance is allowed
-       here too.);
+       slope; then its end points are trimmed while the line through the
+       others misses them by more than `END_SIGMA` (`_trim_ends`). Taking
+       the longest run rather than assuming a range lets the data say where
+       the response is straight; requiring agreement within the errors
+       keeps slightly compressed points out of the slope and the dark
+       level. (If noise leaves no such run, the tolerance is allowed here too.);
     3. the linear range: from that run outward, every neighbour within
        ``tolerance`` of the signal above the dark level (plus ``n_sigma``
        errors of point and line) joins, up and down, until one does not;
@@ -188,7 +227,7 @@ def response_linearity(
             f"{sweep} sweep: no {min_points} consecutive settings respond linearly "
             f"(within {100 * tolerance:g} % + {n_sigma:g} sigma)"
         )
-    i, j, fit = best
+    i, j, fit = _trim_ends(xs, gs, es, *best, min_points=min_points, end_sigma=END_SIGMA)
     fitted = np.zeros(xs.size, dtype=bool)
     fitted[i : j + 1] = True
 

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import json
 import shlex
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 from analysis import REASON_HELP
@@ -30,7 +32,7 @@ from camcal.calibrate import plots as cplots
 from camcal.calibrate.common import FrameOutcome, reason_counts
 from camcal.calibrate.psf import in_focus
 from camcal.calibrate.scans import LEM_DIAMETER_M
-from camcal.cli.common import console, fail, progress_bar
+from camcal.cli.common import console, err_console, fail
 from camcal.frameset import FrameSetError, write_atomic
 
 calibrate_app = typer.Typer(
@@ -70,10 +72,41 @@ def _command_line(ctx: typer.Context) -> str:
     return shlex.join(parts)
 
 
+@contextmanager
+def _lazy_progress(label: str, quiet: bool) -> Iterator[Callable[[int, int], None]]:
+    """A transient progress bar on stderr that appears with the first frame read.
+
+    Inputs are checked before any frame is read, so a command stopped by a
+    bad frame set prints its one error line and nothing else.
+    """
+    if quiet:
+        yield lambda done, total: None
+        return
+    with ExitStack() as stack:
+        state: dict[str, Any] = {}
+
+        def update(done: int, total: int) -> None:
+            if "bar" not in state:
+                bar = stack.enter_context(
+                    Progress(
+                        TextColumn("[bold]{task.description}"),
+                        BarColumn(),
+                        MofNCompleteColumn(),
+                        TimeRemainingColumn(),
+                        console=err_console,
+                        transient=True,
+                    )
+                )
+                state["bar"], state["task"] = bar, bar.add_task(label, total=total)
+            state["bar"].update(state["task"], completed=done, total=total)
+
+        yield update
+
+
 def _run(label: str, quiet: bool, func: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
     """Run a calibration with a progress bar; unusable inputs end the command with one line."""
     try:
-        with progress_bar(label, quiet=quiet) as update:
+        with _lazy_progress(label, quiet) as update:
             return func(*args, progress=update, **kwargs)
     except (FrameSetError, CalibrationError) as exc:
         raise fail(str(exc)) from None

@@ -99,12 +99,12 @@ def simulate_lab(
         )
         spec = lab_spec(kind, **values)
         n = len(spec.shots())
-    except (ValueError, KeyError) as exc:
-        raise fail(str(exc).strip("'")) from None
+    except ValueError as exc:
+        raise fail(str(exc)) from None
     console.print(f"simulating {n} {kind} frames of {width} x {height} px into {out}")
     try:
         with progress_bar("rendering", quiet=quiet) as update:
             write_lab_set(out, spec, progress=update)
-    except (FileExistsError, ValueError, KeyError) as exc:
-        raise fail(str(exc).strip("'")) from None
+    except (FileExistsError, ValueError) as exc:
+        raise fail(str(exc)) from None
     console.print(f"wrote {out}/manifest.csv, setup.json, truth.json")

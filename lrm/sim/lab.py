@@ -23,6 +23,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.special import ndtr
 
 from analysis.scattering import WaterOptics
 from lrm.sim.camera import CameraModel
@@ -126,27 +127,36 @@ def expose(
     return (np.clip(gray, 0.0, 255.0) + 0.5).astype(np.uint8)
 
 
-def expected_mean_gray(
-    camera: CameraModel,
-    electrons: float | np.ndarray,
-    gain_db: float | np.ndarray,
-    n_nodes: int = 40,
-) -> np.ndarray:
-    """Mean gray of a pixel collecting ``electrons`` (dark current included), noise included.
+def _inverse_response(camera: CameraModel, gray: np.ndarray) -> np.ndarray:
+    """The gray a linear sensor would have given for each ``gray`` after the soft knee."""
+    knee, span = camera.knee_gray, 255.5 - camera.knee_gray
+    over = gray > knee
+    out = gray.astype(np.float64).copy()
+    out[over] = knee + span * np.arctanh(np.minimum((gray[over] - knee) / span, 1 - 1e-15))
+    return out
 
-    Near the knee the noise matters: the mean of compressed noisy values
-    lies below the compressed mean. Averaged over the Gaussian noise by
-    Gauss-Hermite quadrature, with the knee and the clipping at 0 and 255
-    (rounding is unbiased once the noise exceeds ~0.3 gray). ``electrons``
-    and ``gain_db`` broadcast against each other.
+
+def expected_mean_gray(
+    camera: CameraModel, electrons: float | np.ndarray, gain_db: float | np.ndarray
+) -> np.ndarray:
+    """Mean gray of a pixel collecting ``electrons`` (dark current included): noise, knee and 8 bits included.
+
+    The sensor reports ``k = floor(clip(respond(v), 0, 255) + 0.5)`` of a
+    Gaussian ``v`` (shot and read noise), so its mean is
+    ``sum over k = 1..255 of P(respond(v) >= k - 0.5)``, each term a normal
+    tail beyond the knee's inverse of ``k - 0.5``. Exact for the simulated
+    sensor, where quadrature would not be: with little noise the 8-bit
+    steps bias the mean (the dark level of 2.4 gray reads ~2.2 at 0 dB),
+    and near the knee the noise compresses it. ``electrons`` and ``gain_db``
+    broadcast against each other.
     """
     e, g = np.broadcast_arrays(np.asarray(electrons, dtype=np.float64), np.asarray(gain_db, dtype=np.float64))
-    nodes, weights = np.polynomial.hermite_e.hermegauss(n_nodes)
     gain_total = camera.gray_per_electron * 10.0 ** (g / 20.0)
-    sigma = np.sqrt(np.maximum(e, 0.0) + camera.read_noise_e**2)
-    values = (e[..., None] + sigma[..., None] * nodes) * gain_total[..., None] + camera.black_level_gray
-    gray = np.clip(camera.respond(values.ravel()).reshape(values.shape), 0.0, 255.0)
-    return np.sum(weights * gray, axis=-1) / np.sum(weights)
+    mean = e * gain_total + camera.black_level_gray
+    sigma = np.sqrt(np.maximum(e, 0.0) + camera.read_noise_e**2) * gain_total
+    thresholds = _inverse_response(camera, np.arange(1, 256) - 0.5)
+    z = (thresholds - mean[..., None]) / sigma[..., None]
+    return np.sum(ndtr(-z), axis=-1)
 
 
 def departure_gray(

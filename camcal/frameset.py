@@ -33,7 +33,13 @@ OPTIONAL_COLUMNS = (
     "medium",
     "boot",
     "schedule_version",
+    "hemisphere",
 )
+#: Values of the ``medium`` column: what lies between the source and the camera.
+MEDIA = ("air", "water")
+#: Values of the ``hemisphere`` column: which side of the LEM faces the camera,
+#: the one toward the near camera (I0) or toward the far camera (I0').
+HEMISPHERES = ("near", "far")
 MANIFEST_COLUMNS = REQUIRED_COLUMNS + OPTIONAL_COLUMNS
 
 
@@ -146,6 +152,7 @@ class ManifestRow:
     medium: str | None = None
     boot: str | None = None
     schedule_version: int | None = None
+    hemisphere: str | None = None
     error: str | None = None
     extra: Mapping[str, str] = field(default_factory=dict, repr=False, compare=False)
 
@@ -206,11 +213,18 @@ def _parse_row(index: int, raw: Mapping[str, str | None]) -> ManifestRow:
     if distance is not None and distance <= 0:
         problems.append(f"distance_m {distance:g} must be > 0")
     distance_err = num("distance_err_m")
+    if distance_err is not None and distance_err < 0:
+        problems.append(f"distance_err_m {distance_err:g} must be >= 0")
     temperature = num("temperature_c")
     schedule_version = num("schedule_version", integer=True)
+    if temperature is not None and temperature <= -273.15:
+        problems.append(f"temperature_c {temperature:g} is below absolute zero")
     medium = get.get("medium") or None
-    if medium is not None and medium not in ("air", "water"):
+    if medium is not None and medium not in MEDIA:
         problems.append(f"medium {medium!r} must be air or water")
+    hemisphere = get.get("hemisphere") or None
+    if hemisphere is not None and hemisphere not in HEMISPHERES:
+        problems.append(f"hemisphere {hemisphere!r} must be near or far")
     known = set(MANIFEST_COLUMNS)
     return ManifestRow(
         index=index,
@@ -228,6 +242,7 @@ def _parse_row(index: int, raw: Mapping[str, str | None]) -> ManifestRow:
         medium=medium,
         boot=get.get("boot") or None,
         schedule_version=int(schedule_version) if schedule_version is not None else None,
+        hemisphere=hemisphere,
         error="; ".join(problems) or None,
         extra={k: v for k, v in get.items() if k not in known},
     )
@@ -342,8 +357,10 @@ class FrameSetWriter:
             )
         manifest = self.folder / MANIFEST
         new = not manifest.exists() or manifest.stat().st_size == 0
+        # Continue an existing manifest in its own columns (it may predate a new optional one).
+        self._columns = list(MANIFEST_COLUMNS) if new else _header(manifest)
         self._fh = manifest.open("a", newline="", encoding="utf-8")
-        self._writer = csv.DictWriter(self._fh, fieldnames=list(MANIFEST_COLUMNS))
+        self._writer = csv.DictWriter(self._fh, fieldnames=self._columns, extrasaction="ignore")
         if new:
             self._writer.writeheader()
             self._fh.flush()
@@ -358,8 +375,18 @@ class FrameSetWriter:
         return self.record(row)
 
     def record(self, row: ManifestRow) -> ManifestRow:
-        """Append the manifest row of an image already stored under ``row.file``."""
-        self._writer.writerow(row.to_csv())
+        """Append the manifest row of an image already stored under ``row.file``.
+
+        Raises `FrameSetError` if the row has a value for a column the
+        continued manifest lacks, rather than dropping the value.
+        """
+        values = row.to_csv()
+        lost = [c for c, v in values.items() if v and c not in self._columns]
+        if lost:
+            raise FrameSetError(
+                f"{self.folder / MANIFEST}: has no column {', '.join(lost)} for the values of {row.file}"
+            )
+        self._writer.writerow(values)
         self._fh.flush()
         if self.fsync:
             os.fsync(self._fh.fileno())
@@ -377,6 +404,12 @@ class FrameSetWriter:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _header(manifest: Path) -> list[str]:
+    """Column names of an existing manifest."""
+    with manifest.open(newline="", encoding="utf-8-sig") as fh:
+        return [h.strip() for h in next(csv.reader(fh), [])]
 
 
 def iter_frames(folder: Path) -> Iterator[tuple[ManifestRow, np.ndarray | FrameReadError]]:

@@ -33,13 +33,13 @@ from typing import Any
 import numpy as np
 import zmq
 
-from analysis import EmissionRatio, FrameConfig, Geometry, linearity_fit
+from analysis import FrameConfig
 from analysis.attitude import attitude_from_samples
-from analysis.linearity import gain_factor
 from camcal import __version__, wire
 from camcal.frameset import Setup
 from camcal.parallel import process_pool
 from ingest.alarms import AlarmEvaluator, AlarmLimits
+from ingest.derived import geometry_and_ratios, linearity_rows
 from ingest.events import EventBus
 from ingest.rolling import RollingAttenuation, Sample
 from ingest.seqtrack import SeqTracker
@@ -458,15 +458,11 @@ class _StoreState:
         self.svc = svc
         self.store = svc.store
         self.seqs = SeqTracker()
-        setup = svc.config.setup
-        cams = sorted(setup.cameras.items(), key=lambda kv: kv[1].distance_m)
+        gr = geometry_and_ratios(svc.config.setup)
         self.rolling: RollingAttenuation | None = None
-        if len(cams) >= 2:
-            (near, dn), (far, df) = cams[0], cams[-1]
-            geometry = Geometry(near, far, dn.distance_m, dn.distance_err_m, df.distance_m, df.distance_err_m)
-            ratios = {wl: EmissionRatio(r.value, r.err) for wl, r in setup.emission_ratio.items()}
+        if gr is not None:
             self.rolling = RollingAttenuation(
-                geometry, ratios, svc.config.rolling_window_s, svc.config.rolling_interval_s
+                gr[0], gr[1], svc.config.rolling_window_s, svc.config.rolling_interval_s
             )
         self.alarms = AlarmEvaluator(svc.config.alarm_limits)
         self.active_alarms = {a.key for a in self.store.active_alarms()}
@@ -882,41 +878,16 @@ class _StoreState:
 
     def _update_linearity(self) -> None:
         svc = self.svc
-        lo, hi = svc.config.setup.linear_range
+        lr = tuple(svc.config.setup.linear_range)
         for module, wl in list(self.linearity_dirty):
             points = {k: float(np.mean(v)) for k, v in self.linearity[(module, wl)].items()}
-            for sweep, vary in (("exposure", 0), ("gain", 1)):
-                best = None
-                groups: dict[float, list[tuple[float, float]]] = defaultdict(list)
-                for key, gray in points.items():
-                    groups[key[1 - vary]].append((key[vary], gray))
-                for fixed, pts in groups.items():
-                    n_in = sum(1 for _, g in pts if lo <= g <= hi)
-                    if n_in >= 3 and (best is None or n_in > best[0]):
-                        best = (n_in, fixed, pts)
-                if best is None:
-                    continue
-                _, fixed, pts = best
-                xs = [p[0] if vary == 0 else float(gain_factor(p[0])) for p in pts]
-                try:
-                    fit = linearity_fit(xs, [p[1] for p in pts], (lo, hi))
-                except ValueError:
-                    continue
+            for row in linearity_rows(points, lr):  # type: ignore[arg-type]
                 self.store.upsert_linearity(
                     {
+                        **row,
                         "run_id": svc.run.id,
                         "module_id": module,
                         "wavelength_nm": wl,
-                        "sweep": sweep,
-                        "fixed_value": fixed,
-                        "slope": fit.slope,
-                        "slope_err": _finite(fit.slope_err),
-                        "intercept_gray": fit.intercept_gray,
-                        "r2": fit.r2,
-                        "n_used": fit.n_used,
-                        "linear_max_gray": fit.linear_max_gray,
-                        "knee_x": fit.knee_x,
-                        "points": {"x": list(fit.x), "gray": list(fit.gray), "used": list(fit.used)},
                         "updated_unix_s": time.time(),
                     }
                 )
@@ -928,10 +899,6 @@ class _StoreState:
         backlog = svc._q.qsize() + len(svc._analysis_backlog)
         base = svc.config.window
         svc.window = base if backlog < 4 * base else max(1, base // 4)
-
-
-def _finite(x: float | None) -> float | None:
-    return x if x is not None and np.isfinite(x) else None
 
 
 def _sample_columns(row: dict[str, Any]) -> dict[str, Any]:

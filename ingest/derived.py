@@ -1,0 +1,169 @@
+"""Results derived from many frames: linearity per module, λ_att over a span, re-analysis.
+
+Used by the live ingest, by re-analyses and by the API, so that all three
+compute these the same way.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from analysis import AttenuationResult, EmissionRatio, Geometry, combine_pairs, linearity_fit, pair_result
+from analysis.linearity import gain_factor
+from camcal.frameset import Setup
+
+
+@dataclass(frozen=True)
+class ResultRow:
+    """The fields of a stored frame result the derived quantities need."""
+
+    module: str
+    wavelength_nm: int
+    exposure_s: float
+    gain_db: float
+    captured_unix_s: float
+    depth_m: float | None
+    status: str
+    center_gray: float | None
+    i_center_gray: float | None
+    i_center_err_gray: float | None
+
+
+def geometry_and_ratios(setup: Setup) -> tuple[Geometry, dict[int, EmissionRatio]] | None:
+    """Near and far camera (by distance) and the emission ratios of a setup."""
+    cams = sorted(setup.cameras.items(), key=lambda kv: kv[1].distance_m)
+    if len(cams) < 2:
+        return None
+    (near, dn), (far, df) = cams[0], cams[-1]
+    geometry = Geometry(near, far, dn.distance_m, dn.distance_err_m, df.distance_m, df.distance_err_m)
+    return geometry, {wl: EmissionRatio(r.value, r.err) for wl, r in setup.emission_ratio.items()}
+
+
+def linearity_rows(
+    points: Mapping[tuple[float, float], float], linear_range: tuple[float, float]
+) -> list[dict[str, Any]]:
+    """Linearity fits of one module and wavelength from mean centre gray per (exposure, gain).
+
+    Against exposure at the gain with the most in-range points, and against
+    the linear gain factor at the exposure with the most; each needs >= 3
+    in-range points.
+    """
+    lo, hi = linear_range
+    out = []
+    for sweep, vary in (("exposure", 0), ("gain", 1)):
+        groups: dict[float, list[tuple[float, float]]] = defaultdict(list)
+        for key, gray in points.items():
+            groups[key[1 - vary]].append((key[vary], gray))
+        best = None
+        for fixed, pts in groups.items():
+            n_in = sum(1 for _, g in pts if lo <= g <= hi)
+            if n_in >= 3 and (best is None or n_in > best[0]):
+                best = (n_in, fixed, pts)
+        if best is None:
+            continue
+        _, fixed, pts = best
+        xs = [p[0] if vary == 0 else float(gain_factor(p[0])) for p in pts]
+        try:
+            fit = linearity_fit(xs, [p[1] for p in pts], (lo, hi))
+        except ValueError:
+            continue
+        out.append(
+            {
+                "sweep": sweep,
+                "fixed_value": fixed,
+                "slope": fit.slope,
+                "slope_err": fit.slope_err if math.isfinite(fit.slope_err) else None,
+                "intercept_gray": fit.intercept_gray,
+                "r2": fit.r2,
+                "n_used": fit.n_used,
+                "linear_max_gray": fit.linear_max_gray,
+                "knee_x": fit.knee_x,
+                "points": {"x": list(fit.x), "gray": list(fit.gray), "used": list(fit.used)},
+            }
+        )
+    return out
+
+
+def mean_gray_by_setting(
+    rows: Iterable[ResultRow],
+) -> dict[tuple[str, int], dict[tuple[float, float], float]]:
+    acc: dict[tuple[str, int], dict[tuple[float, float], list[float]]] = defaultdict(
+        lambda: defaultdict(list)
+    )
+    for r in rows:
+        if r.center_gray is not None:
+            acc[(r.module, r.wavelength_nm)][(r.exposure_s, r.gain_db)].append(r.center_gray)
+    return {k: {s: float(np.mean(v)) for s, v in d.items()} for k, d in acc.items()}
+
+
+def span_attenuation(rows: Iterable[ResultRow], setup: Setup) -> dict[int, AttenuationResult]:
+    """λ_att per wavelength over a span of frames: stacks per setting, pairs, combination."""
+    gr = geometry_and_ratios(setup)
+    if gr is None:
+        return {}
+    geometry, ratios = gr
+    stacks: dict[tuple[str, int, float, float], list[tuple[float, float]]] = defaultdict(list)
+    for r in rows:
+        if r.status == "ok" and r.i_center_gray is not None and r.i_center_err_gray is not None:
+            stacks[(r.module, r.wavelength_nm, r.exposure_s, r.gain_db)].append(
+                (r.i_center_gray, r.i_center_err_gray)
+            )
+    pairs: dict[int, list[Any]] = defaultdict(list)
+    for (cam, wl, exp, gain), near in stacks.items():
+        if cam != geometry.near_camera or wl not in ratios:
+            continue
+        far = stacks.get((geometry.far_camera, wl, exp, gain))
+        if not far:
+            continue
+        pairs[wl].append(pair_result(wl, exp, gain, _stack(near), _stack(far), geometry, ratios[wl]))
+    out = {}
+    for wl, plist in pairs.items():
+        usable = [p for p in plist if math.isfinite(p.log_ratio) and p.log_ratio_err > 0]
+        if usable:
+            out[wl] = combine_pairs(usable, geometry, ratios[wl])
+    return out
+
+
+def _stack(values: list[tuple[float, float]]) -> tuple[float, float, int]:
+    v = np.array([x for x, _ in values])
+    e = np.array([x for _, x in values])
+    n = len(v)
+    propagated = float(np.sqrt(np.sum(e**2)) / n)
+    scatter = float(v.std(ddof=1) / math.sqrt(n)) if n >= 3 else 0.0
+    return float(v.mean()), max(scatter, propagated), n
+
+
+def attenuation_dict(res: AttenuationResult) -> dict[str, Any]:
+    return {
+        "wavelength_nm": res.wavelength_nm,
+        "lambda_att_m": res.lambda_att_m,
+        "stat_err_m": res.stat_err_m,
+        "sys_err_m": res.sys_err_m,
+        "total_err_m": res.total_err_m,
+        "n_pairs": res.n_pairs,
+        "chi2_ndof": res.chi2_ndof,
+        "emission_ratio": res.emission_ratio.value,
+        "emission_ratio_err": res.emission_ratio.err,
+        "note": res.note,
+        "pairs": [
+            {
+                "exposure_s": p.exposure_s,
+                "gain_db": p.gain_db,
+                "i_near_gray": p.i_near_gray,
+                "i_near_err_gray": p.i_near_err_gray,
+                "i_far_gray": p.i_far_gray,
+                "i_far_err_gray": p.i_far_err_gray,
+                "n_near": p.n_near,
+                "n_far": p.n_far,
+                "lambda_att_m": p.lambda_att_m,
+                "stat_err_m": p.stat_err_m,
+            }
+            for p in res.pairs
+        ],
+    }

@@ -167,3 +167,30 @@ def attenuation_dict(res: AttenuationResult) -> dict[str, Any]:
             for p in res.pairs
         ],
     }
+
+
+def dive_phase(
+    t_unix_s: list[float] | np.ndarray, depth_m: list[float] | np.ndarray, max_depth_m: float | None = None
+) -> str:
+    """The dive phase from a module's recent depth: deck, descent, stop, station or ascent.
+
+    The rate of depth change over the last ~30 s tells moving from stopped;
+    a stop near the deepest depth seen is the station.
+    """
+    t = np.asarray(t_unix_s, dtype=np.float64)
+    d = np.asarray(depth_m, dtype=np.float64)
+    if t.size == 0:
+        return "unknown"
+    depth = float(d[-1])
+    if depth < 5.0:
+        return "deck"
+    recent = t >= t[-1] - 30.0
+    rate = 0.0
+    if recent.sum() >= 3 and t[recent][-1] > t[recent][0]:
+        rate = float(np.polyfit(t[recent] - t[recent][0], d[recent], 1)[0])
+    if rate > 0.2:
+        return "descent"
+    if rate < -0.2:
+        return "ascent"
+    deepest = max_depth_m if max_depth_m is not None else float(d.max())
+    return "station" if depth >= deepest - 50.0 else "stop"

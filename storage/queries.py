@@ -469,3 +469,49 @@ def audit(s: Session, limit: int = 500, offset: int = 0) -> list[dict[str, Any]]
         }
         for a in s.scalars(select(AuditEntry).order_by(AuditEntry.id.desc()).limit(limit).offset(offset))
     ]
+
+
+def latest_frames(s: Session, dive_id: int, run_id: int | None) -> dict[str, dict[str, Any]]:
+    """Per module, the newest frame of a dive that has a result (else the newest frame)."""
+    out: dict[str, dict[str, Any]] = {}
+    mods = [m for (m,) in s.execute(select(Frame.module_id).where(Frame.dive_id == dive_id).distinct())]
+    for m in mods:
+        q = (
+            select(Frame, FrameResult)
+            .outerjoin(
+                FrameResult, and_(FrameResult.frame_id == Frame.id, FrameResult.run_id == (run_id or -1))
+            )
+            .where(Frame.dive_id == dive_id, Frame.module_id == m)
+        )
+        row = s.execute(
+            q.where(FrameResult.id.is_not(None)).order_by(Frame.captured_unix_s.desc()).limit(1)
+        ).first()
+        row = row or s.execute(q.order_by(Frame.captured_unix_s.desc()).limit(1)).first()
+        if row is not None:
+            out[m] = frame_dict(*row)
+    return out
+
+
+def latest_sensors(s: Session, dive_id: int | None = None) -> dict[str, dict[str, Any]]:
+    """Per module, its most recent sensor sample."""
+    out: dict[str, dict[str, Any]] = {}
+    for (m,) in s.execute(select(Module.id)):
+        q = select(SensorSample).where(SensorSample.module_id == m)
+        if dive_id is not None:
+            q = q.where(SensorSample.dive_id == dive_id)
+        row = s.scalars(q.order_by(SensorSample.t_unix_s.desc()).limit(1)).first()
+        if row is not None:
+            out[m] = {"t_unix_s": row.t_unix_s, **{c: getattr(row, c) for c in SENSOR_COLUMNS}}
+    return out
+
+
+def latest_attitude(s: Session, dive_id: int | None = None) -> dict[str, dict[str, Any]]:
+    out: dict[str, dict[str, Any]] = {}
+    for (m,) in s.execute(select(Module.id)):
+        q = select(AttitudeSample).where(AttitudeSample.module_id == m)
+        if dive_id is not None:
+            q = q.where(AttitudeSample.dive_id == dive_id)
+        row = s.scalars(q.order_by(AttitudeSample.t_unix_s.desc()).limit(1)).first()
+        if row is not None:
+            out[m] = {"t_unix_s": row.t_unix_s, **{c: getattr(row, c) for c in ATTITUDE_COLUMNS}}
+    return out

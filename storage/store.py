@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import Engine, Table, func, select, update
+from sqlalchemy import Engine, Table, func, literal, select, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -360,6 +360,64 @@ class Store:
                     .limit(limit)
                 )
             )
+
+    def copy_results(self, src_run_id: int, dst_run_id: int) -> int:
+        """Copy every frame result of one run into another (a re-analysis that keeps I_center)."""
+        cols = [c.name for c in FrameResult.__table__.columns if c.name not in ("id", "run_id")]
+        with self.session() as s:
+            src = select(*[FrameResult.__table__.c[c] for c in cols], literal(dst_run_id)).where(
+                FrameResult.run_id == src_run_id
+            )
+            res = s.execute(FrameResult.__table__.insert().from_select([*cols, "run_id"], src))
+            return res.rowcount or 0
+
+    def result_rows(self, run_id: int, dive_id: int) -> list[dict[str, Any]]:
+        """Frames of a dive joined with their result in a run, in capture order."""
+        with self.read() as s:
+            rows = s.execute(
+                select(
+                    Frame.id,
+                    Frame.module_id,
+                    Frame.wavelength_nm,
+                    Frame.exposure_s,
+                    Frame.gain_db,
+                    Frame.captured_unix_s,
+                    Frame.depth_m,
+                    Frame.path,
+                    FrameResult.status,
+                    FrameResult.center_gray,
+                    FrameResult.i_center_gray,
+                    FrameResult.i_center_err_gray,
+                )
+                .join(FrameResult, (FrameResult.frame_id == Frame.id) & (FrameResult.run_id == run_id))
+                .where(Frame.dive_id == dive_id)
+                .order_by(Frame.captured_unix_s, Frame.id)
+            ).all()
+        keys = (
+            "frame_id",
+            "module",
+            "wavelength_nm",
+            "exposure_s",
+            "gain_db",
+            "captured_unix_s",
+            "depth_m",
+            "path",
+            "status",
+            "center_gray",
+            "i_center_gray",
+            "i_center_err_gray",
+        )
+        return [dict(zip(keys, r, strict=True)) for r in rows]
+
+    def dive_frames(self, dive_id: int) -> list[tuple[int, str]]:
+        """(frame id, relative path) of every frame of a dive."""
+        with self.read() as s:
+            return [
+                (int(i), p)
+                for i, p in s.execute(
+                    select(Frame.id, Frame.path).where(Frame.dive_id == dive_id).order_by(Frame.id)
+                )
+            ]
 
     def add_attenuation_points(self, points: Sequence[dict[str, Any]]) -> list[int]:
         if not points:

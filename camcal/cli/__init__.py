@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from camcal.cli import analyze, calibrate, data, demo, ingest, lrm, simulate, simulate_lab
+from camcal.cli import analyze, calibrate, data, demo, ingest, lrm, serve, simulate, simulate_lab
 
 app = typer.Typer(
     name="camcal",
@@ -19,6 +19,7 @@ demo.register(app)
 ingest.register(app)
 lrm.register(app)
 data.register(app)
+serve.register(app)
 simulate_lab.register(app)
 calibrate.register(app)
 

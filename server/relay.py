@@ -1,0 +1,195 @@
+"""The live hub: events from the ingest, fanned out to every browser.
+
+A thread subscribes to the ingest's event publisher. Stored events carry
+their id in the event log; when ids jump (the ZeroMQ subscriber lost some),
+the hub reads the missing ones from the database, so nothing persistent is
+lost. Each browser has a bounded queue: when a browser is slow, thumbnails
+and sensor samples are dropped for it first, the ingest never waits, and the
+browser is told what it missed (and to reload its snapshot if something that
+matters was dropped).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import threading
+import time
+from collections import Counter, deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import zmq
+
+from ingest.derived import dive_phase
+from storage import queries
+from storage.store import Store
+
+log = logging.getLogger("camcal.server.live")
+
+#: Kinds a slow browser can do without (the next one replaces them).
+DROPPABLE = frozenset({"sensors", "attitude", "health", "frame", "result"})
+
+
+@dataclass(eq=False)
+class Client:
+    """One browser's WebSocket: its queue, its sequence and what it missed."""
+
+    queue: asyncio.Queue[dict[str, Any]]
+    seq: int = 0
+    dropped: Counter[str] = field(default_factory=Counter)
+    resync: bool = False
+
+    def next_seq(self) -> int:
+        self.seq += 1
+        return self.seq
+
+
+class LiveHub:
+    """Receives the ingest's events and delivers them to the connected browsers."""
+
+    def __init__(
+        self,
+        store: Store,
+        events_endpoint: str | None,
+        *,
+        client_queue: int = 256,
+        ctx: zmq.Context[Any] | None = None,
+    ) -> None:
+        self.store = store
+        self.endpoint = events_endpoint
+        self.client_queue = client_queue
+        self.ctx = ctx or zmq.Context.instance()
+        self.clients: set[Client] = set()
+        self.health: dict[str, Any] | None = None
+        self.health_at = 0.0
+        self.sensors: dict[str, dict[str, Any]] = {}
+        self.attitude: dict[str, dict[str, Any]] = {}
+        self.depths: dict[str, deque[tuple[float, float]]] = {}
+        self.last_event_id = store.last_event_id()
+        self.received = 0
+        self.recovered = 0
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    # ------------------------------------------------------------ lifecycle
+    def start(self, loop: asyncio.AbstractEventLoop) -> None:
+        self._loop = loop
+        if self.endpoint:
+            self._thread = threading.Thread(target=self._run, name="live-hub", daemon=True)
+            self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(5)
+
+    def _run(self) -> None:
+        sub = self.ctx.socket(zmq.SUB)
+        sub.setsockopt(zmq.SUBSCRIBE, b"")
+        sub.setsockopt(zmq.RCVHWM, 100000)
+        sub.setsockopt(zmq.LINGER, 0)
+        sub.connect(self.endpoint)
+        try:
+            while not self._stop.is_set():
+                if not sub.poll(200):
+                    continue
+                while True:
+                    try:
+                        _kind, body = sub.recv_multipart(zmq.NOBLOCK)
+                    except zmq.Again:
+                        break
+                    except ValueError:
+                        continue
+                    try:
+                        event = json.loads(body)
+                    except json.JSONDecodeError:
+                        continue
+                    self._incoming(event)
+        finally:
+            sub.close(0)
+
+    def _incoming(self, event: dict[str, Any]) -> None:
+        """In the hub thread: recover missed stored events, then hand over to the loop."""
+        self.received += 1
+        eid = event.get("id")
+        if eid is not None:
+            if eid <= self.last_event_id:
+                return
+            if eid > self.last_event_id + 1:
+                with self.store.read() as s:
+                    missed = queries.events_after(s, self.last_event_id, eid - self.last_event_id - 1)
+                for m in missed:
+                    if m["id"] < eid:
+                        self.recovered += 1
+                        self._post(m)
+            self.last_event_id = eid
+        self._post(event)
+
+    def _post(self, event: dict[str, Any]) -> None:
+        if self._loop is not None and not self._loop.is_closed():
+            self._loop.call_soon_threadsafe(self.deliver, event)
+
+    # ------------------------------------------------------------ delivery (event loop)
+    def deliver(self, event: dict[str, Any]) -> None:
+        kind = event.get("kind", "")
+        module = event.get("module")
+        payload = event.get("payload") or {}
+        if kind == "health":
+            self.health, self.health_at = payload, time.time()
+        elif kind == "sensors" and module:
+            self.sensors[module] = payload
+            if payload.get("depth_m") is not None and payload.get("t_unix_s") is not None:
+                hist = self.depths.setdefault(module, deque(maxlen=600))
+                hist.append((payload["t_unix_s"], payload["depth_m"]))
+        elif kind == "attitude" and module:
+            self.attitude[module] = payload
+        message = {
+            "type": "event",
+            "kind": kind,
+            "event_id": event.get("id"),
+            "module": module,
+            "t": event.get("t"),
+            "payload": payload,
+        }
+        for client in list(self.clients):
+            self._offer(client, message)
+
+    def _offer(self, client: Client, message: dict[str, Any]) -> None:
+        kind = message["kind"]
+        q = client.queue
+        if kind in DROPPABLE and q.qsize() >= q.maxsize // 2:
+            client.dropped[kind] += 1
+            return
+        if q.full():
+            client.dropped[kind] += 1
+            client.resync = True
+            return
+        q.put_nowait(message)
+
+    def register(self) -> Client:
+        client = Client(asyncio.Queue(self.client_queue))
+        self.clients.add(client)
+        return client
+
+    def unregister(self, client: Client) -> None:
+        self.clients.discard(client)
+
+    # ------------------------------------------------------------ state
+    def ingest_state(self, stale_after_s: float) -> dict[str, Any]:
+        age = time.time() - self.health_at if self.health_at else None
+        return {
+            "connected": self.endpoint is not None,
+            "up": age is not None and age <= stale_after_s,
+            "age_s": round(age, 2) if age is not None else None,
+        }
+
+    def phase(self, module: str) -> str | None:
+        hist = self.depths.get(module)
+        if not hist:
+            return None
+        t = [x[0] for x in hist]
+        d = [x[1] for x in hist]
+        return dive_phase(t, d)

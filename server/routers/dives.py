@@ -1,0 +1,218 @@
+"""Dives: list, details, timeline, λ_att table, runs, re-analysis, export."""
+
+from __future__ import annotations
+
+import io
+import tempfile
+import threading
+import zipfile
+from pathlib import Path
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Query
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import Response
+
+from camcal.frameset import Setup, parse_setup
+from ingest.derived import ResultRow, attenuation_dict, span_attenuation
+from ingest.reanalysis import ReanalysisOptions, reanalyse, start_run
+from server.deps import OperatorDep, SettingsDep, StoreDep
+from server.errors import Invalid, NotFound
+from server.schemas import DivePublic, ReanalysisCreate, RunPublic
+from storage import queries
+from storage.export import export_dive
+from storage.models import Dive
+
+router = APIRouter(tags=["dives"])
+
+
+def dive_or_404(store: Any, dive_id: int) -> Dive:
+    with store.read() as s:
+        dive = s.get(Dive, dive_id)
+    if dive is None:
+        raise NotFound(f"no dive {dive_id}")
+    return dive
+
+
+@router.get("/api/dives", response_model=list[DivePublic])
+async def list_dives(store: StoreDep) -> list[dict[str, Any]]:
+    """Every dive, newest first, with its frame count, time range and deepest depth."""
+
+    def q() -> list[dict[str, Any]]:
+        with store.read() as s:
+            return queries.dives(s)
+
+    return await run_in_threadpool(q)
+
+
+@router.get("/api/dives/{dive_id}", response_model=DivePublic)
+async def get_dive(dive_id: int, store: StoreDep) -> dict[str, Any]:
+    rows = [d for d in await list_dives(store) if d["id"] == dive_id]
+    if not rows:
+        raise NotFound(f"no dive {dive_id}")
+    return rows[0]
+
+
+@router.get("/api/dives/{dive_id}/timeline")
+async def timeline(
+    dive_id: int, store: StoreDep, max_points: Annotated[int, Query(ge=10, le=5000)] = 600
+) -> dict[str, Any]:
+    """Depth over the dive, the frames on it (thinned to ~2000 marks) and the alarms."""
+    dive_or_404(store, dive_id)
+
+    def q() -> dict[str, Any]:
+        with store.read() as s:
+            return queries.timeline(s, dive_id, max_points)
+
+    return await run_in_threadpool(q)
+
+
+@router.get("/api/dives/{dive_id}/runs", response_model=list[RunPublic])
+async def runs(dive_id: int, store: StoreDep) -> list[dict[str, Any]]:
+    """The dive's analysis runs: the live one and every re-analysis."""
+    dive_or_404(store, dive_id)
+
+    def q() -> list[dict[str, Any]]:
+        with store.read() as s:
+            return queries.runs(s, dive_id)
+
+    return await run_in_threadpool(q)
+
+
+def run_setup(store: Any, dive_id: int, run_id: int | None) -> tuple[int, Setup]:
+    with store.read() as s:
+        runs = {r["id"]: r for r in queries.runs(s, dive_id)}
+    if not runs:
+        raise NotFound(f"dive {dive_id} has no analysis yet")
+    if run_id is None:
+        live = [r for r in runs.values() if r["kind"] == "live"]
+        run_id = live[0]["id"] if live else max(runs)
+    if run_id not in runs:
+        raise NotFound(f"no run {run_id} in dive {dive_id}")
+    cal = runs[run_id]["calibration"] or {}
+    return run_id, parse_setup(cal, f"run {run_id}") if cal else Setup()
+
+
+@router.get("/api/dives/{dive_id}/attenuation")
+async def attenuation_table(
+    dive_id: int,
+    store: StoreDep,
+    run: int | None = None,
+    depth_min_m: float | None = None,
+    depth_max_m: float | None = None,
+    t_from: float | None = None,
+    t_to: float | None = None,
+) -> dict[str, Any]:
+    """λ_att per wavelength with statistical and systematic errors, over a span of the dive.
+
+    Default span: the station (frames within 50 m of the deepest frame).
+    Each row lists the near/far setting pairs it combines.
+    """
+    dive_or_404(store, dive_id)
+    run_id, setup = run_setup(store, dive_id, run)
+
+    def q() -> dict[str, Any]:
+        rows = store.result_rows(run_id, dive_id)
+        depths = [r["depth_m"] for r in rows if r["depth_m"] is not None]
+        lo = depth_min_m if depth_min_m is not None else (max(depths) - 50.0 if depths else None)
+        sel = [
+            ResultRow(
+                r["module"],
+                r["wavelength_nm"],
+                r["exposure_s"],
+                r["gain_db"],
+                r["captured_unix_s"],
+                r["depth_m"],
+                r["status"],
+                r["center_gray"],
+                r["i_center_gray"],
+                r["i_center_err_gray"],
+            )
+            for r in rows
+            if (lo is None or (r["depth_m"] is not None and r["depth_m"] >= lo))
+            and (depth_max_m is None or (r["depth_m"] is not None and r["depth_m"] <= depth_max_m))
+            and (t_from is None or r["captured_unix_s"] >= t_from)
+            and (t_to is None or r["captured_unix_s"] <= t_to)
+        ]
+        table = span_attenuation(sel, setup)
+        return {
+            "run_id": run_id,
+            "span": {
+                "depth_min_m": lo,
+                "depth_max_m": depth_max_m,
+                "t_from": t_from,
+                "t_to": t_to,
+                "n_frames": len(sel),
+            },
+            "calibration": setup.to_json(),
+            "rows": [attenuation_dict(table[wl]) for wl in sorted(table)],
+        }
+
+    return await run_in_threadpool(q)
+
+
+@router.post("/api/dives/{dive_id}/reanalyses", status_code=202, response_model=RunPublic)
+async def create_reanalysis(
+    dive_id: int, body: ReanalysisCreate, store: StoreDep, settings: SettingsDep, who: OperatorDep
+) -> dict[str, Any]:
+    """Re-analyse the dive with other distances, I0'/I0 or linear range, beside the original results.
+
+    Returns the new run at once (status ``running``); poll ``GET
+    /api/dives/{id}/runs`` or watch the live events for its end.
+    """
+    dive_or_404(store, dive_id)
+    _, base = run_setup(store, dive_id, None)
+    data = base.model_dump()
+    if body.cameras:
+        for cam, d in body.cameras.items():
+            data["cameras"][cam] = d.model_dump()
+    if body.emission_ratio:
+        for wl, r in body.emission_ratio.items():
+            data["emission_ratio"][wl] = r.model_dump()
+    if body.linear_range:
+        data["linear_range"] = body.linear_range
+    try:
+        setup = parse_setup(data, "re-analysis")
+    except Exception as exc:
+        raise Invalid(str(exc)) from None
+    run_id = start_run(store, dive_id, setup, body.label or f"re-analysis by {who}", body.calibration_id)
+    store.audit(
+        who, "reanalysis.start", f"dive:{dive_id}", {"run_id": run_id, "calibration": setup.to_json()}
+    )
+
+    def job() -> None:
+        try:
+            reanalyse(store, dive_id, run_id, setup, ReanalysisOptions(workers=settings.reanalysis_workers))
+        except Exception:  # recorded as a failed run (and logged); the API stays up
+            return
+
+    threading.Thread(target=job, name=f"reanalysis-{run_id}", daemon=True).start()
+    with store.read() as s:
+        return next(r for r in queries.runs(s, dive_id) if r["id"] == run_id)
+
+
+@router.get("/api/dives/{dive_id}/export")
+async def export(
+    dive_id: int,
+    store: StoreDep,
+    fmt: Annotated[str, Query(alias="format", pattern="^(csv|parquet)$")] = "csv",
+    run: int | None = None,
+) -> Response:
+    """The dive's tables as a ZIP of CSV or Parquet files."""
+    dive = dive_or_404(store, dive_id)
+    run_id, _ = run_setup(store, dive_id, run)
+
+    def build() -> bytes:
+        with tempfile.TemporaryDirectory() as tmp:
+            files = export_dive(store, dive_id, Path(tmp), (fmt,), run_id)
+            buf = io.BytesIO()
+            with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+                for f in files:
+                    zf.write(f, f.name)
+            return buf.getvalue()
+
+    data = await run_in_threadpool(build)
+    name = f"{dive.name}-{fmt}.zip"
+    return Response(
+        data, media_type="application/zip", headers={"Content-Disposition": f'attachment; filename="{name}"'}
+    )

@@ -1,0 +1,59 @@
+"""GET /api/health: are the modules alive, is the ingest running, how deep are the queues."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from fastapi import APIRouter
+from fastapi.concurrency import run_in_threadpool
+
+from camcal import __version__
+from server.deps import HubDep, SettingsDep, StoreDep
+from storage import queries
+
+router = APIRouter(tags=["health"])
+
+
+@router.get("/api/health")
+async def health(hub: HubDep, store: StoreDep, settings: SettingsDep) -> dict[str, Any]:
+    """Per-module link state, last packet age, frames/s and queue depths, from the ingest's heartbeat.
+
+    Without a recent heartbeat from the ingest the modules' state is unknown
+    (``link: "unknown"``) and ``ingest.up`` is false.
+    """
+
+    def modules() -> list[dict[str, Any]]:
+        with store.read() as s:
+            return queries.modules(s)
+
+    known = await run_in_threadpool(modules)
+    ingest = hub.ingest_state(settings.stale_after_s)
+    live = (hub.health or {}).get("modules", {}) if ingest["up"] else {}
+    now = time.time()
+    out = {}
+    for m in known:
+        h = live.get(m["id"])
+        out[m["id"]] = {
+            "link": h["link"] if h else "unknown",
+            "last_packet_age_s": h["last_packet_age_s"] if h else round(now - m["last_seen_unix_s"], 1),
+            "frames_per_s": h["frames_per_s"] if h else None,
+            "schedule": h["schedule"] if h else m["schedule"],
+            "outbox_pending": h.get("outbox_pending") if h else None,
+            "boot": h["boot"] if h else m["boot"],
+            "distance_m": m["distance_m"],
+            "phase": hub.phase(m["id"]),
+        }
+    for mid, h in live.items():
+        out.setdefault(mid, {**h, "distance_m": None, "phase": hub.phase(mid)})
+    health = hub.health if ingest["up"] else None
+    return {
+        "status": "ok" if ingest["up"] else "degraded",
+        "server": {"version": __version__, "time_unix_s": now, "clients": len(hub.clients)},
+        "ingest": ingest,
+        "modules": out,
+        "queues": (health or {}).get("queues"),
+        "counters": (health or {}).get("counters"),
+        "malformed": (health or {}).get("malformed"),
+        "latency_p95_s": (health or {}).get("latency_p95_s"),
+    }

@@ -1,0 +1,143 @@
+"""WS /ws/live: one WebSocket per browser; a snapshot first, then sequenced events."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import time
+from typing import Any
+
+from fastapi import APIRouter, WebSocket, WebSocketDisconnect
+from fastapi.concurrency import run_in_threadpool
+
+from server.deps import HubDep, SettingsDep, StoreDep
+from server.relay import LiveHub
+from server.settings import ServerSettings
+from storage import queries
+from storage.store import Store
+
+router = APIRouter(tags=["live"])
+
+
+def build_snapshot(store: Store, hub: LiveHub, settings: ServerSettings) -> dict[str, Any]:
+    """Everything the live view shows, as of now."""
+    with store.read() as s:
+        dives = queries.dives(s)
+        dive = dives[0] if dives else None
+        run_id = queries.live_run_id(s, dive["id"]) if dive else None
+        modules = queries.modules(s)
+        latest = queries.latest_frames(s, dive["id"], run_id) if dive else {}
+        sensors = queries.latest_sensors(s, dive["id"] if dive else None)
+        attitude = queries.latest_attitude(s, dive["id"] if dive else None)
+        quality = queries.quality_counts(s, run_id) if run_id else {}
+        t_last = max((f["captured_unix_s"] for f in latest.values()), default=None)
+        recent_quality = queries.quality_counts(s, run_id, since=t_last - 600) if run_id and t_last else {}
+        attenuation = queries.attenuation_series(s, run_id) if run_id else {}
+        alarms = queries.alarms(s, active=True) + queries.alarms(s, active=False, limit=20)
+    ingest = hub.ingest_state(settings.stale_after_s)
+    live = (hub.health or {}).get("modules", {}) if ingest["up"] else {}
+    out_modules = {}
+    for m in modules:
+        mid = m["id"]
+        h = live.get(mid)
+        frame = latest.get(mid)
+        if frame:
+            frame = {**frame, "thumbnail_url": f"/api/frames/{frame['id']}/thumbnail"}
+        out_modules[mid] = {
+            "id": mid,
+            "distance_m": m["distance_m"],
+            "link": h["link"] if h else "unknown",
+            "last_packet_age_s": h["last_packet_age_s"] if h else None,
+            "last_seen_unix_s": m["last_seen_unix_s"],
+            "frames_per_s": h["frames_per_s"] if h else None,
+            "schedule": h["schedule"] if h else m["schedule"],
+            "latest_frame": frame,
+            "sensors": hub.sensors.get(mid) or sensors.get(mid),
+            "attitude": hub.attitude.get(mid) or attitude.get(mid),
+            "phase": hub.phase(mid),
+            "quality": quality.get(mid, {}),
+            "quality_recent": recent_quality.get(mid, {}),
+        }
+    return {
+        "server_time_unix_s": time.time(),
+        "dive": dive,
+        "run_id": run_id,
+        "ingest": ingest,
+        "stale_after_s": settings.stale_after_s,
+        "modules": out_modules,
+        "attenuation": {str(k): v[-300:] for k, v in attenuation.items()},
+        "alarms": alarms,
+        "last_event_id": hub.last_event_id,
+    }
+
+
+@router.get("/api/live/snapshot")
+async def snapshot(store: StoreDep, hub: HubDep, settings: SettingsDep) -> dict[str, Any]:
+    """What a new WebSocket receives first (also for a browser that must resynchronise)."""
+    return await run_in_threadpool(build_snapshot, store, hub, settings)
+
+
+@router.websocket("/ws/live")
+async def live(ws: WebSocket) -> None:
+    """Snapshot, then events, each with the connection's sequence number ``seq``.
+
+    A browser that falls behind loses thumbnails and sensor samples first
+    and then gets ``{"type": "missed", "dropped": {...}, "resync": bool}``;
+    with ``resync`` it should ask for a new snapshot by sending
+    ``{"type": "resync"}``. The ingest never waits for a browser.
+    """
+    app = ws.app
+    hub: LiveHub = app.state.hub
+    store: Store = app.state.store
+    settings: ServerSettings = app.state.settings
+    await ws.accept()
+    client = hub.register()
+    try:
+        snap = await run_in_threadpool(build_snapshot, store, hub, settings)
+        await ws.send_text(
+            json.dumps({"type": "snapshot", "seq": client.next_seq(), "data": snap}, default=str)
+        )
+
+        async def receive() -> None:
+            while True:
+                msg = await ws.receive_text()
+                try:
+                    req = json.loads(msg)
+                except json.JSONDecodeError:
+                    continue
+                if isinstance(req, dict) and req.get("type") == "resync":
+                    client.resync = False
+                    data = await run_in_threadpool(build_snapshot, store, hub, settings)
+                    await ws.send_text(
+                        json.dumps({"type": "snapshot", "seq": client.next_seq(), "data": data}, default=str)
+                    )
+
+        async def send() -> None:
+            while True:
+                message = await client.queue.get()
+                if client.dropped:
+                    dropped, client.dropped = dict(client.dropped), type(client.dropped)()
+                    await ws.send_text(
+                        json.dumps(
+                            {
+                                "type": "missed",
+                                "seq": client.next_seq(),
+                                "dropped": dropped,
+                                "resync": client.resync,
+                            }
+                        )
+                    )
+                await ws.send_text(json.dumps({**message, "seq": client.next_seq()}, default=str))
+
+        tasks = [asyncio.create_task(receive()), asyncio.create_task(send())]
+        done, pending = await asyncio.wait(tasks, return_when=asyncio.FIRST_EXCEPTION)
+        for t in pending:
+            t.cancel()
+        for t in done:
+            with contextlib.suppress(WebSocketDisconnect, asyncio.CancelledError, RuntimeError):
+                t.result()
+    except WebSocketDisconnect:
+        pass
+    finally:
+        hub.unregister(client)

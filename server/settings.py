@@ -1,0 +1,26 @@
+"""What the server needs to run."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class ServerSettings:
+    """Settings of one server process.
+
+    ``events`` is the ingest's event publisher (``camcal ingest --events``);
+    None runs the server on the database alone (review of past dives).
+    ``operator_tokens`` maps operator names to tokens; without any, nobody
+    can change anything (watching needs no token).
+    """
+
+    data_dir: Path = Path("camcal-data")
+    db_url: str | None = None
+    events: str | None = "tcp://127.0.0.1:5556"
+    operator_tokens: dict[str, str] = field(default_factory=dict)
+    stale_after_s: float = 5.0
+    client_queue: int = 256
+    reanalysis_workers: int = 1
+    run_migrations: bool = True

@@ -7,7 +7,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Query
 from fastapi.concurrency import run_in_threadpool
 
-from server.deps import OperatorDep, StoreDep
+from server.deps import IdPath, OperatorDep, StoreDep
 from server.errors import NotFound
 from server.schemas import AckRequest, AlarmPublic
 from storage import queries
@@ -30,7 +30,7 @@ async def list_alarms(
 
 @router.post("/api/alarms/{alarm_id}/ack", response_model=AlarmPublic)
 async def ack(
-    alarm_id: int, store: StoreDep, who: OperatorDep, body: AckRequest | None = None
+    alarm_id: IdPath, store: StoreDep, who: OperatorDep, body: AckRequest | None = None
 ) -> dict[str, Any]:
     """Acknowledge an alarm (operator token); recorded in the audit log."""
     alarm = await run_in_threadpool(store.ack_alarm, alarm_id, who)
@@ -43,7 +43,7 @@ async def ack(
 async def audit(
     store: StoreDep,
     limit: Annotated[int, Query(ge=1, le=5000)] = 500,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
 ) -> list[dict[str, Any]]:
     """The append-only audit log: commands, acknowledgements, calibration changes."""
 

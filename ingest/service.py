@@ -69,6 +69,7 @@ class IngestConfig:
     setup: Setup = field(default_factory=Setup)
     rolling_window_s: float = 300.0
     rolling_interval_s: float = 10.0
+    command_retry_s: float = 3.0
     thumbnails: bool = True
     alarm_limits: AlarmLimits = field(default_factory=AlarmLimits)
     modules: tuple[str, ...] = ()
@@ -491,6 +492,8 @@ class _StoreState:
                 self._link(i)
             elif i.kind in ("hello", "heartbeat"):
                 self._module_info(i)
+            elif i.kind == "command_status":
+                self._command_status(i)
 
     def _commit(self, items: list[_Incoming]) -> None:
         svc, files = self.svc, self.store.files
@@ -801,6 +804,64 @@ class _StoreState:
             ),
         )
 
+    # -- commands --------------------------------------------------------
+    def _command_status(self, it: _Incoming) -> None:
+        m = it.msg
+        cmd = self.store.update_command(m.command_id, m.state, m.reason, actor=f"module:{m.module}")
+        self._module_info(it)
+        if cmd is not None:
+            self.svc.events.emit(
+                "command",
+                {
+                    "command_id": cmd["id"],
+                    "state": cmd["state"],
+                    "reason": cmd["reason"],
+                    "action": cmd["action"],
+                    "target_version": cmd["target_version"],
+                },
+                module=m.module,
+                dive_id=self.svc.dive.id,
+            )
+
+    def _deliver_commands(self) -> None:
+        """Send queued commands to linked modules; repeat until the module answers."""
+        svc = self.svc
+        now = time.time()
+        for cmd in self.store.commands(states=("pending", "sent", "accepted")):
+            link = svc.links.get(cmd["module"])
+            if link is None or not link.up:
+                continue  # stays pending: delivered when the module is back
+            if cmd["state"] == "accepted" or (
+                cmd["attempts"] and now - cmd["updated_unix_s"] < svc.config.command_retry_s
+            ):
+                continue
+            schedule = (cmd["payload"] or {}).get("schedule")
+            svc.send_to_module(
+                cmd["module"],
+                wire.Command(
+                    module="ship",
+                    command_id=cmd["id"],
+                    action=cmd["action"],
+                    target_version=cmd["target_version"],
+                    schedule=schedule,
+                    apply=cmd["apply"],
+                    issued_by=cmd["issued_by"],
+                ),
+            )
+            self.store.mark_command_sent(cmd["id"])
+            if not cmd["attempts"]:
+                svc.events.emit(
+                    "command",
+                    {
+                        "command_id": cmd["id"],
+                        "state": "sent",
+                        "action": cmd["action"],
+                        "target_version": cmd["target_version"],
+                    },
+                    module=cmd["module"],
+                    dive_id=svc.dive.id,
+                )
+
     # -- once a second ---------------------------------------------------
     def tick(self) -> None:
         svc = self.svc
@@ -838,6 +899,7 @@ class _StoreState:
             self.alarms.observe_gaps(module, gaps)
         self._apply_alarms(self.alarms.evaluate(now))
         self._update_linearity()
+        self._deliver_commands()
         self._adapt_window()
         svc.events.transient("health", svc.health())
 

@@ -25,6 +25,7 @@ from storage.models import (
     AttenuationPoint,
     AttitudeSample,
     AuditEntry,
+    CommandRecord,
     Dive,
     Event,
     Frame,
@@ -39,6 +40,27 @@ from storage.models import (
 
 def now_unix_s() -> float:
     return time.time()
+
+
+#: Order of a command's states: a late, older status never moves it back.
+COMMAND_STATES = {"pending": 0, "sent": 1, "accepted": 2, "in_progress": 3, "done": 4, "rejected": 4}
+
+
+def command_dict(c: CommandRecord) -> dict[str, Any]:
+    return {
+        "id": c.id,
+        "module": c.module_id,
+        "action": c.action,
+        "target_version": c.target_version,
+        "payload": c.payload,
+        "apply": c.apply,
+        "issued_by": c.issued_by,
+        "issued_unix_s": c.issued_unix_s,
+        "state": c.state,
+        "reason": c.reason,
+        "attempts": c.attempts,
+        "updated_unix_s": c.updated_unix_s,
+    }
 
 
 @dataclass
@@ -531,6 +553,118 @@ class Store:
             s.add(entry)
             s.flush()
             return entry.id
+
+    # ------------------------------------------------------------ commands
+    def create_command(
+        self,
+        command_id: str,
+        module_id: str,
+        action: str,
+        issued_by: str,
+        *,
+        payload: dict[str, Any] | None = None,
+        target_version: int = 0,
+        apply: str = "now",
+    ) -> dict[str, Any]:
+        """Queue a command (state ``pending``) and record it in the audit log, in one transaction."""
+        t = now_unix_s()
+        with self.session() as s:
+            cmd = CommandRecord(
+                id=command_id,
+                module_id=module_id,
+                action=action,
+                target_version=target_version,
+                payload=payload or {},
+                apply=apply,
+                issued_by=issued_by,
+                issued_unix_s=t,
+                state="pending",
+                attempts=0,
+                updated_unix_s=t,
+            )
+            s.add(cmd)
+            s.add(
+                AuditEntry(
+                    t_unix_s=t,
+                    actor=issued_by,
+                    action=f"command.{action}",
+                    target=f"module:{module_id}",
+                    details={
+                        "command_id": command_id,
+                        "target_version": target_version,
+                        "apply": apply,
+                        "schedule": (payload or {}).get("schedule"),
+                    },
+                )
+            )
+            s.flush()
+            return command_dict(cmd)
+
+    def command(self, command_id: str) -> dict[str, Any] | None:
+        with self.read() as s:
+            cmd = s.get(CommandRecord, command_id)
+            return command_dict(cmd) if cmd else None
+
+    def commands(
+        self, module_id: str | None = None, states: Sequence[str] | None = None, limit: int = 200
+    ) -> list[dict[str, Any]]:
+        with self.read() as s:
+            q = select(CommandRecord)
+            if module_id:
+                q = q.where(CommandRecord.module_id == module_id)
+            if states:
+                q = q.where(CommandRecord.state.in_(list(states)))
+            return [
+                command_dict(c)
+                for c in s.scalars(q.order_by(CommandRecord.issued_unix_s.desc()).limit(limit))
+            ]
+
+    def mark_command_sent(self, command_id: str) -> None:
+        with self.session() as s:
+            cmd = s.get(CommandRecord, command_id)
+            if cmd is not None:
+                cmd.attempts += 1
+                cmd.updated_unix_s = now_unix_s()
+                if cmd.state == "pending":
+                    cmd.state = "sent"
+
+    def update_command(
+        self, command_id: str, state: str, reason: str | None, actor: str
+    ) -> dict[str, Any] | None:
+        """Record a module's answer (audited); returns the command if its state changed."""
+        with self.session() as s:
+            cmd = s.get(CommandRecord, command_id)
+            if cmd is None or COMMAND_STATES.get(state, 0) <= COMMAND_STATES.get(cmd.state, 0):
+                return None
+            cmd.state, cmd.reason, cmd.updated_unix_s = state, reason, now_unix_s()
+            s.add(
+                AuditEntry(
+                    t_unix_s=now_unix_s(),
+                    actor=actor,
+                    action=f"command.{state}",
+                    target=f"module:{cmd.module_id}",
+                    details={"command_id": command_id, "reason": reason, "action": cmd.action},
+                )
+            )
+            return command_dict(cmd)
+
+    def schedule_version(self, module_id: str) -> int:
+        """The newest schedule version a module runs or has been sent (not rejected)."""
+        with self.read() as s:
+            mod = s.get(Module, module_id)
+            running = mod.schedule_version if mod else 0
+            sent = s.scalar(
+                select(func.max(CommandRecord.target_version)).where(
+                    CommandRecord.module_id == module_id,
+                    CommandRecord.action == "set_schedule",
+                    CommandRecord.state != "rejected",
+                )
+            )
+            return max(running or 0, sent or 0)
+
+    def module_exists(self, module_id: str) -> bool:
+        with self.read() as s:
+            return s.get(Module, module_id) is not None
 
     # ------------------------------------------------------------ checks
     def integrity_check(self) -> str:

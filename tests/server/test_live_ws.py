@@ -80,9 +80,11 @@ def test_a_slow_browser_loses_droppable_events_first_and_is_told(tmp_path: Path)
             if m.get("kind") == "alarm":
                 break
         missed = [m for m in messages if m["type"] == "missed"]
-        assert missed and missed[0]["dropped"].get("sensors", 0) > 150
-        assert missed[0]["resync"] is False  # only droppable events were lost
-        assert len([m for m in messages if m.get("kind") == "sensors"]) <= 8
+        dropped = sum(m["dropped"].get("sensors", 0) for m in missed)
+        delivered = len([m for m in messages if m.get("kind") == "sensors"])
+        assert missed and dropped > 100  # the queue holds 8: most had to go
+        assert dropped + delivered == 200  # and the browser knows exactly how many
+        assert not any(m["resync"] for m in missed)  # only droppable events were lost
         seqs = [m["seq"] for m in messages]
         assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))
     pub.close(0)

@@ -20,6 +20,7 @@ from __future__ import annotations
 import logging
 import os
 import queue
+import shutil
 import threading
 import time
 import uuid
@@ -70,6 +71,7 @@ class IngestConfig:
     rolling_window_s: float = 300.0
     rolling_interval_s: float = 10.0
     command_retry_s: float = 3.0
+    retention_days: float | None = None
     thumbnails: bool = True
     alarm_limits: AlarmLimits = field(default_factory=AlarmLimits)
     modules: tuple[str, ...] = ()
@@ -95,6 +97,7 @@ class Link:
     in_flight: int = 0
     frames: deque[float] = field(default_factory=lambda: deque(maxlen=200))
     last_heartbeat_sent: float = 0.0
+    clock_offset_s: float | None = None
 
 
 @dataclass
@@ -136,6 +139,7 @@ class IngestService:
         self.latency_s: deque[float] = deque(maxlen=2000)
         self.started = threading.Event()
         self.error: BaseException | None = None
+        self.disk_free_gb: float | None = None
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -271,6 +275,11 @@ class IngestService:
             )
             self._q.put(_Incoming("hello", module, msg, None, t_unix, t_mono))
         elif kind == "heartbeat":
+            # Module clock minus ship clock (network delay is small on a fibre): smoothed.
+            offset = msg.sent_at.timestamp() - t_unix
+            link.clock_offset_s = (
+                offset if link.clock_offset_s is None else 0.8 * link.clock_offset_s + 0.2 * offset
+            )
             link.schedule = msg.schedule.model_dump()
             link.outbox_pending, link.in_flight, link.boot = msg.outbox_pending, msg.in_flight, msg.boot
             if not link.welcomed:  # the ship restarted under a running module: greet it again
@@ -415,6 +424,7 @@ class IngestService:
                 "schedule": link.schedule,
                 "outbox_pending": link.outbox_pending,
                 "in_flight": link.in_flight,
+                "clock_offset_s": round(link.clock_offset_s, 3) if link.clock_offset_s is not None else None,
             }
         return {
             "modules": modules,
@@ -427,6 +437,7 @@ class IngestService:
             "counters": dict(self.counters),
             "malformed": dict(self.malformed),
             "dive": {"id": self.dive.id, "name": self.dive.name},
+            "disk_free_gb": self.disk_free_gb,
             "latency_p50_s": _pct(self.latency_s, 50),
             "latency_p95_s": _pct(self.latency_s, 95),
         }
@@ -478,6 +489,8 @@ class _StoreState:
         self.recent_set: set[tuple[str, str, int]] = set()
         self.last_sensor_event: dict[str, float] = {}
         self.gappy: set[tuple[str, str]] = {(g.module_id, g.boot) for g in self.store.open_gaps()}
+        self.last_housekeeping = -1e18
+        self.last_purge = -1e18
 
     # -- batches ---------------------------------------------------------
     def handle(self, items: list[_Incoming]) -> None:
@@ -804,6 +817,25 @@ class _StoreState:
             ),
         )
 
+    # -- disk ------------------------------------------------------------
+    def _housekeeping(self, now: float) -> None:
+        """Free disk (an alarm when it runs low) and, hourly, the retention of old frame files."""
+        svc = self.svc
+        free_gb = shutil.disk_usage(svc.store.files.root).free / 1e9
+        svc.disk_free_gb = round(free_gb, 2)
+        self.alarms.observe_disk(free_gb)
+        days = svc.config.retention_days
+        if days and time.monotonic() - self.last_purge >= 3600.0:
+            self.last_purge = time.monotonic()
+            n, freed = self.store.purge_frame_files(now - days * 86400.0)
+            if n:
+                log.info(
+                    "retention: deleted %d frame files older than %g days (%.1f MB)", n, days, freed / 1e6
+                )
+                svc.events.emit(
+                    "retention", {"files": n, "bytes": freed, "older_than_days": days}, dive_id=svc.dive.id
+                )
+
     # -- commands --------------------------------------------------------
     def _command_status(self, it: _Incoming) -> None:
         m = it.msg
@@ -897,6 +929,9 @@ class _StoreState:
         for module in {g.module_id for g in self.store.open_gaps()} | set(svc.links):
             gaps = [(g.first_seq, g.last_seq, g.detected_unix_s) for g in self.store.open_gaps(module)]
             self.alarms.observe_gaps(module, gaps)
+        if mono - self.last_housekeeping >= 30.0:
+            self.last_housekeeping = mono
+            self._housekeeping(now)
         self._apply_alarms(self.alarms.evaluate(now))
         self._update_linearity()
         self._deliver_commands()

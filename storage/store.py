@@ -666,6 +666,29 @@ class Store:
         with self.read() as s:
             return s.get(Module, module_id) is not None
 
+    # ------------------------------------------------------------ retention
+    def purge_frame_files(self, older_than_unix_s: float) -> tuple[int, int]:
+        """Delete frame files captured before a time; rows, results and thumbnails stay.
+
+        Returns (files deleted, bytes freed). The image route then says the
+        file went to retention.
+        """
+        n = freed = 0
+        with self.read() as s:
+            rows = s.execute(
+                select(Frame.path, Frame.size_bytes).where(Frame.captured_unix_s < older_than_unix_s)
+            )
+            for path, size in rows:
+                try:
+                    p = self.files.resolve(path)
+                except ValueError:
+                    continue
+                if p.exists():
+                    p.unlink()
+                    n += 1
+                    freed += int(size or 0)
+        return n, freed
+
     # ------------------------------------------------------------ checks
     def integrity_check(self) -> str:
         """``PRAGMA integrity_check`` on SQLite ("ok" when sound); "ok" elsewhere."""

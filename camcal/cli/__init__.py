@@ -4,7 +4,19 @@ from __future__ import annotations
 
 import typer
 
-from camcal.cli import analyze, calibrate, data, demo, ingest, lrm, serve, simulate, simulate_lab
+from camcal.cli import (
+    analyze,
+    calibrate,
+    config,
+    data,
+    demo,
+    doctor,
+    ingest,
+    lrm,
+    serve,
+    simulate,
+    simulate_lab,
+)
 
 app = typer.Typer(
     name="camcal",
@@ -20,6 +32,8 @@ ingest.register(app)
 lrm.register(app)
 data.register(app)
 serve.register(app)
+config.register(app)
+doctor.register(app)
 simulate_lab.register(app)
 calibrate.register(app)
 

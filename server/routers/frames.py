@@ -157,6 +157,8 @@ async def image(frame_id: IdPath, store: StoreDep) -> FileResponse:
     """The full frame as stored (lossless PNG, exactly the module's bytes)."""
     path, _ = await run_in_threadpool(_stored_path, store, frame_id)
     if not path.exists():
-        raise Unavailable(f"frame {frame_id}: its file is missing from the data folder")
+        raise Unavailable(
+            f"frame {frame_id}: its file is no longer in the data folder (removed by retention?)"
+        )
     media = "image/tiff" if path.suffix == ".tif" else "image/png"
     return FileResponse(path, media_type=media, headers={"Cache-Control": "public, max-age=86400, immutable"})

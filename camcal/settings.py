@@ -92,6 +92,7 @@ class Settings(BaseSettings):
         default_factory=_trex_ratios, description="I0'/I0 per wavelength"
     )
     linear_range: tuple[float, float] = Field((5.0, 240.0), description="linear gray range of the cameras")
+    calibration: str | None = Field(None, description="calibration record NAME[@VERSION] the ingest uses")
     operator_tokens: dict[str, SecretStr] = Field(default_factory=dict, description="operator name -> token")
     workers: int = Field(0, ge=0, le=256, description="analysis processes (0: one per core)")
     window: int = Field(8, ge=1, le=1024, description="credit: unacknowledged messages per module")

@@ -17,6 +17,7 @@ Three kinds of worker, each owning what it touches:
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import queue
@@ -37,6 +38,7 @@ import zmq
 from analysis import FrameConfig
 from analysis.attitude import attitude_from_samples
 from camcal import __version__, wire
+from camcal.calibrations import setup_of
 from camcal.frameset import Setup
 from camcal.parallel import process_pool
 from ingest.alarms import AlarmEvaluator, AlarmLimits
@@ -72,6 +74,7 @@ class IngestConfig:
     rolling_interval_s: float = 10.0
     command_retry_s: float = 3.0
     retention_days: float | None = None
+    calibration: str | None = None
     thumbnails: bool = True
     alarm_limits: AlarmLimits = field(default_factory=AlarmLimits)
     modules: tuple[str, ...] = ()
@@ -144,6 +147,14 @@ class IngestService:
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
         """Bind the sockets (so `endpoint` is known), then run the threads."""
+        calibration = None
+        if self.config.calibration:  # before binding anything: a wrong name leaves nothing open
+            calibration = self.store.calibration(self.config.calibration)
+            if calibration is None:
+                raise ValueError(
+                    f"no calibration {self.config.calibration!r} in the store (see `camcal calibration list`)"
+                )
+            self.config = dataclasses.replace(self.config, setup=setup_of(calibration))
         self.store.files.remove_temporaries()
         self._router = wire.ship_socket(
             self.ctx,
@@ -167,6 +178,8 @@ class IngestService:
             self.dive.id, "live", software_version=__version__, calibration=setup.to_json()
         )
         assert self.run is not None
+        if calibration is not None and self.run.calibration_id != calibration["id"]:
+            self.store.use_calibration(self.dive.id, self.run.id, calibration["id"], actor="ingest")
         self._pool = process_pool(self.config.n_workers)
         for name, target in (("ingest-net", self._net_loop), ("ingest-store", self._store_loop)):
             t = threading.Thread(target=self._guard(target), name=name, daemon=True)

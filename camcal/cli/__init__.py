@@ -7,6 +7,7 @@ import typer
 from camcal.cli import (
     analyze,
     calibrate,
+    calibration,
     config,
     data,
     demo,
@@ -34,6 +35,7 @@ data.register(app)
 serve.register(app)
 config.register(app)
 doctor.register(app)
+calibration.register(app)
 simulate_lab.register(app)
 calibrate.register(app)
 

@@ -447,7 +447,8 @@ class _Problem:
                 "shifts": shifts,
                 "fit": fit,
                 "err": np.sqrt(np.where(self.used, var, np.nan)),
-                "halo": mod["halo"][None] / norm[:, None, None] * loc[:, 0, None, None],
+                # The scattered light as it appears in the background-subtracted data: s·halo + β.
+                "halo": mod["halo"][None] / norm[:, None, None] * loc[:, 0, None, None] + loc[:, 1:3, None],
             }
         return chi2, info
 

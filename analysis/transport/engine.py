@@ -455,7 +455,7 @@ def _scattered_batch(
     s = np.where(valid, s, 1.0)
     x_safe = np.where(valid[:, None], x, 0.0)
     dir_safe = np.where(valid[:, None], direction, np.array([0.0, 0.0, 1.0]))
-    omega_cap = 2.0 * np.pi * (1.0 - np.sqrt(np.maximum(1.0 - (a / r) ** 2, 0.0)))
+    omega_cap = cap_solid_angle_sr(a, r)
     natural = np.exp(-s / lam) / (4.0 * math.pi**2 * a * a * lam)
     mix = q_nat * natural
     for prop in proposals:
@@ -525,6 +525,16 @@ def _scattered_batch(
         live = (weight > 0) & (path < config.path_max_m)
         x, direction, weight, path = new_x[live], new_dir[live], weight[live], path[live]
         emission_mu = emission_mu[live]
+
+
+def cap_solid_angle_sr(radius_m: float, distance_m: np.ndarray) -> np.ndarray:
+    """Solid angle of a sphere of radius a seen from distance r: 2π(1 - cos α), sin α = a/r.
+
+    Written as 2π (a/r)² / (1 + cos α), which keeps its precision far away,
+    where 1 - cos α would cancel to zero.
+    """
+    s2 = np.minimum((radius_m / np.asarray(distance_m)) ** 2, 1.0)
+    return 2.0 * np.pi * s2 / (1.0 + np.sqrt(1.0 - s2))
 
 
 def _emission_point_for(

@@ -24,7 +24,7 @@ import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 from scipy.special import roots_legendre
 
-from analysis.transport.engine import PathMoments
+from analysis.transport.engine import PathMoments, cap_solid_angle_sr
 from analysis.transport.sampling import mixed_phase_sr
 from analysis.transport.scene import TransportScene
 
@@ -86,7 +86,7 @@ class CapTable:
             )
             dir_par = np.where(far, 1.0, dir_par)
             dir_perp = np.where(far, 0.0, dir_perp)
-        omega = 2.0 * math.pi * (1.0 - np.sqrt(np.maximum(1.0 - (a / r) ** 2, 0.0)))
+        omega = cap_solid_angle_sr(a, r)
         return mean_phase * omega, (r - a) + a * excess, a * a * spread, dir_par, dir_perp
 
 

@@ -274,6 +274,22 @@ class TemplateGrid:
         centres = (2.0 / 3.0) * (edges[1:] ** 3 - edges[:-1] ** 3) / (edges[1:] ** 2 - edges[:-1] ** 2)
         return np.interp(psi, np.arctan(centres / self.settings.focal_px), value[camera])
 
+    def higher_orders(
+        self, lambda_abs_m: float, lambda_sca_m: float, mie_g: float | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The Monte Carlo part (orders >= 2) on the Monte Carlo's own bins: radiance and variance
+        per camera, component and bin (before interpolation onto the bands)."""
+        g = self.settings.mie_g_nodes[0] if mie_g is None else float(mie_g)
+        nodes = self.settings.lambda_sca_nodes_m
+        clipped = min(max(lambda_sca_m, nodes[0]), nodes[-1])
+        l_lo, l_hi, t = _bracket(nodes, clipped, log=True, name="lambda_sca_m")
+        value, var = self._higher(self.nodes[(g, l_lo)], lambda_abs_m, lambda_sca_m)
+        if t > 0:
+            v2, var2 = self._higher(self.nodes[(g, l_hi)], lambda_abs_m, lambda_sca_m)
+            value = (1 - t) * value + t * v2
+            var = (1 - t) ** 2 * var + t**2 * var2
+        return value, var
+
     def camera_index(self, distance_m: float, side: int) -> int:
         """The index of the grid's camera at ``distance_m`` on ``side``; `ValueError` if none."""
         for i, c in enumerate(self.settings.cameras):
@@ -285,14 +301,7 @@ class TemplateGrid:
     def _at_g(self, g: float, lambda_abs_m: float, lambda_sca_m: float) -> tuple[np.ndarray, np.ndarray]:
         first, _ = self.first[g].reweight(1.0 / lambda_sca_m + 1.0 / lambda_abs_m)
         first = first / lambda_sca_m
-        nodes = self.settings.lambda_sca_nodes_m
-        clipped = min(max(lambda_sca_m, nodes[0]), nodes[-1])
-        l_lo, l_hi, t = _bracket(nodes, clipped, log=True, name="lambda_sca_m")
-        higher, var = self._higher(self.nodes[(g, l_lo)], lambda_abs_m, lambda_sca_m)
-        if t > 0:
-            h2, v2 = self._higher(self.nodes[(g, l_hi)], lambda_abs_m, lambda_sca_m)
-            higher = (1 - t) * higher + t * h2
-            var = (1 - t) ** 2 * var + t**2 * v2
+        higher, var = self.higher_orders(lambda_abs_m, lambda_sca_m, g)
         fine = np.einsum("fj,ckj->ckf", self._coarse_to_fine, higher)
         fine_var = np.einsum("fj,ckj->ckf", self._coarse_to_fine**2, var)
         return first + fine, fine_var
@@ -348,27 +357,27 @@ def _coarse_to_fine_matrix(settings: TemplateSettings) -> tuple[np.ndarray, np.n
     return mat, omega
 
 
-def _cap_table(settings: TemplateSettings, g: float, cache: TemplateCache) -> CapTable:
-    """The cap table of one phase function: shared by every geometry, so cached on its own."""
+def cached_cap_table(
+    lem_radius_m: float, mie_g: float, rayleigh_fraction: float, r_max_m: float, cache: TemplateCache
+) -> CapTable:
+    """The cap table of one phase function (`build_cap_table`), cached on its own: all geometries share it."""
     desc = {
-        "lem_radius_m": settings.lem_radius_m,
-        "mie_g": g,
-        "rayleigh_fraction": settings.rayleigh_fraction,
-        "r_max_m": settings.path_max_m,
+        "lem_radius_m": lem_radius_m,
+        "mie_g": mie_g,
+        "rayleigh_fraction": rayleigh_fraction,
+        "r_max_m": r_max_m,
     }
 
     def compute() -> dict[str, np.ndarray]:
-        t = build_cap_table(settings.lem_radius_m, g, settings.rayleigh_fraction, r_max_m=settings.path_max_m)
+        t = build_cap_table(lem_radius_m, mie_g, rayleigh_fraction, r_max_m=r_max_m)
         return {k: getattr(t, k) for k in CAP_TABLE_ARRAYS}
 
     arr = cache.get(cache_key("cap-table", desc), desc, compute)
-    return CapTable(
-        settings.lem_radius_m, g, settings.rayleigh_fraction, **{k: arr[k] for k in CAP_TABLE_ARRAYS}
-    )
+    return CapTable(lem_radius_m, mie_g, rayleigh_fraction, **{k: arr[k] for k in CAP_TABLE_ARRAYS})
 
 
 def _lines_piece(settings: TemplateSettings, g: float, cache: TemplateCache) -> dict[str, np.ndarray]:
-    table = _cap_table(settings, g, cache)
+    table = cached_cap_table(settings.lem_radius_m, g, settings.rayleigh_fraction, settings.path_max_m, cache)
     lines = first_order_lines(settings.scene(), table, path_max_m=settings.path_max_m)
     return {"weight": lines.weight, "path_m": lines.path_m, "spread_m2": lines.spread_m2}
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from camcal.cli import analyze, demo, simulate
+from camcal.cli import analyze, demo, fit, simulate, transport
 
 app = typer.Typer(
     name="camcal",
@@ -16,6 +16,8 @@ app = typer.Typer(
 simulate.register(app)
 analyze.register(app)
 demo.register(app)
+fit.register(app)
+transport.register(app)
 
 
 def main() -> None:

@@ -26,8 +26,9 @@ T is normalised like the data, by its own near-camera sum.
 The paper writes the nuisance terms as T_i(1 + Σ ε_k); here each nuisance
 acts on the bins it physically changes, linearised: T_i(ε) = T_i + Σ_k ε_k
 ∂T_i/∂ε_k. The nuisances are the two distances, I0'/I0 (the far camera's
-disk and both halos' far-side light), the PSF width (the disk's edge) and the
-image scale (focal length: the disk's radius and the halo's radial scale).
+disk and both halos' far-side light), the PSF width (the disk's edge), the
+image scale (focal length: the disk's radius and the halo's radial scale)
+and the halo's overall level (the templates' own accuracy, ±0.5 %).
 Per setting, a scale s (≈ 1: it takes up the normalisation's own error) and a
 constant β per camera are free: the exponential + constant background fit
 takes part of the faint, nearly flat wide-angle halo for background (half a
@@ -53,7 +54,7 @@ from scipy.optimize import brentq, minimize, minimize_scalar
 from analysis.attenuation import EmissionRatio, Geometry
 from analysis.stack import StackResult
 from analysis.transport.disk import BandPixels, disk_radius_px
-from analysis.transport.templates import EmissionProfile, TemplateGrid
+from analysis.transport.templates import EmissionProfile, TemplateGrid, TemplateSettings
 
 #: Δχ² of a one-parameter 68 % interval and of the joint 2-D 68 % and 95 % regions.
 DCHI2_1D = 1.0
@@ -120,12 +121,22 @@ class FitConfig:
 
     ``psf_sigma_px`` ± ``psf_sigma_err_px`` is the Gaussian PSF (defocus
     plus the sub-pixel spread of stacking); ``focal_rel_err`` the relative
-    uncertainty of the image scale; ``model_rel_err`` a relative uncertainty
+    uncertainty of the image scale; ``halo_scale_err`` that of the templates'
+    overall halo level (their accuracy: the quadrature's, the Monte Carlo's
+    normalisation), common to all bands; ``lambda_sca_sys_rel`` the relative
+    systematic error quoted on λ_sca for the templates' accuracy (the halo's
+    radial shape fixes λ_sca to ~0.1 % statistically, finer than the first
+    order's quadrature is exact near the LEM's limb, 0.1-0.4 %);
+    ``model_rel_err`` a relative uncertainty
     added to every model bin (the LEM's and the optics' departures from the
     ideal model); bands with fewer than ``min_band_pixels`` pixels are left
     out, and so are bands whose 8-bit rounding bias could exceed
     ``max_quantisation_bias`` times their statistical error
-    (`quantisation_bias_gray`: the faint halo at low gain). ``mie_g``
+    (`quantisation_bias_gray`: the faint halo at low gain).
+    ``template_errors`` adds the templates' Monte Carlo errors to σ_T (held
+    at their values for the current best water); switch it off when the data
+    were simulated from the same template grid (a shared Monte Carlo sample
+    is no independent error, and counting it de-weights the halo). ``mie_g``
     (⟨cos θ⟩) is held at this value (None: the templates' first node).
     ``contour_points`` per axis of the Δχ² map.
     """
@@ -133,9 +144,12 @@ class FitConfig:
     psf_sigma_px: float = 1.2
     psf_sigma_err_px: float = 0.3
     focal_rel_err: float = 0.003
+    halo_scale_err: float = 0.005
+    lambda_sca_sys_rel: float = 0.005
     model_rel_err: float = 0.002
     min_band_pixels: int = 16
     max_quantisation_bias: float = 0.1
+    template_errors: bool = True
     mie_g: float | None = None
     lambda_abs_range_m: tuple[float, float] = (2.0, 2000.0)
     contour_points: int = 25
@@ -143,8 +157,10 @@ class FitConfig:
     def __post_init__(self) -> None:
         if not self.psf_sigma_px > 0 or self.psf_sigma_err_px < 0:
             raise ValueError(f"psf_sigma_px must be > 0 and psf_sigma_err_px >= 0, got {self.psf_sigma_px}")
-        if self.focal_rel_err < 0 or self.model_rel_err < 0:
-            raise ValueError("focal_rel_err and model_rel_err must be >= 0")
+        if min(self.focal_rel_err, self.model_rel_err, self.halo_scale_err, self.lambda_sca_sys_rel) < 0:
+            raise ValueError(
+                "focal_rel_err, halo_scale_err, lambda_sca_sys_rel and model_rel_err must be >= 0"
+            )
         if self.contour_points < 5:
             raise ValueError(f"contour_points must be >= 5, got {self.contour_points}")
 
@@ -191,7 +207,9 @@ class ChiSquareFit:
     """λ_abs and λ_sca of one wavelength with errors, and everything that led to them.
 
     Errors are one standard deviation from the profiled Δχ² = 1 crossings
-    (``*_err_m`` is the mean of the lower and upper distances). ``lambda_att_m``
+    (``*_err_m`` is the mean of the lower and upper distances);
+    ``lambda_sca_sys_err_m`` is the templates' systematic error on λ_sca
+    (`FitConfig.lambda_sca_sys_rel`), to be added in quadrature. ``lambda_att_m``
     follows from 1/λ_att = 1/λ_abs + 1/λ_sca with its error from the local
     curvature of χ². ``at_edge`` names a parameter whose minimum lies on
     the edge of the allowed range (its error is then one-sided).
@@ -204,6 +222,7 @@ class ChiSquareFit:
     lambda_sca_m: float
     lambda_sca_err_m: float
     lambda_sca_interval_m: tuple[float, float]
+    lambda_sca_sys_err_m: float
     lambda_att_m: float
     lambda_att_err_m: float
     correlation: float
@@ -218,20 +237,26 @@ class ChiSquareFit:
     emission_ratio: EmissionRatio
     config: FitConfig
     focal_px: float
+    templates: TemplateSettings
     n_evaluations: int
+
+    @property
+    def lambda_sca_total_err_m(self) -> float:
+        return math.hypot(self.lambda_sca_err_m, self.lambda_sca_sys_err_m)
 
     @property
     def chi2_ndof(self) -> float:
         return self.chi2 / self.ndof if self.ndof > 0 else float("nan")
 
 
-_NUISANCES = ("distance_near", "distance_far", "emission_ratio", "psf_sigma", "focal_scale")
+_NUISANCES = ("distance_near", "distance_far", "emission_ratio", "psf_sigma", "focal_scale", "halo_scale")
 _UNITS = {
     "distance_near": "m",
     "distance_far": "m",
     "emission_ratio": "rel",
     "psf_sigma": "px",
     "focal_scale": "rel",
+    "halo_scale": "rel",
 }
 
 
@@ -283,11 +308,12 @@ class _Problem:
                 ratio.err / ratio.value,
                 config.psf_sigma_err_px,
                 config.focal_rel_err,
+                config.halo_scale_err,
             ]
         )
         self.active = np.flatnonzero(sig > 0)
         self.prior_sigma = sig
-        self.work = np.zeros(5)  # working point: shifts from nominal of the five nuisances
+        self.work = np.zeros(6)  # working point: shifts from nominal of the six nuisances
         m, e, used, n_px = [], [], [], []
         for s in self.settings:
             pd = np.stack(
@@ -315,7 +341,18 @@ class _Problem:
         self.used = np.stack(used)
         self.counts = np.stack(n_px)
         self.n_eval = 0
-        self._set_working_point(np.zeros(5))
+        self.frozen_halo_err: np.ndarray | None = None
+        self._set_working_point(np.zeros(6))
+
+    def freeze_template_errors(self, lambda_abs_m: float, lambda_sca_m: float) -> None:
+        """Hold the templates' Monte Carlo errors at their values for this water.
+
+        σ_T changes with the parameters (reweighting moves it), and a χ² whose
+        weights move with the parameters is pulled toward where the template
+        is noisiest. Held fixed, only the model moves.
+        """
+        self.frozen_halo_err = None
+        self.frozen_halo_err = self.model(lambda_abs_m, lambda_sca_m)["halo_err"]
 
     # -- geometry at the working point ---------------------------------
     def _set_working_point(self, work: np.ndarray) -> None:
@@ -378,7 +415,7 @@ class _Problem:
         direct = amp[None, :, None] * self.disk  # (set, cam, band)
         total = direct + halo[None]
         # Derivatives with respect to each nuisance (per unit of its shift).
-        deriv = np.zeros((5, *total.shape))
+        deriv = np.zeros((6, *total.shape))
         for c in range(2):
             big_l = self.distances[c]
             dr_dl = -self.disk_r[c] * big_l / (big_l * big_l - self.lem_radius_m**2)
@@ -405,8 +442,11 @@ class _Problem:
         t = total / norm[:, None, None]
         # Model uncertainty: the templates' MC error, and a relative one taken on the data (not
         # the model), so that the weights do not move with the parameters being fitted.
+        halo_err = mod["halo_err"] if self.frozen_halo_err is None else self.frozen_halo_err
+        if not self.config.template_errors:
+            halo_err = np.zeros_like(halo_err)
         terr = np.sqrt(
-            (mod["halo_err"][None] / norm[:, None, None]) ** 2 + (self.config.model_rel_err * self.data) ** 2
+            (halo_err[None] / norm[:, None, None]) ** 2 + (self.config.model_rel_err * self.data) ** 2
         )
         g = mod["deriv"][self.active] / norm[None, :, None, None]  # (k, set, cam, band)
         var = self.data_err**2 + terr**2
@@ -531,8 +571,11 @@ class _Objective:
         ls = np.linspace(*self.bounds[1], 9)
         scan = np.array([[self(np.array([a, s])) for a in la] for s in ls])
         j, i = np.unravel_index(int(np.argmin(scan)), scan.shape)
-        best = self._nelder_mead(np.array([la[i], ls[j]]))
         prob = self.prob
+        best = np.array([la[i], ls[j]])
+        for _ in range(2):  # the template errors held at the current best water
+            prob.freeze_template_errors(math.exp(best[0]), math.exp(best[1]))
+            best = self._nelder_mead(best)
         for _ in range(2):
             _, info = prob.chi2(math.exp(best[0]), math.exp(best[1]), detail=True)
             shifts = np.asarray(info["shifts"])
@@ -675,6 +718,7 @@ def _result(
         lambda_sca_m=float(est[1]),
         lambda_sca_err_m=0.5 * (intervals[1][1] - intervals[1][0]),
         lambda_sca_interval_m=intervals[1],
+        lambda_sca_sys_err_m=float(est[1]) * prob.config.lambda_sca_sys_rel,
         lambda_att_m=lam_att,
         lambda_att_err_m=lam_att_err,
         correlation=corr,
@@ -689,6 +733,7 @@ def _result(
         emission_ratio=prob.ratio,
         config=prob.config,
         focal_px=prob.focal_px,
+        templates=prob.grid.settings,
         n_evaluations=prob.n_eval,
     )
 

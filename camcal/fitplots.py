@@ -53,7 +53,8 @@ def plot_contour(fit: ChiSquareFit, check: AttenuationCheck | None, path: Path) 
         ms=5,
         capsize=3,
         label=f"λ_abs = {fit.lambda_abs_m:.1f} ± {fit.lambda_abs_err_m:.1f} m\n"
-        f"λ_sca = {fit.lambda_sca_m:.1f} ± {fit.lambda_sca_err_m:.1f} m",
+        f"λ_sca = {fit.lambda_sca_m:.1f} ± {fit.lambda_sca_err_m:.1f} (stat) "
+        f"± {fit.lambda_sca_sys_err_m:.1f} (sys) m",
     )
     if (
         check is not None

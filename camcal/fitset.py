@@ -256,6 +256,7 @@ def to_json(result: FolderFit) -> dict[str, Any]:
                 "lambda_sca_m": _r(f.lambda_sca_m, 3),
                 "lambda_sca_err_m": _r(f.lambda_sca_err_m, 3),
                 "lambda_sca_interval_m": [_r(v, 3) for v in f.lambda_sca_interval_m],
+                "lambda_sca_sys_err_m": _r(f.lambda_sca_sys_err_m, 3),
                 "correlation": _r(f.correlation),
                 "lambda_att_fit_m": _r(chk.lambda_att_fit_m, 3),
                 "lambda_att_fit_err_m": _r(chk.lambda_att_fit_err_m, 3),

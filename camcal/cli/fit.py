@@ -74,6 +74,12 @@ def fit(
     min_frames: Annotated[int, typer.Option(help="Accepted frames needed per camera and wavelength.")] = 3,
     psf_sigma: Annotated[float, typer.Option(help="Gaussian PSF width [px] (prior centre).")] = 1.2,
     psf_sigma_err: Annotated[float, typer.Option(help="Prior width of the PSF width [px].")] = 0.3,
+    template_errors: Annotated[
+        bool,
+        typer.Option(
+            help="Count the templates' Monte Carlo errors (off for frames simulated from these templates)."
+        ),
+    ] = True,
     distance: Annotated[
         list[str] | None, typer.Option(help="Override a camera distance: CAM=METRES.")
     ] = None,
@@ -104,7 +110,9 @@ def fit(
             cache_dir=str(cache_dir) if cache_dir else None,
             min_frames=min_frames,
             workers=workers or None,
-            fit=FitConfig(psf_sigma_px=psf_sigma, psf_sigma_err_px=psf_sigma_err),
+            fit=FitConfig(
+                psf_sigma_px=psf_sigma, psf_sigma_err_px=psf_sigma_err, template_errors=template_errors
+            ),
         )
         overrides = Overrides(
             distances_m=parse_mapping(distance, "--distance") or None,
@@ -147,14 +155,17 @@ def print_fits(result: FolderFit) -> None:
             verdict = f"{'[green]agrees' if chk.agrees else '[red]differs'}[/] ({chk.z:+.1f}σ)"
         edge = " [yellow](grid edge)[/]" if f.at_edge else ""
         table.add_row(
-            f"{wl} nm",
+            str(wl),
             f"{f.lambda_abs_m:.2f} ± {f.lambda_abs_err_m:.2f}",
-            f"{f.lambda_sca_m:.2f} ± {f.lambda_sca_err_m:.2f}{edge}",
+            f"{f.lambda_sca_m:.2f} ± {f.lambda_sca_err_m:.2f} ± {f.lambda_sca_sys_err_m:.2f}{edge}",
             f"{f.lambda_att_m:.2f} ± {f.lambda_att_err_m:.2f}",
             ic,
             verdict,
             f"{f.chi2:.0f}/{f.ndof}",
         )
     console.print(table)
+    console.print(
+        "errors: statistical (Δχ² = 1); λ_sca's second error is the templates' systematic", style="dim"
+    )
     for wl, why in sorted(result.skipped.items()):
         console.print(f"[yellow]{wl} nm skipped:[/] {why}")

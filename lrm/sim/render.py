@@ -137,9 +137,14 @@ class FrameRenderer:
             raise ValueError(f"camera {placement.camera} at {big_l} m sits inside the LEM")
         self.disk_radius_px = camera.focal_px * a / math.sqrt(big_l * big_l - a * a)
         half_diag = math.hypot(camera.width_px, camera.height_px)
-        self._psi_grid = np.concatenate(
-            [[0.0], np.geomspace(1e-6, math.atan(half_diag / camera.focal_px) * 1.05, 400)]
-        )
+        psi_max = math.atan(half_diag / camera.focal_px) * 1.05
+        self._psi_grid = np.concatenate([[0.0], np.geomspace(1e-6, psi_max, 400)])
+        if halo_model == "transport":
+            # The transport's halo is tabulated per one-pixel band: sample it every half pixel so
+            # that interpolating here does not reshape it (its kinks would move otherwise).
+            self._psi_grid = np.arctan(
+                np.arange(0.0, math.tan(psi_max) * camera.focal_px + 1.0, 0.5) / camera.focal_px
+            )
         self._halo: dict[int, np.ndarray] = {}
         camera_seed = int(np.frombuffer(placement.camera.encode()[:8].ljust(8, b"\0"), "<u8")[0])
         self._hot = camera.hot_pixels(seed=(seed * 7919 + camera_seed) % (2**63))

@@ -13,6 +13,7 @@ from analysis import FrameRecord, Setting, analyze_frame, stack_by_setting
 from analysis.chisq import (
     DCHI2_2D_68,
     ChiSquareFit,
+    FitConfig,
     FitInputError,
     collect_settings,
     fit_wavelength,
@@ -25,8 +26,11 @@ from lrm.sim.scene import TREX_PLACEMENTS, Water
 
 @pytest.fixture(scope="module")
 def fits(grids: dict[str, TemplateGrid], profiles: dict[str, list]) -> dict[str, ChiSquareFit]:
+    # The frames' halo comes from the same template grid: its Monte Carlo noise is in the data
+    # too, so it is no independent error (FitConfig.template_errors).
+    config = FitConfig(template_errors=False)
     return {
-        name: fit_wavelength(WAVELENGTH_NM, profiles[name], grids[name], GEOMETRY, EMISSION_RATIO)
+        name: fit_wavelength(WAVELENGTH_NM, profiles[name], grids[name], GEOMETRY, EMISSION_RATIO, config)
         for name in CASES
     }
 
@@ -35,7 +39,7 @@ def fits(grids: dict[str, TemplateGrid], profiles: dict[str, list]) -> dict[str,
 def test_fit_recovers_absorption_and_scattering_lengths(fits: dict[str, ChiSquareFit], name: str) -> None:
     fit, truth = fits[name], CASES[name].optics
     pull_abs = (fit.lambda_abs_m - truth.lambda_abs_m) / fit.lambda_abs_err_m
-    pull_sca = (fit.lambda_sca_m - truth.lambda_sca_m) / fit.lambda_sca_err_m
+    pull_sca = (fit.lambda_sca_m - truth.lambda_sca_m) / fit.lambda_sca_total_err_m
     assert abs(pull_abs) < 3, (
         f"λ_abs {fit.lambda_abs_m:.1f} ± {fit.lambda_abs_err_m:.1f}, true {truth.lambda_abs_m}"
     )
@@ -53,8 +57,8 @@ def test_fit_recovers_absorption_and_scattering_lengths(fits: dict[str, ChiSquar
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_fit_is_consistent(fits: dict[str, ChiSquareFit], name: str) -> None:
     fit = fits[name]
-    # A model that describes the data: χ²/ndof near one (simulated errors are honest or conservative).
-    assert 0.2 < fit.chi2_ndof < 1.5
+    # A model that describes the data: χ²/ndof near one (the errors are honest).
+    assert 0.5 < fit.chi2_ndof < 1.3
     # Nuisances stay within their priors.
     assert all(abs(n.pull) < 3 for n in fit.nuisances)
     # The profiled intervals bracket the estimate, and the minimum of the Δχ² map is the fit.

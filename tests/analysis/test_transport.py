@@ -328,10 +328,11 @@ def test_renderer_draws_the_transport_halo(grids: dict[str, TemplateGrid]) -> No
             r._psi_grid, grid.camera_index(p.distance_m, side), 100.0, 140.0, 0.93, EmissionProfile(1.27)
         )
         np.testing.assert_allclose(h, expected, rtol=1e-12)
-        single = FrameRenderer(small_camera(), p, water).halo_table(460) * r.emission_factor(460)
+        plain = FrameRenderer(small_camera(), p, water)
+        single = plain.halo_table(460) * plain.emission_factor(460)
         # Exact single scattering plus multiple scattering: more light than the approximation.
         psi_edge = math.atan(1.2 * r.disk_radius_px / FOCAL_PX)
-        assert np.interp(psi_edge, r._psi_grid, h) > 1.15 * np.interp(psi_edge, r._psi_grid, single)
+        assert np.interp(psi_edge, r._psi_grid, h) > 1.15 * np.interp(psi_edge, plain._psi_grid, single)
     with pytest.raises(ValueError, match="halo_model must be one of single, transport"):
         FrameRenderer(small_camera(), TREX_PLACEMENTS[0], water, halo_model="double")
 

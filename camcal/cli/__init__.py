@@ -12,11 +12,13 @@ from camcal.cli import (
     data,
     demo,
     doctor,
+    fit,
     ingest,
     lrm,
     serve,
     simulate,
     simulate_lab,
+    transport,
 )
 
 app = typer.Typer(
@@ -26,18 +28,23 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
+# The science: simulate, analyse, fit.
 simulate.register(app)
 analyze.register(app)
 demo.register(app)
+fit.register(app)
+transport.register(app)
+# The live system.
 ingest.register(app)
 lrm.register(app)
-data.register(app)
 serve.register(app)
-config.register(app)
-doctor.register(app)
-calibration.register(app)
+data.register(app)
+# Calibrations and operations.
 simulate_lab.register(app)
 calibrate.register(app)
+calibration.register(app)
+config.register(app)
+doctor.register(app)
 
 
 def main() -> None:

@@ -6,19 +6,21 @@ import json
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from analysis.chisq import FitConfig, FitInputError
 from camcal.cli.analyze import parse_ratios
 from camcal.cli.common import console, err_console, fail, parse_floats, parse_mapping
-from camcal.fitplots import write_fit_plots
-from camcal.fitset import TREX_FOCAL_PX, FitOptions, FolderFit, fit_folder, to_json
 from camcal.frameset import FrameSetError, write_atomic
-from camcal.pipeline import Overrides
+from lrm.sim.camera import CameraModel
+
+if TYPE_CHECKING:
+    from camcal.fitset import FolderFit
+
+TREX_FOCAL_PX = CameraModel().focal_px
 
 
 def register(app: typer.Typer) -> None:
@@ -98,6 +100,11 @@ def fit(
     that 1/λ_abs + 1/λ_sca agrees with the I_center attenuation length.
     """
     nodes = parse_floats(sca_nodes, "--sca-nodes")
+    from analysis.chisq import FitConfig, FitInputError
+    from camcal.fitplots import write_fit_plots
+    from camcal.fitset import FitOptions, fit_folder, to_json
+    from camcal.pipeline import Overrides
+
     try:
         options = FitOptions(
             focal_px=focal_px,

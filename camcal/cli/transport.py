@@ -10,17 +10,10 @@ import numpy as np
 import typer
 from rich.table import Table
 
-from analysis.transport.cache import TemplateCache
-from analysis.transport.coefficients import (
-    ScatteringMix,
-    c1_coefficient,
-    c2_coefficient,
-    sphere_paths_mc,
-)
-from analysis.transport.templates import TemplateSettings, build_template_grid
 from camcal.cli.common import console, fail, parse_floats, progress_bar
-from camcal.fitplots import plot_c_coefficients
-from camcal.fitset import TREX_FOCAL_PX
+from lrm.sim.camera import CameraModel
+
+TREX_FOCAL_PX = CameraModel().focal_px
 
 transport_app = typer.Typer(
     help="Photon transport: the refined model's c1/c2 coefficients, the template cache.",
@@ -46,6 +39,9 @@ def c_coefficients(
     seed: Annotated[int, typer.Option(help="Monte Carlo seed.")] = 0,
 ) -> None:
     """c₁ = L̄₁/R and c₂ = L̄₂/R (paper, appendix B) by integration, checked by Monte Carlo."""
+    from analysis.transport.coefficients import ScatteringMix, c1_coefficient, c2_coefficient, sphere_paths_mc
+    from camcal.fitplots import plot_c_coefficients
+
     rng = parse_floats(radii, "--radii")
     if len(rng) != 3 or not 0 < rng[0] < rng[1] or rng[2] < 2:
         raise fail("--radii: give MIN,MAX,N with 0 < MIN < MAX and N >= 2, e.g. 5,150,30")
@@ -108,6 +104,9 @@ def templates(
     workers: Annotated[int, typer.Option(help="Worker processes (default: all cores).")] = 0,
 ) -> None:
     """Build (or check) the cached templates that ``camcal fit`` will use for this geometry."""
+    from analysis.transport.cache import TemplateCache
+    from analysis.transport.templates import TemplateSettings, build_template_grid
+
     try:
         settings = TemplateSettings.near_far(
             near,

@@ -14,7 +14,7 @@ from camcal import __version__
 from frontend import STATIC_DIR
 from server import errors
 from server.relay import LiveHub
-from server.routers import alarms, dives, frames, health, live, pages, series
+from server.routers import alarms, dives, frames, health, live, operator, pages, series
 from server.settings import ServerSettings
 from storage.store import Store
 
@@ -57,6 +57,7 @@ def create_app(settings: ServerSettings | None = None, *, store: Store | None = 
         series.router,
         alarms.router,
         live.router,
+        operator.router,
         pages.router,
     ):
         app.include_router(r)

@@ -97,6 +97,16 @@ def up(
     frame_scale: Annotated[float, typer.Option(help="Simulated sensor scale (1 = 5 MP).")] = 0.5,
     schedule: Annotated[str, typer.Option(help="Schedule of the simulated modules.")] = "trex-subsampled",
     seed: Annotated[int, typer.Option(help="Seed of the simulated dive.")] = 0,
+    deck_s: Annotated[
+        float, typer.Option(help="Simulated time on deck before the descent, in seconds.")
+    ] = 60.0,
+    winch_m_per_s: Annotated[float, typer.Option(help="Simulated descent and ascent speed, in m/s.")] = 1.0,
+    test_stop_s: Annotated[
+        float, typer.Option(help="Simulated time at each test stop (1200 m, 2021 m), in seconds.")
+    ] = 120.0,
+    station_s: Annotated[
+        float, typer.Option(help="Simulated time on station at 3420 m, in seconds.")
+    ] = 1800.0,
     operator_token: Annotated[
         list[str] | None, typer.Option(help="NAME=TOKEN of an operator (repeat).")
     ] = None,
@@ -158,6 +168,14 @@ def up(
                             str(seed),
                             "--epoch",
                             str(epoch),
+                            "--deck-s",
+                            str(deck_s),
+                            "--winch-m-per-s",
+                            str(winch_m_per_s),
+                            "--test-stop-s",
+                            str(test_stop_s),
+                            "--station-s",
+                            str(station_s),
                         ],
                         logs / f"module-{m}.log",
                     ),

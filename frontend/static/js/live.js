@@ -13,6 +13,7 @@ import { $, el, initTheme, mountOperator, setText, toast } from "./ui.js";
 const RANK = { OK: 0, MINOR: 1, INVALID: 2, MAJOR: 3 };
 const RECENT = 40; // ticks in a card's strip of latest frames
 const PHASE_WINDOW_S = 30;
+const THUMB_EVERY_MS = 500;
 
 const state = {
   dive: null,
@@ -29,7 +30,15 @@ const state = {
 };
 
 /** Figures for tests and bench/bench_dashboard.py. */
-const stats = { snapshotAt: null, firstDataAt: null, thumbLatencyMs: [], events: 0, missed: {}, snapshots: 0 };
+const stats = {
+  snapshotAt: null,
+  firstDataAt: null,
+  firstThumbAt: null,
+  thumbLatencyMs: [],
+  events: 0,
+  missed: {},
+  snapshots: 0,
+};
 window.camcal = { state, stats };
 
 const cards = new Map();
@@ -54,6 +63,7 @@ function moduleState(mid) {
       depthHist: [],
       maxDepth: 0,
       sensorsAt: null,
+      thumbStartedAt: -Infinity,
     };
     state.modules.set(mid, m);
   }
@@ -110,12 +120,27 @@ function queueThumbnail(m, frame, tEvent) {
   if (!m.loading) loadThumbnail(m);
 }
 
-/** Load the newest waiting thumbnail off-screen, then swap it in: no half-drawn image, no flicker. */
+/**
+ * Load the newest waiting thumbnail off-screen, then swap it in: no half-drawn image, no flicker.
+ * One at a time per module and at most one every THUMB_EVERY_MS: frames that come faster are
+ * skipped (nobody reads more than two pictures a second), so twenty tablets cost the ship a
+ * bounded number of requests however fast the modules send.
+ */
 function loadThumbnail(m) {
   const p = m.pending;
-  if (!p) return;
+  if (!p || m.loading) return;
+  const wait = m.thumbStartedAt + THUMB_EVERY_MS - performance.now();
+  if (wait > 0) {
+    m.loading = true;
+    setTimeout(() => {
+      m.loading = false;
+      loadThumbnail(m);
+    }, wait);
+    return;
+  }
   m.pending = null;
   m.loading = true;
+  m.thumbStartedAt = performance.now();
   const img = new Image();
   img.decoding = "async";
   const done = (ok) => {
@@ -124,6 +149,7 @@ function loadThumbnail(m) {
       m.shown = p.frame;
       const card = cards.get(m.id);
       if (card) showThumbnail(card, img, p.frame);
+      stats.firstThumbAt ??= performance.now();
       if (p.tEvent !== null) stats.thumbLatencyMs.push(performance.now() - p.tEvent);
       requestRender();
     }
@@ -296,7 +322,7 @@ function render() {
       card = createCard(mid);
       cards.set(mid, card);
       box.append(card);
-      if (m.shown && !m.loading) {
+      if (m.shown) {
         m.pending ??= { frame: m.shown, tEvent: null };
         loadThumbnail(m);
       }

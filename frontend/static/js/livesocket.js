@@ -56,6 +56,8 @@ export class LiveSocket {
     this.probeSentAt = 0;
     ws.onopen = () => {
       this.lastMessageAt = performance.now();
+      // Events that come in a burst arrive as one message: far fewer sends for the ship.
+      ws.send(JSON.stringify({ type: "batch" }));
     };
     ws.onmessage = (ev) => {
       if (ws !== this.ws) return;
@@ -67,7 +69,11 @@ export class LiveSocket {
       } catch {
         return;
       }
-      this.receive(msg);
+      if (msg.type === "batch") {
+        for (const m of msg.messages || []) this.receive(m);
+      } else {
+        this.receive(msg);
+      }
     };
     ws.onclose = () => {
       if (ws !== this.ws) return;

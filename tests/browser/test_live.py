@@ -127,6 +127,7 @@ def test_live_view_on_a_tablet_with_operator_login(page: Any, system: System, ar
         acked = f"li.alarm[data-alarm-id='{alarm_id}'] .meta:has-text('acknowledged by tester')"
         page.wait_for_selector(acked)
     page.wait_for_function("() => document.querySelector('#att-depth').dataset.drawn === '1'")
+    page.evaluate("document.getElementById('toast')?.setAttribute('hidden', '')")
     page.screenshot(path=artifacts / "live-tablet-portrait.png", full_page=True)
 
     page.set_viewport_size({"width": 1024, "height": 768})

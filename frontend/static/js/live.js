@@ -4,13 +4,12 @@
 // ship's timestamps with ours), so a skewed tablet clock cannot make stale data look fresh.
 
 import { api, operator } from "./api.js";
-import { WAVELENGTHS, fmt, fmtAge, plural, utc, wlColor } from "./format.js";
+import { SEVERITY_RANK as RANK, fmtAge } from "./format.js";
 import { createCard, showThumbnail, updateCard, updateQuality } from "./live-cards.js";
 import { LiveSocket } from "./livesocket.js";
-import { attenuationLayout, attenuationTraces, draw, emptyPlot } from "./plots.js";
-import { $, el, initTheme, mountOperator, setText, toast } from "./ui.js";
+import { drawLambda, renderAlarms, renderLambdaNow } from "./live-panels.js";
+import { $, initTheme, mountOperator, setText, toast } from "./ui.js";
 
-const RANK = { OK: 0, MINOR: 1, INVALID: 2, MAJOR: 3 };
 const RECENT = 40; // ticks in a card's strip of latest frames
 const PHASE_WINDOW_S = 30;
 const THUMB_EVERY_MS = 500;
@@ -175,9 +174,9 @@ function onEvent(msg) {
         hm.link = h.link;
         hm.frames_per_s = h.frames_per_s;
         hm.schedule = h.schedule;
+        // The ingest's own count is the truth; packets seen since (sensors, frames) refine it.
         if (h.last_packet_age_s !== null && h.last_packet_age_s !== undefined) {
-          const at = now - h.last_packet_age_s * 1000;
-          hm.lastPacketAt = Math.max(hm.lastPacketAt ?? at, at);
+          hm.lastPacketAt = now - h.last_packet_age_s * 1000;
         }
       }
       if (p.dive && (!state.dive || state.dive.id !== p.dive.id)) state.dive = { ...p.dive };
@@ -189,8 +188,8 @@ function onEvent(msg) {
       trackDepth(m, p);
       break;
     case "attitude":
+      // Derived by the ingest (and repeated while a module is silent): not a packet.
       m.attitude = p;
-      m.lastPacketAt = now;
       break;
     case "link":
       m.link = p.state;
@@ -343,7 +342,7 @@ function render() {
   overall.className = `pill big sev-${worst}`;
   overall.classList.toggle("unacked", [...state.alarms.values()].some((a) => a.active && a.severity === "MAJOR" && !a.acked_by));
   setText(overall, worst);
-  renderAlarms();
+  renderAlarms($("#alarms"), state.alarms, { operator: operator(), onAck: ack });
   renderAttenuation(now);
 }
 
@@ -383,57 +382,6 @@ function renderHeader(now) {
   setText($("#dive-name"), state.dive ? `${state.dive.name}` : "no dive yet");
 }
 
-function renderAlarms() {
-  const list = $("#alarms");
-  const all = [...state.alarms.values()];
-  const active = all
-    .filter((a) => a.active)
-    .sort((a, b) => RANK[b.severity] - RANK[a.severity] || b.raised_unix_s - a.raised_unix_s);
-  const cleared = all.filter((a) => !a.active).sort((a, b) => (b.cleared_unix_s || 0) - (a.cleared_unix_s || 0));
-  const op = operator();
-  const key = JSON.stringify([active, cleared.slice(0, 5), Boolean(op)]);
-  if (list.dataset.key === key) return;
-  list.dataset.key = key;
-  const row = (a) =>
-    el(
-      "li",
-      { class: `alarm sev-${a.severity}${a.active ? "" : " cleared"}`, "data-alarm-id": a.id },
-      el("span", { class: `pill sev-${a.severity}${a.active && a.severity === "MAJOR" && !a.acked_by ? " unacked" : ""}` }, a.severity),
-      el(
-        "span",
-        { class: "msg" },
-        `${a.module ? `LRM-${a.module}: ` : ""}${a.message}`,
-        el(
-          "div",
-          { class: "meta" },
-          `${a.kind} · raised ${utc(a.raised_unix_s, { date: false })}` +
-            (a.cleared_unix_s ? ` · cleared ${utc(a.cleared_unix_s, { date: false })}` : "") +
-            (a.acked_by ? ` · acknowledged by ${a.acked_by}` : ""),
-        ),
-      ),
-      a.acked_by || !a.active
-        ? el("span")
-        : el(
-            "button",
-            {
-              type: "button",
-              class: "ack",
-              disabled: !op,
-              title: op ? "acknowledge this alarm" : "log in as operator to acknowledge",
-              onclick: (ev) => ack(a, ev.currentTarget),
-            },
-            "Acknowledge",
-          ),
-    );
-  const items = active.map(row);
-  if (!active.length) items.push(el("li", { class: "empty", id: "no-alarms" }, "No active alarms."));
-  if (cleared.length) {
-    items.push(el("li", { class: "muted", style: { marginTop: "0.3rem" } }, "Recently cleared"));
-    items.push(...cleared.slice(0, 5).map(row));
-  }
-  list.replaceChildren(...items);
-}
-
 async function ack(alarm, button) {
   button.disabled = true;
   try {
@@ -446,54 +394,24 @@ async function ack(alarm, button) {
   }
 }
 
+let attTimer = null;
+
 function renderAttenuation(now) {
   const lost = state.conn !== "live" && state.lastLiveAt !== null && now - state.lastLiveAt > state.staleAfter * 1000;
   $("#attenuation-panel").classList.toggle("stale", lost);
-  const box = $("#att-now");
-  const items = [];
-  for (const wl of WAVELENGTHS.map(String)) {
-    const pts = state.attenuation[wl] || [];
-    const p = pts[pts.length - 1];
-    items.push(
-      el(
-        "div",
-        { class: "wl-value", style: { "--wl": wlColor(wl) }, "data-wl": wl },
-        el("div", { class: "wl-name" }, `${wl} nm`),
-        el("div", { class: "huge" }, p ? fmt(p.lambda_att_m, 1) : "–", el("span", { class: "unit" }, "m")),
-        el(
-          "div",
-          { class: "errs" },
-          p
-            ? `± ${fmt(p.stat_err_m, 2)} stat ± ${fmt(p.sys_err_m, 2)} sys · ${plural(p.n_pairs, "pair")} · ${fmt(p.depth_m, 0)} m · ${utc(p.t_unix_s, { date: false })}`
-            : "no point yet",
-        ),
-      ),
-    );
-  }
-  const key = JSON.stringify(items.map((n) => n.textContent));
-  if (box.dataset.key !== key) {
-    box.dataset.key = key;
-    box.replaceChildren(...items);
-  }
-  if (!attDirty || now - attDrawnAt < 1000) {
-    if (attDirty) setTimeout(requestRender, 1000 - (now - attDrawnAt));
+  renderLambdaNow($("#att-now"), state.attenuation);
+  if (!attDirty) return;
+  if (now - attDrawnAt < 1000) {
+    // At most one redraw a second: plotly is the costliest thing on the page.
+    attTimer ??= setTimeout(() => {
+      attTimer = null;
+      requestRender();
+    }, 1000 - (now - attDrawnAt));
     return;
   }
   attDirty = false;
   attDrawnAt = now;
-  const hasPoints = Object.values(state.attenuation).some((p) => p.length);
-  const note = hasPoints ? {} : emptyPlot("waiting for the first λ_att point…");
-  const keep = { uirevision: "live" };
-  const lay = (against) => ({
-    ...attenuationLayout(against, { ...keep, title: { text: `against ${against}` } }, state.attenuation),
-    ...note,
-  });
-  draw($("#att-time"), attenuationTraces(state.attenuation, "time"), lay("time"), "camcal-lambda-att-time").catch(plotError);
-  draw($("#att-depth"), attenuationTraces(state.attenuation, "depth"), lay("depth"), "camcal-lambda-att-depth").catch(plotError);
-}
-
-function plotError(err) {
-  toast(err.message);
+  drawLambda($("#att-time"), $("#att-depth"), state.attenuation);
 }
 
 // ------------------------------------------------------------------ start

@@ -137,7 +137,10 @@ export function attenuationTraces(series, against = "time", { namePrefix = "", d
   return traces;
 }
 
-/** Axes of a λ_att figure; with `series`, a depth axis spans at least 40 m (one stop is not a line). */
+/**
+ * Axes of a λ_att figure. Against depth, the depth axis points down with an explicit range from
+ * `series` (at least 40 m: one stop is not a line), so redraws never keep a stale range.
+ */
 export function attenuationLayout(against, extra = {}, series = null) {
   const lam = { title: { text: "λ_att (m)" } };
   if (against === "time") return { xaxis: { title: { text: "time (UTC)" }, type: "date" }, yaxis: lam, ...extra };
@@ -149,10 +152,8 @@ export function attenuationLayout(against, extra = {}, series = null) {
   if (ds.length) {
     const lo = Math.min(...ds);
     const hi = Math.max(...ds);
-    if (hi - lo < 40) {
-      const mid = (hi + lo) / 2;
-      Object.assign(depth, { autorange: false, range: [mid + 20, mid - 20] });
-    }
+    const pad = Math.max(20 - (hi - lo) / 2, (hi - lo) * 0.06);
+    Object.assign(depth, { autorange: false, range: [hi + pad, lo - pad] });
   }
   return { xaxis: lam, yaxis: depth, ...extra };
 }

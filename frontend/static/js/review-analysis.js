@@ -8,8 +8,8 @@ import { $, el, setText, toast } from "./ui.js";
 const MODULE_COLORS = ["#5cc8ff", "#ff9f43", "#c46bff", "#52e07a"];
 
 export function runLabel(r) {
-  const what = r.kind === "live" ? "live run" : r.label || "re-analysis";
-  return `#${r.id} · ${what} (${r.status})`;
+  if (r.kind === "live") return `#${r.id} · live run`;
+  return `#${r.id} · ${r.label || "re-analysis"} (${r.status})`;
 }
 
 function fillRuns(select, runs, chosen) {

@@ -290,6 +290,19 @@ export async function openFrame(id) {
       el("span", { class: "spacer", style: { flex: 1 } }),
       el("button", { type: "button", disabled: idx <= 0, onclick: () => nav(-1) }, "← Previous frame"),
       el("button", { type: "button", disabled: idx < 0 || idx >= view.items.length - 1, onclick: () => nav(1) }, "Next frame →"),
+      el(
+        "button",
+        {
+          type: "button",
+          "aria-pressed": "false",
+          title: "display only: multiply the gray values by 4 to see the halo and the background",
+          onclick: (ev) => {
+            const on = img.classList.toggle("brighten");
+            ev.currentTarget.setAttribute("aria-pressed", String(on));
+          },
+        },
+        "Brighten ×4",
+      ),
       el("a", { class: "button", href: fr.image_url, target: "_blank", rel: "noopener" }, "Open full PNG"),
       el("button", { type: "button", onclick: () => ((box.hidden = true), frameParam(null)) }, "Close"),
     ),

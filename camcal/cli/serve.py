@@ -44,7 +44,11 @@ def run_server(
     from server.settings import ServerSettings
 
     app = create_app(ServerSettings(data_dir=data, db_url=db_url, events=events, operator_tokens=tokens))
-    config = uvicorn.Config(app, host=host, port=port, log_level="warning", ws_ping_interval=20)
+    # No permessage-deflate: compressing every event once per browser costs the ship more CPU than
+    # the bytes it saves on its own network (events are a few hundred bytes of JSON).
+    config = uvicorn.Config(
+        app, host=host, port=port, log_level="warning", ws_ping_interval=20, ws_per_message_deflate=False
+    )
     server = uvicorn.Server(config)
     try:
         server.run()

@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 DATA   ?= camcal-data
 PORT   ?= 8000
 
-.PHONY: run test lint bench demo clean
+.PHONY: run test test-browser lint bench bench-dashboard demo clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -22,12 +22,18 @@ test: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest
 
+test-browser: $(STAMP)
+	$(BIN)/python -m pytest -m browser tests/browser
+
 lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 
 bench: $(STAMP)
 	$(BIN)/python bench/bench_analysis.py
+
+bench-dashboard: $(STAMP)
+	$(BIN)/python bench/bench_dashboard.py
 
 clean:
 	rm -rf $(VENV) demo-output .pytest_cache .ruff_cache

@@ -95,8 +95,16 @@ def test_live_view_reconnects_and_marks_stale_data(page: Any, system: System, ar
     blocked["on"] = False
     page.wait_for_selector('#conn[data-state="live"]', timeout=20_000)
     page.wait_for_selector("#module-A:not(.stale)", timeout=15_000)
-    assert page.evaluate("window.camcal.stats.snapshots") > snapshots
+    resynced = page.evaluate("window.camcal.stats.snapshots")
+    assert resynced > snapshots
     assert page.locator("#banner").is_hidden()
+
+    # The server says this browser fell behind and lost something that matters: it asks for a
+    # fresh snapshot on the same socket.
+    page_side = blocked["sockets"][-1][0]
+    page_side.send('{"type": "missed", "dropped": {"result": 3}, "resync": true}')
+    page.wait_for_function("n => window.camcal.stats.snapshots > n", arg=resynced)
+    assert page.evaluate("window.camcal.stats.missed")["result"] == 3
 
 
 def test_live_view_on_a_tablet_with_operator_login(page: Any, system: System, artifacts: Path) -> None:

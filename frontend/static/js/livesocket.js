@@ -5,6 +5,7 @@
 const BACKOFF_MS = [500, 1000, 2000, 4000, 8000, 10000];
 const SILENCE_MS = 15000; // no message for this long: ask for a snapshot (proves the socket works)
 const PROBE_TIMEOUT_MS = 8000; // no answer to the probe: drop the socket and reconnect
+const RESYNC_EVERY_MS = 3000;
 
 export class LiveSocket {
   /**
@@ -89,14 +90,15 @@ export class LiveSocket {
     const expected = this.seq + 1;
     this.seq = msg.seq ?? expected;
     if (msg.type === "snapshot") {
+      this.resyncAskedAt = 0;
       this.attempt = 0;
       this.probeSentAt = 0;
       this.state("live");
       this.handlers.onSnapshot?.(msg.data);
       return;
     }
-    if (msg.seq !== undefined && msg.seq !== expected) {
-      // The one connection lost messages in between: only a snapshot restores the state.
+    if (msg.seq !== undefined && msg.seq > expected) {
+      // Messages in between never arrived: only a snapshot restores the state.
       this.resync();
     }
     if (msg.type === "missed") {
@@ -107,8 +109,12 @@ export class LiveSocket {
     if (msg.type === "event") this.handlers.onEvent?.(msg);
   }
 
+  /** Ask for a fresh snapshot (at most one request in flight, and not more than every 3 s). */
   resync() {
+    const now = performance.now();
+    if (this.resyncAskedAt && now - this.resyncAskedAt < RESYNC_EVERY_MS) return;
     if (this.ws && this.ws.readyState === WebSocket.OPEN) {
+      this.resyncAskedAt = now;
       this.ws.send(JSON.stringify({ type: "resync" }));
     }
   }

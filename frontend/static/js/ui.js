@@ -144,6 +144,8 @@ export function mountOperator(container) {
   };
   window.addEventListener("camcal:auth", render);
   window.addEventListener("camcal:auth-failed", (ev) => {
+    // The token no longer works (e.g. the server restarted with new tokens): back to read-only.
+    logout();
     toast(`${ev.detail.message} — log in again`);
   });
   render();

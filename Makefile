@@ -16,6 +16,9 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 run: $(STAMP)
+	$(BIN)/camcal up --data $(DATA) --port $(PORT)
+
+demo: $(STAMP)
 	$(BIN)/camcal demo --out demo-output
 
 test: $(STAMP)
@@ -31,6 +34,7 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python bench/bench_analysis.py
+	$(BIN)/python bench/bench_ingest.py
 
 bench-dashboard: $(STAMP)
 	$(BIN)/python bench/bench_dashboard.py

@@ -75,7 +75,7 @@ def single_scatter_halo(
     distance_m: float,
     water: WaterOptics,
     source_radius_m: float,
-    n_steps: int = 800,
+    n_steps: int = 200,
 ) -> np.ndarray:
     """Once-scattered radiance around a glowing sphere, relative to its surface radiance.
 

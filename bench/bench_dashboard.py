@@ -57,7 +57,8 @@ def cli(*args: str) -> list[str]:
 
 
 def spawn(args: list[str], log: Path) -> subprocess.Popen[bytes]:
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    env = {k: v for k, v in os.environ.items() if not k.startswith("CAMCAL_")}
+    env["PYTHONPATH"] = str(REPO)
     with log.open("ab") as fh:
         return subprocess.Popen(args, stdout=fh, stderr=subprocess.STDOUT, env=env, cwd=log.parent)
 

@@ -1,8 +1,8 @@
-"""Exposure schedules: exposures x gains x repeats x wavelengths.
+"""Exposure schedules: exposures x gains x repeats x wavelengths, plus order and pauses.
 
 One compact description, shared by the module (which runs it), the ship
-(which validates and sends it) and the simulator. A schedule is never sent
-as an expanded list of frames.
+(which validates, previews and sends it) and the simulator. A schedule is
+never sent as an expanded list of frames.
 """
 
 from __future__ import annotations
@@ -17,6 +17,8 @@ TREX_EXPOSURES_S: tuple[float, ...] = (0.02, 0.05, 0.07, 0.11, 0.2, 0.5, 1.0)
 TREX_GAINS_DB: tuple[float, ...] = tuple(float(g) for g in range(2, 21, 2))
 TREX_REPEATS = 20
 KNOWN_WAVELENGTHS_NM: tuple[int, ...] = (405, 460, 525)
+#: Most frames one pass may hold: a pass longer than a dive is a mistake.
+MAX_FRAMES_PER_PASS = 20_000
 
 
 @dataclass(frozen=True, order=True)
@@ -29,33 +31,70 @@ class Shot:
     repeat: int
 
 
+def _positive(values: tuple[float, ...], what: str) -> tuple[float, ...]:
+    for x in values:
+        if not (0 < x <= 3600):
+            raise ValueError(f"{what} {x} s must be > 0 and at most an hour")
+    if len(set(values)) != len(values):
+        raise ValueError(f"{what} has repeated values")
+    return values
+
+
+class Block(BaseModel):
+    """A further grid of a schedule (e.g. the gain sweep of a linearity scan)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+    exposures_s: tuple[float, ...] = Field(min_length=1, max_length=64)
+    gains_db: tuple[float, ...] = Field(min_length=1, max_length=64)
+    repeats: int = Field(1, ge=1, le=1000)
+
+    @field_validator("exposures_s")
+    @classmethod
+    def _exposures(cls, v: tuple[float, ...]) -> tuple[float, ...]:
+        return _positive(v, "exposure")
+
+    @field_validator("gains_db")
+    @classmethod
+    def _gains(cls, v: tuple[float, ...]) -> tuple[float, ...]:
+        if any(not -60 <= g <= 60 for g in v):
+            raise ValueError("gains must lie within ±60 dB")
+        if len(set(v)) != len(v):
+            raise ValueError("gain has repeated values")
+        return v
+
+
 class Schedule(BaseModel):
     """A named, versioned exposure schedule.
 
-    ``order`` says which loop is outermost: ``"wavelength"`` (all settings of
-    405 nm, then 460, then 525: the LEM changes colour least often) or
-    ``"setting"`` (each exposure x gain at every wavelength in turn).
-    ``pause_s`` is idle time after each completed pass.
+    The main grid is ``exposures_s x gains_db x repeats``; ``blocks`` adds
+    further grids taken after it (a linearity scan is an exposure sweep at
+    one gain plus a gain sweep at one exposure). ``order`` says which loop is
+    outermost: ``"wavelength"`` (every setting at 405 nm, then 460, then
+    525: the LEM changes colour least often) or ``"setting"`` (each setting
+    at every wavelength in turn). ``pause_s`` is idle time after each pass.
     """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     name: str = Field("custom", min_length=1, max_length=80)
-    version: int = Field(1, ge=1)
+    version: int = Field(1, ge=1, le=2**31 - 1)
     exposures_s: tuple[float, ...] = Field(min_length=1, max_length=64)
     gains_db: tuple[float, ...] = Field(min_length=1, max_length=64)
     repeats: int = Field(1, ge=1, le=1000)
     wavelengths_nm: tuple[int, ...] = Field(KNOWN_WAVELENGTHS_NM, min_length=1, max_length=8)
+    blocks: tuple[Block, ...] = Field((), max_length=16)
     order: str = Field("wavelength", pattern="^(wavelength|setting)$")
     pause_s: float = Field(0.0, ge=0, le=86400)
 
     @field_validator("exposures_s")
     @classmethod
-    def _positive_exposures(cls, v: tuple[float, ...]) -> tuple[float, ...]:
-        for x in v:
-            if not x > 0:
-                raise ValueError(f"exposure {x} s must be > 0")
-        return v
+    def _exposures(cls, v: tuple[float, ...]) -> tuple[float, ...]:
+        return _positive(v, "exposure")
+
+    @field_validator("gains_db")
+    @classmethod
+    def _gains(cls, v: tuple[float, ...]) -> tuple[float, ...]:
+        return Block._gains(v)  # type: ignore[call-arg]
 
     @field_validator("wavelengths_nm")
     @classmethod
@@ -64,35 +103,103 @@ class Schedule(BaseModel):
             if wl not in KNOWN_WAVELENGTHS_NM:
                 known = ", ".join(str(k) for k in KNOWN_WAVELENGTHS_NM)
                 raise ValueError(f"wavelength {wl} nm is not one of the LEM's ({known})")
+        if len(set(v)) != len(v):
+            raise ValueError("wavelengths_nm has repeated values")
         return v
 
     @model_validator(mode="after")
-    def _no_duplicates(self) -> Schedule:
-        for name in ("exposures_s", "gains_db", "wavelengths_nm"):
-            values = getattr(self, name)
-            if len(set(values)) != len(values):
-                raise ValueError(f"{name} has repeated values")
+    def _budget(self) -> Schedule:
+        if self.n_frames > MAX_FRAMES_PER_PASS:
+            raise ValueError(
+                f"one pass would take {self.n_frames} frames, more than the budget of {MAX_FRAMES_PER_PASS}"
+            )
         return self
+
+    def grids(self) -> list[tuple[tuple[float, ...], tuple[float, ...], int]]:
+        """The main grid and the extra blocks as (exposures, gains, repeats)."""
+        return [(self.exposures_s, self.gains_db, self.repeats)] + [
+            (b.exposures_s, b.gains_db, b.repeats) for b in self.blocks
+        ]
+
+    def settings(self) -> list[tuple[float, float, int]]:
+        """Every (exposure, gain, repeats) of one wavelength, in order, without duplicates."""
+        seen: set[tuple[float, float]] = set()
+        out = []
+        for exposures, gains, repeats in self.grids():
+            for exp in exposures:
+                for gain in gains:
+                    if (exp, gain) not in seen:
+                        seen.add((exp, gain))
+                        out.append((exp, gain, repeats))
+        return out
 
     @property
     def n_frames(self) -> int:
         """Frames in one pass."""
-        return len(self.exposures_s) * len(self.gains_db) * self.repeats * len(self.wavelengths_nm)
+        return sum(r for _, _, r in self.settings()) * len(self.wavelengths_nm)
 
     def shots(self) -> Iterator[Shot]:
         """Every capture of one pass, in the schedule's order."""
+        settings = self.settings()
         if self.order == "wavelength":
             for wl in self.wavelengths_nm:
-                for exp in self.exposures_s:
-                    for gain in self.gains_db:
-                        for k in range(self.repeats):
-                            yield Shot(wl, exp, gain, k)
+                for exp, gain, repeats in settings:
+                    for k in range(repeats):
+                        yield Shot(wl, exp, gain, k)
         else:
-            for exp in self.exposures_s:
-                for gain in self.gains_db:
-                    for wl in self.wavelengths_nm:
-                        for k in range(self.repeats):
-                            yield Shot(wl, exp, gain, k)
+            for exp, gain, repeats in settings:
+                for wl in self.wavelengths_nm:
+                    for k in range(repeats):
+                        yield Shot(wl, exp, gain, k)
+
+    def pass_duration_s(self, readout_s: float = 0.8, lem_dwell_s: float | None = None) -> float:
+        """Estimated duration of one pass: exposure plus readout per frame, plus the pause.
+
+        With the LEM's colour dwell given, add the wait for each wavelength's
+        turn (on average half a cycle per change of wavelength).
+        """
+        total = sum((exp + readout_s) * r for exp, _, r in self.settings()) * len(self.wavelengths_nm)
+        if lem_dwell_s and len(self.wavelengths_nm) > 1:
+            changes = len(self.wavelengths_nm) if self.order == "wavelength" else self.n_frames
+            total += changes * 0.5 * lem_dwell_s * (len(KNOWN_WAVELENGTHS_NM) - 1)
+        return total + self.pause_s
+
+
+@dataclass(frozen=True)
+class CameraLimits:
+    """What a module's camera can take."""
+
+    exposure_range_s: tuple[float, float] = (1e-4, 2.0)
+    gain_range_db: tuple[float, float] = (0.0, 24.0)
+    gain_step_db: float = 0.1
+
+    def problems(self, schedule: Schedule) -> list[tuple[str, str]]:
+        """(field, reason) for every exposure or gain the camera cannot take."""
+        out = []
+        elo, ehi = self.exposure_range_s
+        glo, ghi = self.gain_range_db
+        for i, (exposures, gains, _) in enumerate(schedule.grids()):
+            where = "" if i == 0 else f"blocks.{i - 1}."
+            for e in exposures:
+                if not elo <= e <= ehi:
+                    out.append(
+                        (f"{where}exposures_s", f"exposure {e} s outside the camera's range [{elo}, {ehi}] s")
+                    )
+            for g in gains:
+                if not glo <= g <= ghi:
+                    out.append(
+                        (f"{where}gains_db", f"gain {g} dB outside the camera's range [{glo}, {ghi}] dB")
+                    )
+                elif (
+                    self.gain_step_db > 0 and abs(round(g / self.gain_step_db) * self.gain_step_db - g) > 1e-6
+                ):
+                    out.append(
+                        (
+                            f"{where}gains_db",
+                            f"gain {g} dB is not a multiple of the {self.gain_step_db} dB step",
+                        )
+                    )
+        return out
 
 
 def trex_schedule() -> Schedule:
@@ -106,10 +213,34 @@ def trex_subsampled(repeats: int = 2, gains_db: tuple[float, ...] = (2.0, 8.0, 1
 
 
 def quick_check() -> Schedule:
-    """A quick λ_att check: the three settings that suit each wavelength, a few repeats."""
+    """A quick λ_att check: the three exposures that suit the three wavelengths, at one gain."""
     return Schedule(name="quick-check", exposures_s=(0.05, 0.07, 0.11), gains_db=(8.0,), repeats=5)
+
+
+def linearity_scan() -> Schedule:
+    """Exposures at a fixed gain, then gains at a fixed exposure (the in-situ self-calibration)."""
+    return Schedule(
+        name="linearity-scan",
+        exposures_s=(0.01, 0.02, 0.03, 0.05, 0.07, 0.11, 0.15, 0.2, 0.3),
+        gains_db=(6.0,),
+        repeats=3,
+        blocks=(
+            Block(exposures_s=(0.05,), gains_db=(0.0, 2.0, 4.0, 8.0, 10.0, 12.0, 14.0, 16.0), repeats=3),
+        ),
+    )
+
+
+def monitoring_loop() -> Schedule:
+    """Long exposures (0.2-1.0 s) for bioluminescence and the deployment, one frame each."""
+    return Schedule(name="monitoring", exposures_s=(0.2, 0.5, 1.0), gains_db=(8.0,), repeats=1, pause_s=5.0)
 
 
 def presets() -> dict[str, Schedule]:
     """The named schedules an operator can start from."""
-    return {"trex": trex_schedule(), "trex-subsampled": trex_subsampled(), "quick-check": quick_check()}
+    return {
+        "trex": trex_schedule(),
+        "trex-subsampled": trex_subsampled(),
+        "quick-check": quick_check(),
+        "linearity-scan": linearity_scan(),
+        "monitoring": monitoring_loop(),
+    }

@@ -194,3 +194,56 @@ def dive_phase(
         return "ascent"
     deepest = max_depth_m if max_depth_m is not None else float(d.max())
     return "station" if depth >= deepest - 50.0 else "stop"
+
+
+def predict_settings(
+    rows: Iterable[ResultRow],
+    settings: Iterable[tuple[int, float, float]],
+    linear_range: tuple[float, float],
+    background_gray: float = 2.5,
+) -> dict[str, list[dict[str, Any]]]:
+    """What each setting of a schedule will look like, judged from the frames seen so far.
+
+    Per module and wavelength, the LEM's brightness per unit of exposure and
+    linear gain is the median of ``(centre gray - background) / (exposure *
+    10^(gain/20))`` over frames in the linear range; a setting then predicts
+    ``background + brightness * exposure * gain factor``: ``too_dark``,
+    ``ok`` or ``saturated`` against the linear range (``unknown`` without
+    usable frames at that wavelength).
+    """
+    lo, hi = linear_range
+    rates: dict[tuple[str, int], list[float]] = defaultdict(list)
+    for r in rows:
+        if r.center_gray is not None and lo <= r.center_gray <= hi:
+            g = float(gain_factor(r.gain_db))
+            rates[(r.module, r.wavelength_nm)].append((r.center_gray - background_gray) / (r.exposure_s * g))
+    modules = sorted({m for m, _ in rates})
+    out: dict[str, list[dict[str, Any]]] = {}
+    for m in modules:
+        preds = []
+        for wl, exp, gain in settings:
+            samples = rates.get((m, wl))
+            if not samples:
+                preds.append(
+                    {
+                        "wavelength_nm": wl,
+                        "exposure_s": exp,
+                        "gain_db": gain,
+                        "center_gray": None,
+                        "verdict": "unknown",
+                    }
+                )
+                continue
+            gray = background_gray + float(np.median(samples)) * exp * float(gain_factor(gain))
+            verdict = "saturated" if gray > hi else ("too_dark" if gray < lo else "ok")
+            preds.append(
+                {
+                    "wavelength_nm": wl,
+                    "exposure_s": exp,
+                    "gain_db": gain,
+                    "center_gray": round(min(gray, 999.0), 1),
+                    "verdict": verdict,
+                }
+            )
+        out[m] = preds
+    return out

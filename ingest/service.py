@@ -17,9 +17,11 @@ Three kinds of worker, each owning what it touches:
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import queue
+import shutil
 import threading
 import time
 import uuid
@@ -36,6 +38,7 @@ import zmq
 from analysis import FrameConfig
 from analysis.attitude import attitude_from_samples
 from camcal import __version__, wire
+from camcal.calibrations import setup_of
 from camcal.frameset import Setup
 from camcal.parallel import process_pool
 from ingest.alarms import AlarmEvaluator, AlarmLimits
@@ -69,6 +72,9 @@ class IngestConfig:
     setup: Setup = field(default_factory=Setup)
     rolling_window_s: float = 300.0
     rolling_interval_s: float = 10.0
+    command_retry_s: float = 3.0
+    retention_days: float | None = None
+    calibration: str | None = None
     thumbnails: bool = True
     alarm_limits: AlarmLimits = field(default_factory=AlarmLimits)
     modules: tuple[str, ...] = ()
@@ -94,6 +100,7 @@ class Link:
     in_flight: int = 0
     frames: deque[float] = field(default_factory=lambda: deque(maxlen=200))
     last_heartbeat_sent: float = 0.0
+    clock_offset_s: float | None = None
 
 
 @dataclass
@@ -135,10 +142,19 @@ class IngestService:
         self.latency_s: deque[float] = deque(maxlen=2000)
         self.started = threading.Event()
         self.error: BaseException | None = None
+        self.disk_free_gb: float | None = None
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
         """Bind the sockets (so `endpoint` is known), then run the threads."""
+        calibration = None
+        if self.config.calibration:  # before binding anything: a wrong name leaves nothing open
+            calibration = self.store.calibration(self.config.calibration)
+            if calibration is None:
+                raise ValueError(
+                    f"no calibration {self.config.calibration!r} in the store (see `camcal calibration list`)"
+                )
+            self.config = dataclasses.replace(self.config, setup=setup_of(calibration))
         self.store.files.remove_temporaries()
         self._router = wire.ship_socket(
             self.ctx,
@@ -162,6 +178,8 @@ class IngestService:
             self.dive.id, "live", software_version=__version__, calibration=setup.to_json()
         )
         assert self.run is not None
+        if calibration is not None and self.run.calibration_id != calibration["id"]:
+            self.store.use_calibration(self.dive.id, self.run.id, calibration["id"], actor="ingest")
         self._pool = process_pool(self.config.n_workers)
         for name, target in (("ingest-net", self._net_loop), ("ingest-store", self._store_loop)):
             t = threading.Thread(target=self._guard(target), name=name, daemon=True)
@@ -270,6 +288,11 @@ class IngestService:
             )
             self._q.put(_Incoming("hello", module, msg, None, t_unix, t_mono))
         elif kind == "heartbeat":
+            # Module clock minus ship clock (network delay is small on a fibre): smoothed.
+            offset = msg.sent_at.timestamp() - t_unix
+            link.clock_offset_s = (
+                offset if link.clock_offset_s is None else 0.8 * link.clock_offset_s + 0.2 * offset
+            )
             link.schedule = msg.schedule.model_dump()
             link.outbox_pending, link.in_flight, link.boot = msg.outbox_pending, msg.in_flight, msg.boot
             if not link.welcomed:  # the ship restarted under a running module: greet it again
@@ -414,6 +437,7 @@ class IngestService:
                 "schedule": link.schedule,
                 "outbox_pending": link.outbox_pending,
                 "in_flight": link.in_flight,
+                "clock_offset_s": round(link.clock_offset_s, 3) if link.clock_offset_s is not None else None,
             }
         return {
             "modules": modules,
@@ -426,6 +450,7 @@ class IngestService:
             "counters": dict(self.counters),
             "malformed": dict(self.malformed),
             "dive": {"id": self.dive.id, "name": self.dive.name},
+            "disk_free_gb": self.disk_free_gb,
             "latency_p50_s": _pct(self.latency_s, 50),
             "latency_p95_s": _pct(self.latency_s, 95),
         }
@@ -477,6 +502,8 @@ class _StoreState:
         self.recent_set: set[tuple[str, str, int]] = set()
         self.last_sensor_event: dict[str, float] = {}
         self.gappy: set[tuple[str, str]] = {(g.module_id, g.boot) for g in self.store.open_gaps()}
+        self.last_housekeeping = -1e18
+        self.last_purge = -1e18
 
     # -- batches ---------------------------------------------------------
     def handle(self, items: list[_Incoming]) -> None:
@@ -491,6 +518,8 @@ class _StoreState:
                 self._link(i)
             elif i.kind in ("hello", "heartbeat"):
                 self._module_info(i)
+            elif i.kind == "command_status":
+                self._command_status(i)
 
     def _commit(self, items: list[_Incoming]) -> None:
         svc, files = self.svc, self.store.files
@@ -801,6 +830,83 @@ class _StoreState:
             ),
         )
 
+    # -- disk ------------------------------------------------------------
+    def _housekeeping(self, now: float) -> None:
+        """Free disk (an alarm when it runs low) and, hourly, the retention of old frame files."""
+        svc = self.svc
+        free_gb = shutil.disk_usage(svc.store.files.root).free / 1e9
+        svc.disk_free_gb = round(free_gb, 2)
+        self.alarms.observe_disk(free_gb)
+        days = svc.config.retention_days
+        if days and time.monotonic() - self.last_purge >= 3600.0:
+            self.last_purge = time.monotonic()
+            n, freed = self.store.purge_frame_files(now - days * 86400.0)
+            if n:
+                log.info(
+                    "retention: deleted %d frame files older than %g days (%.1f MB)", n, days, freed / 1e6
+                )
+                svc.events.emit(
+                    "retention", {"files": n, "bytes": freed, "older_than_days": days}, dive_id=svc.dive.id
+                )
+
+    # -- commands --------------------------------------------------------
+    def _command_status(self, it: _Incoming) -> None:
+        m = it.msg
+        cmd = self.store.update_command(m.command_id, m.state, m.reason, actor=f"module:{m.module}")
+        self._module_info(it)
+        if cmd is not None:
+            self.svc.events.emit(
+                "command",
+                {
+                    "command_id": cmd["id"],
+                    "state": cmd["state"],
+                    "reason": cmd["reason"],
+                    "action": cmd["action"],
+                    "target_version": cmd["target_version"],
+                },
+                module=m.module,
+                dive_id=self.svc.dive.id,
+            )
+
+    def _deliver_commands(self) -> None:
+        """Send queued commands to linked modules; repeat until the module answers."""
+        svc = self.svc
+        now = time.time()
+        for cmd in self.store.commands(states=("pending", "sent", "accepted")):
+            link = svc.links.get(cmd["module"])
+            if link is None or not link.up:
+                continue  # stays pending: delivered when the module is back
+            if cmd["state"] == "accepted" or (
+                cmd["attempts"] and now - cmd["updated_unix_s"] < svc.config.command_retry_s
+            ):
+                continue
+            schedule = (cmd["payload"] or {}).get("schedule")
+            svc.send_to_module(
+                cmd["module"],
+                wire.Command(
+                    module="ship",
+                    command_id=cmd["id"],
+                    action=cmd["action"],
+                    target_version=cmd["target_version"],
+                    schedule=schedule,
+                    apply=cmd["apply"],
+                    issued_by=cmd["issued_by"],
+                ),
+            )
+            self.store.mark_command_sent(cmd["id"])
+            if not cmd["attempts"]:
+                svc.events.emit(
+                    "command",
+                    {
+                        "command_id": cmd["id"],
+                        "state": "sent",
+                        "action": cmd["action"],
+                        "target_version": cmd["target_version"],
+                    },
+                    module=cmd["module"],
+                    dive_id=svc.dive.id,
+                )
+
     # -- once a second ---------------------------------------------------
     def tick(self) -> None:
         svc = self.svc
@@ -836,8 +942,12 @@ class _StoreState:
         for module in {g.module_id for g in self.store.open_gaps()} | set(svc.links):
             gaps = [(g.first_seq, g.last_seq, g.detected_unix_s) for g in self.store.open_gaps(module)]
             self.alarms.observe_gaps(module, gaps)
+        if mono - self.last_housekeeping >= 30.0:
+            self.last_housekeeping = mono
+            self._housekeeping(now)
         self._apply_alarms(self.alarms.evaluate(now))
         self._update_linearity()
+        self._deliver_commands()
         self._adapt_window()
         svc.events.transient("health", svc.health())
 

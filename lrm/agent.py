@@ -28,7 +28,7 @@ from pydantic import ValidationError
 
 from camcal import __version__, wire
 from camcal.frameset import encode_png
-from camcal.schedule import Schedule
+from camcal.schedule import CameraLimits, Schedule
 from lrm.outbox import Outbox
 from lrm.runner import Capture, ScheduleRunner
 
@@ -67,7 +67,7 @@ class Agent:
         runner: ScheduleRunner | None = None,
         source: Callable[[threading.Event], Capture | None] | None = None,
         sensors: Any | None = None,
-        camera_limits: tuple[tuple[float, float], tuple[float, float], float] | None = None,
+        camera_limits: CameraLimits | None = None,
         ctx: zmq.Context[Any] | None = None,
         depth: Callable[[], float | None] | None = None,
     ) -> None:
@@ -470,13 +470,5 @@ class Agent:
     def _check_limits(self, sched: Schedule) -> str | None:
         if self.camera_limits is None:
             return None
-        (elo, ehi), (glo, ghi), step = self.camera_limits
-        for e in sched.exposures_s:
-            if not elo <= e <= ehi:
-                return f"exposure {e} s outside the camera's range [{elo}, {ehi}] s"
-        for g in sched.gains_db:
-            if not glo <= g <= ghi:
-                return f"gain {g} dB outside the camera's range [{glo}, {ghi}] dB"
-            if step > 0 and abs(round(g / step) * step - g) > 1e-6:
-                return f"gain {g} dB is not a multiple of the camera's {step} dB step"
-        return None
+        problems = self.camera_limits.problems(sched)
+        return problems[0][1] if problems else None

@@ -5,7 +5,7 @@ from __future__ import annotations
 import hmac
 from typing import Annotated
 
-from fastapi import Depends, Header, Request
+from fastapi import Depends, Header, Path, Query, Request
 
 from server.errors import Forbidden, Unauthorized
 from server.relay import LiveHub
@@ -51,3 +51,11 @@ def operator(settings: SettingsDep, authorization: Annotated[str | None, Header(
 
 
 OperatorDep = Annotated[str, Depends(operator)]
+
+
+# Parameter types with bounds: what the database can take, so no input can make a query fail.
+MAX_ID = 2**62
+IdPath = Annotated[int, Path(ge=0, le=MAX_ID)]
+IdQuery = Annotated[int | None, Query(ge=0, le=MAX_ID)]
+FloatQuery = Annotated[float | None, Query(ge=-1e12, le=1e12, allow_inf_nan=False)]
+WavelengthQuery = Annotated[int | None, Query(ge=1, le=100_000)]

@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from camcal.schedule import CameraLimits
+
 
 @dataclass(frozen=True)
 class ServerSettings:
@@ -24,3 +26,7 @@ class ServerSettings:
     client_queue: int = 256
     reanalysis_workers: int = 1
     run_migrations: bool = True
+    camera_limits: CameraLimits = field(default_factory=CameraLimits)
+    linear_range: tuple[float, float] = (5.0, 240.0)
+    readout_s: float = 0.8
+    lem_dwell_s: float | None = 60.0

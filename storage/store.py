@@ -25,6 +25,8 @@ from storage.models import (
     AttenuationPoint,
     AttitudeSample,
     AuditEntry,
+    Calibration,
+    CommandRecord,
     Dive,
     Event,
     Frame,
@@ -39,6 +41,40 @@ from storage.models import (
 
 def now_unix_s() -> float:
     return time.time()
+
+
+#: Order of a command's states: a late, older status never moves it back.
+COMMAND_STATES = {"pending": 0, "sent": 1, "accepted": 2, "in_progress": 3, "done": 4, "rejected": 4}
+
+
+def calibration_dict(c: Calibration) -> dict[str, Any]:
+    return {
+        "id": c.id,
+        "name": c.name,
+        "version": c.version,
+        "source": c.source,
+        "valid_from_unix_s": c.valid_from_unix_s,
+        "valid_to_unix_s": c.valid_to_unix_s,
+        "values": c.values,
+        "created_unix_s": c.created_unix_s,
+    }
+
+
+def command_dict(c: CommandRecord) -> dict[str, Any]:
+    return {
+        "id": c.id,
+        "module": c.module_id,
+        "action": c.action,
+        "target_version": c.target_version,
+        "payload": c.payload,
+        "apply": c.apply,
+        "issued_by": c.issued_by,
+        "issued_unix_s": c.issued_unix_s,
+        "state": c.state,
+        "reason": c.reason,
+        "attempts": c.attempts,
+        "updated_unix_s": c.updated_unix_s,
+    }
 
 
 @dataclass
@@ -531,6 +567,222 @@ class Store:
             s.add(entry)
             s.flush()
             return entry.id
+
+    # ------------------------------------------------------------ commands
+    def create_command(
+        self,
+        command_id: str,
+        module_id: str,
+        action: str,
+        issued_by: str,
+        *,
+        payload: dict[str, Any] | None = None,
+        target_version: int = 0,
+        apply: str = "now",
+    ) -> dict[str, Any]:
+        """Queue a command (state ``pending``) and record it in the audit log, in one transaction."""
+        t = now_unix_s()
+        with self.session() as s:
+            cmd = CommandRecord(
+                id=command_id,
+                module_id=module_id,
+                action=action,
+                target_version=target_version,
+                payload=payload or {},
+                apply=apply,
+                issued_by=issued_by,
+                issued_unix_s=t,
+                state="pending",
+                attempts=0,
+                updated_unix_s=t,
+            )
+            s.add(cmd)
+            s.add(
+                AuditEntry(
+                    t_unix_s=t,
+                    actor=issued_by,
+                    action=f"command.{action}",
+                    target=f"module:{module_id}",
+                    details={
+                        "command_id": command_id,
+                        "target_version": target_version,
+                        "apply": apply,
+                        "schedule": (payload or {}).get("schedule"),
+                    },
+                )
+            )
+            s.flush()
+            return command_dict(cmd)
+
+    def command(self, command_id: str) -> dict[str, Any] | None:
+        with self.read() as s:
+            cmd = s.get(CommandRecord, command_id)
+            return command_dict(cmd) if cmd else None
+
+    def commands(
+        self, module_id: str | None = None, states: Sequence[str] | None = None, limit: int = 200
+    ) -> list[dict[str, Any]]:
+        with self.read() as s:
+            q = select(CommandRecord)
+            if module_id:
+                q = q.where(CommandRecord.module_id == module_id)
+            if states:
+                q = q.where(CommandRecord.state.in_(list(states)))
+            return [
+                command_dict(c)
+                for c in s.scalars(q.order_by(CommandRecord.issued_unix_s.desc()).limit(limit))
+            ]
+
+    def mark_command_sent(self, command_id: str) -> None:
+        with self.session() as s:
+            cmd = s.get(CommandRecord, command_id)
+            if cmd is not None:
+                cmd.attempts += 1
+                cmd.updated_unix_s = now_unix_s()
+                if cmd.state == "pending":
+                    cmd.state = "sent"
+
+    def update_command(
+        self, command_id: str, state: str, reason: str | None, actor: str
+    ) -> dict[str, Any] | None:
+        """Record a module's answer (audited); returns the command if its state changed."""
+        with self.session() as s:
+            cmd = s.get(CommandRecord, command_id)
+            if cmd is None or COMMAND_STATES.get(state, 0) <= COMMAND_STATES.get(cmd.state, 0):
+                return None
+            cmd.state, cmd.reason, cmd.updated_unix_s = state, reason, now_unix_s()
+            s.add(
+                AuditEntry(
+                    t_unix_s=now_unix_s(),
+                    actor=actor,
+                    action=f"command.{state}",
+                    target=f"module:{cmd.module_id}",
+                    details={"command_id": command_id, "reason": reason, "action": cmd.action},
+                )
+            )
+            return command_dict(cmd)
+
+    def schedule_version(self, module_id: str) -> int:
+        """The newest schedule version a module runs or has been sent (not rejected)."""
+        with self.read() as s:
+            mod = s.get(Module, module_id)
+            running = mod.schedule_version if mod else 0
+            sent = s.scalar(
+                select(func.max(CommandRecord.target_version)).where(
+                    CommandRecord.module_id == module_id,
+                    CommandRecord.action == "set_schedule",
+                    CommandRecord.state != "rejected",
+                )
+            )
+            return max(running or 0, sent or 0)
+
+    def module_exists(self, module_id: str) -> bool:
+        with self.read() as s:
+            return s.get(Module, module_id) is not None
+
+    # ------------------------------------------------------------ calibrations
+    def add_calibration(
+        self,
+        name: str,
+        values: dict[str, Any],
+        *,
+        actor: str,
+        source: str = "",
+        valid_from_unix_s: float | None = None,
+        valid_to_unix_s: float | None = None,
+    ) -> dict[str, Any]:
+        """Store a new version of a named calibration (the next integer); audited. Old versions stay."""
+        with self.session() as s:
+            latest = s.scalar(select(func.max(Calibration.version)).where(Calibration.name == name)) or 0
+            cal = Calibration(
+                name=name,
+                version=latest + 1,
+                source=source,
+                valid_from_unix_s=valid_from_unix_s,
+                valid_to_unix_s=valid_to_unix_s,
+                values=values,
+                created_unix_s=now_unix_s(),
+            )
+            s.add(cal)
+            s.flush()
+            s.add(
+                AuditEntry(
+                    t_unix_s=now_unix_s(),
+                    actor=actor,
+                    action="calibration.add",
+                    target=f"calibration:{name}@{cal.version}",
+                    details={"id": cal.id, "source": source, "values": values},
+                )
+            )
+            return calibration_dict(cal)
+
+    def calibrations(self, name: str | None = None) -> list[dict[str, Any]]:
+        with self.read() as s:
+            q = select(Calibration)
+            if name:
+                q = q.where(Calibration.name == name)
+            return [calibration_dict(c) for c in s.scalars(q.order_by(Calibration.name, Calibration.version))]
+
+    def calibration(self, ref: int | str) -> dict[str, Any] | None:
+        """A calibration by id, by ``name@version``, or by name (its newest version valid now)."""
+        with self.read() as s:
+            if isinstance(ref, int) or (isinstance(ref, str) and ref.isdigit()):
+                c = s.get(Calibration, int(ref))
+                return calibration_dict(c) if c else None
+            name, _, version = str(ref).partition("@")
+            q = select(Calibration).where(Calibration.name == name)
+            if version:
+                if not version.isdigit():
+                    return None
+                q = q.where(Calibration.version == int(version))
+            else:
+                t = now_unix_s()
+                q = q.where(
+                    (Calibration.valid_from_unix_s.is_(None)) | (Calibration.valid_from_unix_s <= t),
+                    (Calibration.valid_to_unix_s.is_(None)) | (Calibration.valid_to_unix_s >= t),
+                )
+            c = s.scalars(q.order_by(Calibration.version.desc()).limit(1)).first()
+            return calibration_dict(c) if c else None
+
+    def use_calibration(self, dive_id: int, run_id: int, calibration_id: int, actor: str) -> None:
+        """Record that a dive (and its run) uses a calibration; audited."""
+        with self.session() as s:
+            s.execute(update(Dive).where(Dive.id == dive_id).values(calibration_id=calibration_id))
+            s.execute(
+                update(AnalysisRun).where(AnalysisRun.id == run_id).values(calibration_id=calibration_id)
+            )
+            s.add(
+                AuditEntry(
+                    t_unix_s=now_unix_s(),
+                    actor=actor,
+                    action="calibration.use",
+                    target=f"dive:{dive_id}",
+                    details={"calibration_id": calibration_id, "run_id": run_id},
+                )
+            )
+
+    # ------------------------------------------------------------ retention
+    def purge_frame_files(self, older_than_unix_s: float) -> tuple[int, int]:
+        """Delete frame files captured before a time; rows, results and thumbnails stay.
+
+        Returns (files deleted, bytes freed). The image route then says the
+        file went to retention.
+        """
+        n = freed = 0
+        with self.read() as s:
+            rows = s.execute(
+                select(Frame.path, Frame.size_bytes).where(Frame.captured_unix_s < older_than_unix_s)
+            )
+            for path, size in rows:
+                try:
+                    p = self.files.resolve(path)
+                except ValueError:
+                    continue
+                if p.exists():
+                    p.unlink()
+                    n += 1
+                    freed += int(size or 0)
+        return n, freed
 
     # ------------------------------------------------------------ checks
     def integrity_check(self) -> str:

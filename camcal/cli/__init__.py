@@ -4,7 +4,20 @@ from __future__ import annotations
 
 import typer
 
-from camcal.cli import analyze, calibrate, data, demo, ingest, lrm, serve, simulate, simulate_lab
+from camcal.cli import (
+    analyze,
+    calibrate,
+    calibration,
+    config,
+    data,
+    demo,
+    doctor,
+    ingest,
+    lrm,
+    serve,
+    simulate,
+    simulate_lab,
+)
 
 app = typer.Typer(
     name="camcal",
@@ -20,6 +33,9 @@ ingest.register(app)
 lrm.register(app)
 data.register(app)
 serve.register(app)
+config.register(app)
+doctor.register(app)
+calibration.register(app)
 simulate_lab.register(app)
 calibrate.register(app)
 

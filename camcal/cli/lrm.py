@@ -14,7 +14,7 @@ import typer
 
 from camcal.cli.common import console, fail
 from camcal.frameset import FrameSetError
-from camcal.schedule import Schedule
+from camcal.schedule import CameraLimits, Schedule
 
 app = typer.Typer(
     help="Run a light receiver module: simulated, or replaying a frame set.", no_args_is_help=True
@@ -135,7 +135,7 @@ def simulate(
         clock=clock,
         runner=runner,
         sensors=SimulatedSensors(sim, camera, clock),
-        camera_limits=(cam.exposure_range_s, cam.gain_range_db, cam.gain_step_db),
+        camera_limits=CameraLimits(cam.exposure_range_s, cam.gain_range_db, cam.gain_step_db),
     )
     agent.start()
     console.print(

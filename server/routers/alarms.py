@@ -8,7 +8,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Query
 from fastapi.concurrency import run_in_threadpool
 
-from server.deps import HubDep, OperatorDep, StoreDep
+from server.deps import HubDep, IdPath, OperatorDep, StoreDep
 from server.errors import NotFound
 from server.schemas import AckRequest, AlarmPublic
 from storage import queries
@@ -31,7 +31,7 @@ async def list_alarms(
 
 @router.post("/api/alarms/{alarm_id}/ack", response_model=AlarmPublic)
 async def ack(
-    alarm_id: int, store: StoreDep, hub: HubDep, who: OperatorDep, body: AckRequest | None = None
+    alarm_id: IdPath, store: StoreDep, hub: HubDep, who: OperatorDep, body: AckRequest | None = None
 ) -> dict[str, Any]:
     """Acknowledge an alarm (operator token); recorded in the audit log.
 
@@ -58,7 +58,7 @@ async def ack(
 async def audit(
     store: StoreDep,
     limit: Annotated[int, Query(ge=1, le=5000)] = 500,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
 ) -> list[dict[str, Any]]:
     """The append-only audit log: commands, acknowledgements, calibration changes."""
 

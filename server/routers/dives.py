@@ -13,10 +13,11 @@ from fastapi import APIRouter, Query
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
 
+from camcal.calibrations import setup_of
 from camcal.frameset import Setup, parse_setup
 from ingest.derived import ResultRow, attenuation_dict, span_attenuation
 from ingest.reanalysis import ReanalysisOptions, reanalyse, start_run
-from server.deps import OperatorDep, SettingsDep, StoreDep
+from server.deps import FloatQuery, IdPath, IdQuery, OperatorDep, SettingsDep, StoreDep
 from server.errors import Invalid, NotFound
 from server.schemas import DivePublic, ReanalysisCreate, RunPublic
 from storage import queries
@@ -26,7 +27,7 @@ from storage.models import Dive
 router = APIRouter(tags=["dives"])
 
 
-def dive_or_404(store: Any, dive_id: int) -> Dive:
+def dive_or_404(store: Any, dive_id: IdPath) -> Dive:
     with store.read() as s:
         dive = s.get(Dive, dive_id)
     if dive is None:
@@ -46,7 +47,7 @@ async def list_dives(store: StoreDep) -> list[dict[str, Any]]:
 
 
 @router.get("/api/dives/{dive_id}", response_model=DivePublic)
-async def get_dive(dive_id: int, store: StoreDep) -> dict[str, Any]:
+async def get_dive(dive_id: IdPath, store: StoreDep) -> dict[str, Any]:
     rows = [d for d in await list_dives(store) if d["id"] == dive_id]
     if not rows:
         raise NotFound(f"no dive {dive_id}")
@@ -55,7 +56,7 @@ async def get_dive(dive_id: int, store: StoreDep) -> dict[str, Any]:
 
 @router.get("/api/dives/{dive_id}/timeline")
 async def timeline(
-    dive_id: int, store: StoreDep, max_points: Annotated[int, Query(ge=10, le=5000)] = 600
+    dive_id: IdPath, store: StoreDep, max_points: Annotated[int, Query(ge=10, le=5000)] = 600
 ) -> dict[str, Any]:
     """Depth over the dive, the frames on it (thinned to ~2000 marks) and the alarms."""
     dive_or_404(store, dive_id)
@@ -80,7 +81,7 @@ async def settings_of_dive(dive_id: int, store: StoreDep) -> dict[str, Any]:
 
 
 @router.get("/api/dives/{dive_id}/runs", response_model=list[RunPublic])
-async def runs(dive_id: int, store: StoreDep) -> list[dict[str, Any]]:
+async def runs(dive_id: IdPath, store: StoreDep) -> list[dict[str, Any]]:
     """The dive's analysis runs: the live one and every re-analysis."""
     dive_or_404(store, dive_id)
 
@@ -91,7 +92,7 @@ async def runs(dive_id: int, store: StoreDep) -> list[dict[str, Any]]:
     return await run_in_threadpool(q)
 
 
-def run_setup(store: Any, dive_id: int, run_id: int | None) -> tuple[int, Setup]:
+def run_setup(store: Any, dive_id: IdPath, run_id: int | None) -> tuple[int, Setup]:
     with store.read() as s:
         runs = {r["id"]: r for r in queries.runs(s, dive_id)}
     if not runs:
@@ -107,13 +108,13 @@ def run_setup(store: Any, dive_id: int, run_id: int | None) -> tuple[int, Setup]
 
 @router.get("/api/dives/{dive_id}/attenuation")
 async def attenuation_table(
-    dive_id: int,
+    dive_id: IdPath,
     store: StoreDep,
-    run: int | None = None,
-    depth_min_m: float | None = None,
-    depth_max_m: float | None = None,
-    t_from: float | None = None,
-    t_to: float | None = None,
+    run: IdQuery = None,
+    depth_min_m: FloatQuery = None,
+    depth_max_m: FloatQuery = None,
+    t_from: FloatQuery = None,
+    t_to: FloatQuery = None,
 ) -> dict[str, Any]:
     """λ_att per wavelength with statistical and systematic errors, over a span of the dive.
 
@@ -165,7 +166,7 @@ async def attenuation_table(
 
 @router.post("/api/dives/{dive_id}/reanalyses", status_code=202, response_model=RunPublic)
 async def create_reanalysis(
-    dive_id: int, body: ReanalysisCreate, store: StoreDep, settings: SettingsDep, who: OperatorDep
+    dive_id: IdPath, body: ReanalysisCreate, store: StoreDep, settings: SettingsDep, who: OperatorDep
 ) -> dict[str, Any]:
     """Re-analyse the dive with other distances, I0'/I0 or linear range, beside the original results.
 
@@ -174,6 +175,11 @@ async def create_reanalysis(
     """
     dive_or_404(store, dive_id)
     _, base = run_setup(store, dive_id, None)
+    if body.calibration_id is not None:
+        record = store.calibration(body.calibration_id)
+        if record is None:
+            raise NotFound(f"no calibration {body.calibration_id}")
+        base = setup_of(record)
     data = base.model_dump()
     if body.cameras:
         for cam, d in body.cameras.items():
@@ -187,9 +193,15 @@ async def create_reanalysis(
         setup = parse_setup(data, "re-analysis")
     except Exception as exc:
         raise Invalid(str(exc)) from None
-    run_id = start_run(store, dive_id, setup, body.label or f"re-analysis by {who}", body.calibration_id)
+    label = body.label or f"re-analysis by {who}"
+    if body.calibration_id is not None and not body.label:
+        label = f"calibration {record['name']} v{record['version']}"
+    run_id = start_run(store, dive_id, setup, label, body.calibration_id)
     store.audit(
-        who, "reanalysis.start", f"dive:{dive_id}", {"run_id": run_id, "calibration": setup.to_json()}
+        who,
+        "reanalysis.start",
+        f"dive:{dive_id}",
+        {"run_id": run_id, "calibration_id": body.calibration_id, "calibration": setup.to_json()},
     )
 
     def job() -> None:
@@ -205,10 +217,10 @@ async def create_reanalysis(
 
 @router.get("/api/dives/{dive_id}/export")
 async def export(
-    dive_id: int,
+    dive_id: IdPath,
     store: StoreDep,
     fmt: Annotated[str, Query(alias="format", pattern="^(csv|parquet)$")] = "csv",
-    run: int | None = None,
+    run: IdQuery = None,
 ) -> Response:
     """The dive's tables as a ZIP of CSV or Parquet files."""
     dive = dive_or_404(store, dive_id)

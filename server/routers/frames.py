@@ -11,7 +11,7 @@ from fastapi.responses import FileResponse, Response
 
 from camcal.frameset import FrameReadError, read_frame, write_atomic
 from ingest.worker import thumbnail_jpeg
-from server.deps import StoreDep
+from server.deps import FloatQuery, IdPath, IdQuery, StoreDep, WavelengthQuery
 from server.errors import NotFound, Unavailable
 from server.schemas import FramePage
 from storage import queries
@@ -30,18 +30,18 @@ def _urls(d: dict[str, Any]) -> dict[str, Any]:
 @router.get("/api/frames", response_model=FramePage)
 async def list_frames(
     store: StoreDep,
-    dive: int | None = None,
+    dive: IdQuery = None,
     module: Annotated[str | None, Query(max_length=64)] = None,
-    wavelength_nm: int | None = None,
-    exposure_s: float | None = None,
-    gain_db: float | None = None,
+    wavelength_nm: WavelengthQuery = None,
+    exposure_s: FloatQuery = None,
+    gain_db: FloatQuery = None,
     status: Annotated[str | None, Query(pattern=STATUSES)] = None,
     reason: Annotated[str | None, Query(max_length=32)] = None,
-    t_from: float | None = None,
-    t_to: float | None = None,
-    depth_min_m: float | None = None,
-    depth_max_m: float | None = None,
-    run: int | None = None,
+    t_from: FloatQuery = None,
+    t_to: FloatQuery = None,
+    depth_min_m: FloatQuery = None,
+    depth_max_m: FloatQuery = None,
+    run: IdQuery = None,
     order: Annotated[str, Query(pattern="^(time|newest)$")] = "time",
     limit: Annotated[int, Query(ge=1, le=500)] = 50,
     offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
@@ -71,7 +71,7 @@ async def list_frames(
     return await run_in_threadpool(q)
 
 
-def _frame(store: Any, frame_id: int, run: int | None) -> dict[str, Any]:
+def _frame(store: Any, frame_id: IdPath, run: int | None) -> dict[str, Any]:
     with store.read() as s:
         found = queries.frame_with_result(s, frame_id, run)
         if found is None:
@@ -80,13 +80,13 @@ def _frame(store: Any, frame_id: int, run: int | None) -> dict[str, Any]:
 
 
 @router.get("/api/frames/{frame_id}")
-async def get_frame(frame_id: int, store: StoreDep, run: int | None = None) -> dict[str, Any]:
+async def get_frame(frame_id: IdPath, store: StoreDep, run: IdQuery = None) -> dict[str, Any]:
     """One frame with its full analysis (profile and background fit included)."""
     return await run_in_threadpool(_frame, store, frame_id, run)
 
 
 @router.get("/api/frames/{frame_id}/analysis")
-async def frame_analysis(frame_id: int, store: StoreDep, run: int | None = None) -> dict[str, Any]:
+async def frame_analysis(frame_id: IdPath, store: StoreDep, run: IdQuery = None) -> dict[str, Any]:
     """Centroid, radius, radial profile, background fit and I_center of a frame."""
     f = await run_in_threadpool(_frame, store, frame_id, run)
     keys = (
@@ -110,7 +110,7 @@ async def frame_analysis(frame_id: int, store: StoreDep, run: int | None = None)
     return {k: f.get(k) for k in keys}
 
 
-def _stored_path(store: Any, frame_id: int) -> tuple[Path, Path]:
+def _stored_path(store: Any, frame_id: IdPath) -> tuple[Path, Path]:
     with store.read() as s:
         found = queries.frame_with_result(s, frame_id, None)
     if found is None:
@@ -127,7 +127,7 @@ def _stored_path(store: Any, frame_id: int) -> tuple[Path, Path]:
     response_class=Response,
     responses={200: {"content": {"image/jpeg": {}}}},
 )
-async def thumbnail(frame_id: int, store: StoreDep) -> Response:
+async def thumbnail(frame_id: IdPath, store: StoreDep) -> Response:
     """A 512 px JPEG of the frame, made once and cached.
 
     A cached thumbnail is served straight from ``thumbs/<id>.jpg`` (the id is
@@ -162,10 +162,12 @@ async def thumbnail(frame_id: int, store: StoreDep) -> Response:
     response_class=FileResponse,
     responses={200: {"content": {"image/png": {}}}},
 )
-async def image(frame_id: int, store: StoreDep) -> FileResponse:
+async def image(frame_id: IdPath, store: StoreDep) -> FileResponse:
     """The full frame as stored (lossless PNG, exactly the module's bytes)."""
     path, _ = await run_in_threadpool(_stored_path, store, frame_id)
     if not path.exists():
-        raise Unavailable(f"frame {frame_id}: its file is missing from the data folder")
+        raise Unavailable(
+            f"frame {frame_id}: its file is no longer in the data folder (removed by retention?)"
+        )
     media = "image/tiff" if path.suffix == ".tif" else "image/png"
     return FileResponse(path, media_type=media, headers={"Cache-Control": "public, max-age=86400, immutable"})

@@ -7,7 +7,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Query
 from fastapi.concurrency import run_in_threadpool
 
-from server.deps import StoreDep
+from server.deps import MAX_ID, FloatQuery, IdQuery, StoreDep, WavelengthQuery
 from server.errors import NotFound
 from storage import queries
 
@@ -26,9 +26,9 @@ def _dive(s: Any, dive: int | None) -> int | None:
 async def sensors(
     store: StoreDep,
     module: Annotated[str, Query(max_length=64)],
-    dive: int | None = None,
-    t_from: float | None = None,
-    t_to: float | None = None,
+    dive: IdQuery = None,
+    t_from: FloatQuery = None,
+    t_to: FloatQuery = None,
     max_points: MaxPoints = 1000,
 ) -> dict[str, Any]:
     """Housing temperature and humidity, accelerations, rotation rates and depth of a module.
@@ -50,9 +50,9 @@ async def sensors(
 async def attitude(
     store: StoreDep,
     module: Annotated[str, Query(max_length=64)],
-    dive: int | None = None,
-    t_from: float | None = None,
-    t_to: float | None = None,
+    dive: IdQuery = None,
+    t_from: FloatQuery = None,
+    t_to: FloatQuery = None,
     max_points: MaxPoints = 1000,
 ) -> dict[str, Any]:
     """Tilt, rotation rate and heave period of a module, derived from its sensors."""
@@ -69,10 +69,10 @@ async def attitude(
 @router.get("/api/attenuation")
 async def attenuation(
     store: StoreDep,
-    dive: int | None = None,
-    run: int | None = None,
-    wavelength_nm: int | None = None,
-    t_from: float | None = None,
+    dive: IdQuery = None,
+    run: IdQuery = None,
+    wavelength_nm: WavelengthQuery = None,
+    t_from: FloatQuery = None,
 ) -> dict[str, Any]:
     """The λ_att series per wavelength (rolling, with statistical and systematic errors)."""
 
@@ -93,8 +93,8 @@ async def attenuation(
 @router.get("/api/linearity")
 async def linearity(
     store: StoreDep,
-    dive: int | None = None,
-    run: int | None = None,
+    dive: IdQuery = None,
+    run: IdQuery = None,
     module: Annotated[str | None, Query(max_length=64)] = None,
 ) -> dict[str, Any]:
     """Linearity fits per module and wavelength: slope, R², saturation knee, the points."""
@@ -112,7 +112,9 @@ async def linearity(
 
 @router.get("/api/events")
 async def events(
-    store: StoreDep, after: Annotated[int, Query(ge=0)] = 0, limit: Annotated[int, Query(ge=1, le=5000)] = 500
+    store: StoreDep,
+    after: Annotated[int, Query(ge=0, le=MAX_ID)] = 0,
+    limit: Annotated[int, Query(ge=1, le=5000)] = 500,
 ) -> dict[str, Any]:
     """Stored events after an id: how a client catches up on what it missed."""
 

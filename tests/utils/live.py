@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from camcal.schedule import Schedule
+from camcal.schedule import CameraLimits, Schedule
 from lrm.agent import Agent, AgentConfig
 from lrm.runner import ScheduleRunner
 from tests.utils.sim import SMALL_CAMERA, renderer
@@ -128,7 +128,7 @@ def make_agent(
         clock=clock,
         runner=runner,
         sensors=SteadySensors() if sensors else None,
-        camera_limits=(camera.exposure_range_s, camera.gain_range_db, camera.gain_step_db),
+        camera_limits=CameraLimits(camera.exposure_range_s, camera.gain_range_db, camera.gain_step_db),
     )
     return agent, camera
 

@@ -139,7 +139,9 @@ def camcal_up(
     token = "browser-test-token-0123456789"
     data.mkdir(parents=True, exist_ok=True)
     log = data.parent / f"{data.name}-up.log"
-    env = {**os.environ, "PYTHONPATH": str(REPO), "CAMCAL_OPERATOR_TOKENS": ""}
+    # A clean configuration: no CAMCAL_* setting of the caller's shell leaks into the system under test.
+    env = {k: v for k, v in os.environ.items() if not k.startswith("CAMCAL_")}
+    env["PYTHONPATH"] = str(REPO)
     args = [
         sys.executable,
         "-c",

@@ -1,0 +1,213 @@
+"""Schedules and commands: presets, validation and preview, and sending them to modules."""
+
+from __future__ import annotations
+
+import uuid
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Path, Query
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import Response
+from pydantic import BaseModel, ConfigDict, Field
+
+from camcal.schedule import Schedule, presets
+from ingest.derived import ResultRow, predict_settings
+from server.deps import OperatorDep, SettingsDep, StoreDep
+from server.errors import Conflict, Invalid, NotFound
+from storage import queries
+
+router = APIRouter(tags=["control"])
+ModuleId = Annotated[str, Path(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")]
+
+
+class ScheduleCommand(BaseModel):
+    """A schedule for a module. ``version`` defaults to one above what the module runs or was sent."""
+
+    model_config = ConfigDict(extra="forbid")
+    schedule: Schedule
+    apply: Literal["now", "end_of_setting"] = "now"
+    version: int | None = Field(None, ge=1, le=2**31 - 1)
+
+
+class ActionCommand(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    action: Literal["start", "pause", "resume", "stop"]
+
+
+class PreviewRequest(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    schedule: Schedule
+    module: str | None = Field(None, max_length=64)
+
+
+def _problems(settings: Any, schedule: Schedule) -> list[dict[str, str]]:
+    return [{"field": f"schedule.{f}", "reason": r} for f, r in settings.camera_limits.problems(schedule)]
+
+
+@router.get("/api/schedules/presets")
+def list_presets() -> dict[str, Any]:
+    """The named schedules to start from: T-REX, quick λ_att check, linearity scan, monitoring."""
+    return {
+        name: {
+            **s.model_dump(mode="json"),
+            "n_frames": s.n_frames,
+            "pass_duration_s": round(s.pass_duration_s(), 1),
+        }
+        for name, s in presets().items()
+    }
+
+
+@router.post("/api/schedules/preview")
+async def preview(body: PreviewRequest, store: StoreDep, settings: SettingsDep) -> dict[str, Any]:
+    """Check a schedule and estimate one pass before sending it.
+
+    Returns the problems (field and reason) the camera limits find, the
+    frames and the duration of one pass, and per module and setting the
+    centre gray expected from the frames seen so far (``ok``, ``too_dark``,
+    ``saturated`` or ``unknown``).
+    """
+    sched = body.schedule
+
+    def predictions() -> dict[str, list[dict[str, Any]]]:
+        with store.read() as s:
+            dives = queries.dives(s)
+            run = queries.live_run_id(s, dives[0]["id"]) if dives else None
+        if run is None:
+            return {}
+        rows = store.result_rows(run, dives[0]["id"])[-3000:]
+        rr = [
+            ResultRow(
+                r["module"],
+                r["wavelength_nm"],
+                r["exposure_s"],
+                r["gain_db"],
+                r["captured_unix_s"],
+                r["depth_m"],
+                r["status"],
+                r["center_gray"],
+                r["i_center_gray"],
+                r["i_center_err_gray"],
+            )
+            for r in rows
+            if body.module is None or r["module"] == body.module
+        ]
+        setts = [(wl, e, g) for wl in sched.wavelengths_nm for e, g, _ in sched.settings()]
+        return predict_settings(rr, setts, settings.linear_range)
+
+    pred = await run_in_threadpool(predictions)
+    problems = _problems(settings, sched)
+    summary = {
+        m: {v: sum(1 for p in ps if p["verdict"] == v) for v in ("ok", "too_dark", "saturated", "unknown")}
+        for m, ps in pred.items()
+    }
+    return {
+        "ok": not problems,
+        "problems": problems,
+        "n_frames": sched.n_frames,
+        "pass_duration_s": round(sched.pass_duration_s(settings.readout_s, settings.lem_dwell_s), 1),
+        "predictions": pred,
+        "summary": summary,
+    }
+
+
+def _module_or_404(store: Any, module_id: str) -> None:
+    if not store.module_exists(module_id):
+        raise NotFound(f"no module {module_id!r} has connected to this ship")
+
+
+@router.post("/api/modules/{module_id}/schedule", status_code=202)
+async def send_schedule(
+    module_id: ModuleId, body: ScheduleCommand, store: StoreDep, settings: SettingsDep, who: OperatorDep
+) -> dict[str, Any]:
+    """Send a schedule to a module (operator token). Queued while the module is offline.
+
+    The command names its target state, the schedule version N; the module
+    applies it at most once and reports accepted / rejected / in progress /
+    done, which ``GET /api/commands/{id}`` and the live events show.
+    """
+    _module_or_404(store, module_id)
+    problems = _problems(settings, body.schedule)
+    if problems:
+        raise Invalid(f"{problems[0]['field']}: {problems[0]['reason']}", problems)
+    current = await run_in_threadpool(store.schedule_version, module_id)
+    version = body.version if body.version is not None else current + 1
+    if version <= current:
+        raise Conflict(
+            f"schedule version {version} is not newer than version {current} of module {module_id}",
+            {"current_version": current},
+        )
+    sched = body.schedule.model_copy(update={"version": version})
+    cmd = await run_in_threadpool(
+        lambda: store.create_command(
+            uuid.uuid4().hex,
+            module_id,
+            "set_schedule",
+            who,
+            payload={"schedule": sched.model_dump(mode="json")},
+            target_version=version,
+            apply=body.apply,
+        )
+    )
+    return cmd
+
+
+@router.post("/api/modules/{module_id}/commands", status_code=202)
+async def send_action(
+    module_id: ModuleId, body: ActionCommand, store: StoreDep, who: OperatorDep
+) -> dict[str, Any]:
+    """Start, pause, resume or stop a module's schedule (operator token)."""
+    _module_or_404(store, module_id)
+    current = await run_in_threadpool(store.schedule_version, module_id)
+    return await run_in_threadpool(
+        lambda: store.create_command(uuid.uuid4().hex, module_id, body.action, who, target_version=current)
+    )
+
+
+@router.get("/api/modules/{module_id}/commands")
+async def module_commands(
+    module_id: ModuleId, store: StoreDep, limit: Annotated[int, Query(ge=1, le=1000)] = 50
+) -> list[dict[str, Any]]:
+    _module_or_404(store, module_id)
+    return await run_in_threadpool(lambda: store.commands(module_id, limit=limit))
+
+
+@router.get("/api/commands")
+async def all_commands(
+    store: StoreDep,
+    state: Annotated[str | None, Query(max_length=16)] = None,
+    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+) -> list[dict[str, Any]]:
+    return await run_in_threadpool(lambda: store.commands(states=(state,) if state else None, limit=limit))
+
+
+@router.get("/api/commands/{command_id}")
+async def get_command(command_id: Annotated[str, Path(max_length=64)], store: StoreDep) -> dict[str, Any]:
+    cmd = await run_in_threadpool(store.command, command_id)
+    if cmd is None:
+        raise NotFound(f"no command {command_id}")
+    return cmd
+
+
+@router.get("/api/audit/export", response_class=Response, responses={200: {"content": {"text/csv": {}}}})
+async def audit_export(store: StoreDep) -> Response:
+    """The whole audit log as CSV."""
+    import csv
+    import io
+    import json
+
+    def build() -> str:
+        with store.read() as s:
+            rows = queries.audit(s, limit=1_000_000)
+        buf = io.StringIO()
+        w = csv.writer(buf)
+        w.writerow(["id", "t_unix_s", "actor", "action", "target", "details"])
+        for r in reversed(rows):
+            w.writerow(
+                [r["id"], r["t_unix_s"], r["actor"], r["action"], r["target"], json.dumps(r["details"])]
+            )
+        return buf.getvalue()
+
+    text = await run_in_threadpool(build)
+    return Response(
+        text, media_type="text/csv", headers={"Content-Disposition": 'attachment; filename="audit.csv"'}
+    )

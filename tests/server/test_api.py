@@ -1,0 +1,157 @@
+"""The REST API on a store filled by a real simulated dive."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from fastapi.testclient import TestClient
+
+from tests.server.conftest import TOKEN
+
+
+def test_dives_and_timeline(client: TestClient, dive_data) -> None:
+    _, info = dive_data
+    dives = client.get("/api/dives").json()
+    assert len(dives) == 1
+    d = dives[0]
+    assert d["n_frames"] == sum(info["frames"].values()) and d["max_depth_m"] > 3300
+    tl = client.get(f"/api/dives/{d['id']}/timeline").json()
+    assert len(tl["depth"]["t_unix_s"]) > 10 and max(tl["depth"]["depth_m"]) > 3300
+    assert len(tl["frames"]) >= 10
+    assert client.get("/api/dives/999").status_code == 404
+
+
+def test_frames_filter_and_page(client: TestClient) -> None:
+    page = client.get("/api/frames", params={"limit": 5}).json()
+    assert page["limit"] == 5 and len(page["items"]) == 5 and page["total"] > 20
+    total = page["total"]
+    only_a = client.get("/api/frames", params={"module": "A", "limit": 500}).json()
+    assert 0 < only_a["total"] < total and {f["module"] for f in only_a["items"]} == {"A"}
+    ok = client.get("/api/frames", params={"status": "ok", "wavelength_nm": 460, "limit": 500}).json()
+    assert all(f["status"] == "ok" and f["wavelength_nm"] == 460 for f in ok["items"])
+    deep = client.get("/api/frames", params={"depth_min_m": 3300, "limit": 500}).json()
+    assert all(f["depth_m"] >= 3300 for f in deep["items"])
+    times = [f["captured_unix_s"] for f in client.get("/api/frames", params={"limit": 50}).json()["items"]]
+    assert times == sorted(times)
+    second = client.get("/api/frames", params={"limit": 5, "offset": 5}).json()["items"]
+    assert {f["id"] for f in second}.isdisjoint({f["id"] for f in page["items"]})
+    bad = client.get("/api/frames", params={"status": "maybe"})
+    assert bad.status_code == 422 and bad.json()["error"]["code"] == "invalid"
+    assert "status" in bad.json()["error"]["message"]
+
+
+def test_frame_analysis_thumbnail_and_image(client: TestClient) -> None:
+    f = client.get("/api/frames", params={"status": "ok", "limit": 1}).json()["items"][0]
+    full = client.get(f"/api/frames/{f['id']}").json()
+    assert full["profile"]["mean_gray"] and full["fit"]["background_gray"] > 0
+    assert full["i_center_gray"] == pytest.approx(full["center_gray"] - full["background_gray"], abs=1e-3)
+    an = client.get(f"/api/frames/{f['id']}/analysis").json()
+    assert len(an["centroid_px"]) == 2 and an["radius_px"] > 10
+    thumb = client.get(f["thumbnail_url"])
+    assert thumb.status_code == 200 and thumb.headers["content-type"] == "image/jpeg"
+    assert thumb.content[:2] == b"\xff\xd8"
+    img = client.get(f["image_url"])
+    assert img.status_code == 200 and img.content[:4] == b"\x89PNG"
+    assert client.get("/api/frames/0/thumbnail").json()["error"]["code"] == "not_found"
+
+
+def test_sensors_and_attitude_are_downsampled_for_long_ranges(client: TestClient) -> None:
+    s = client.get("/api/sensors", params={"module": "A", "max_points": 50}).json()
+    assert s["downsampled"] and len(s["t_unix_s"]) <= 51 and s["n_samples"] > 500
+    assert min(s["temperature_c"]) > -5 and max(s["depth_m"]) > 3300
+    assert len(s["temperature_c_min"]) == len(s["t_unix_s"])
+    fine = client.get(
+        "/api/sensors",
+        params={"module": "A", "max_points": 20000, "t_from": s["t_unix_s"][10], "t_to": s["t_unix_s"][12]},
+    ).json()
+    assert not fine["downsampled"] and len(fine["t_unix_s"]) > 2
+    att = client.get("/api/attitude", params={"module": "B", "max_points": 100}).json()
+    assert att["n_samples"] > 5 and all(0 <= t < 10 for t in att["tilt_deg"])
+    periods = [p for p in att["heave_period_s"] if p]
+    assert periods and 4.0 < sorted(periods)[len(periods) // 2] < 11.0
+
+
+def test_attenuation_series_and_table_match_the_water(client: TestClient, dive_data) -> None:
+    _, info = dive_data
+    sim = info["sim"]
+    series = client.get("/api/attenuation").json()["series"]
+    assert set(series) == {"405", "460", "525"}
+    d = client.get("/api/dives").json()[0]
+    table = client.get(f"/api/dives/{d['id']}/attenuation").json()
+    rows = {r["wavelength_nm"]: r for r in table["rows"]}
+    assert set(rows) == {405, 460, 525}
+    station = sim.profile.window("station")
+    mid = 0.5 * (station[0] + station[1])
+    for wl, r in rows.items():
+        truth = sim.lambda_att_pair_truth_m(wl, mid)
+        assert r["lambda_att_m"] == pytest.approx(truth, rel=0.05)
+        assert r["stat_err_m"] > 0 and r["sys_err_m"] > 0 and r["n_pairs"] >= 1
+        assert math.isclose(r["total_err_m"], math.hypot(r["stat_err_m"], r["sys_err_m"]))
+
+
+def test_linearity_alarms_health_and_audit(client: TestClient) -> None:
+    lin = client.get("/api/linearity").json()
+    assert lin["checks"], "no linearity fit"
+    assert all(c["r2"] > 0.98 for c in lin["checks"] if c["sweep"] == "exposure")
+    assert isinstance(client.get("/api/alarms").json(), list)
+    h = client.get("/api/health").json()
+    assert h["ingest"]["up"] is False and set(h["modules"]) == {"A", "B"}
+    assert h["modules"]["A"]["link"] == "unknown"
+    assert isinstance(client.get("/api/audit").json(), list)
+
+
+def test_export_zip(client: TestClient) -> None:
+    import io
+    import zipfile
+
+    d = client.get("/api/dives").json()[0]
+    for fmt in ("csv", "parquet"):
+        r = client.get(f"/api/dives/{d['id']}/export", params={"format": fmt})
+        assert r.status_code == 200 and r.headers["content-type"] == "application/zip"
+        names = zipfile.ZipFile(io.BytesIO(r.content)).namelist()
+        assert f"frames.{fmt}" in names and f"sensor_samples.{fmt}" in names
+    assert client.get(f"/api/dives/{d['id']}/export", params={"format": "xls"}).status_code == 422
+
+
+def test_operator_actions_need_a_valid_token(client: TestClient) -> None:
+    d = client.get("/api/dives").json()[0]
+    url = f"/api/dives/{d['id']}/reanalyses"
+    r = client.post(url, json={"label": "x"})
+    assert r.status_code == 401 and r.json()["error"]["code"] == "unauthorized"
+    r = client.post(url, json={"label": "x"}, headers={"Authorization": "Bearer wrong-token-xx"})
+    assert r.status_code == 403 and r.json()["error"]["code"] == "forbidden"
+    r = client.post("/api/alarms/999999/ack", headers={"Authorization": f"Bearer {TOKEN}"})
+    assert r.status_code == 404
+
+
+def test_unknown_routes_and_methods_use_the_error_shape(client: TestClient) -> None:
+    r = client.get("/api/nothing-here")
+    assert r.status_code == 404 and set(r.json()) == {"error"} and r.json()["error"]["code"] == "not_found"
+    r = client.delete("/api/dives")
+    assert r.status_code == 405 and r.json()["error"]["code"] == "method_not_allowed"
+
+
+@pytest.mark.parametrize(
+    "path",
+    [
+        "/static/../server/app.py",
+        "/static/%2e%2e/%2e%2e/etc/passwd",
+        "/static/..%2f..%2fcamcal.db",
+        "/vendor/../../etc/passwd",
+    ],
+)
+def test_path_traversal_is_refused(client: TestClient, path: str) -> None:
+    r = client.get(path)
+    assert r.status_code in (400, 404)
+    assert b"root:" not in r.content and b"create_app" not in r.content
+
+
+def test_plotly_is_served_locally_and_compressed(client: TestClient) -> None:
+    r = client.get("/vendor/plotly.min.js", headers={"Accept-Encoding": "gzip"})
+    assert r.status_code == 200 and r.headers["content-encoding"] == "gzip"
+    assert len(r.content) > 1_000_000 and b"plotly" in r.content[:5000].lower()
+    assert (
+        client.get("/docs").status_code == 200
+        and client.get("/openapi.json").json()["info"]["title"] == "camcal"
+    )

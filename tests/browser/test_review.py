@@ -138,8 +138,33 @@ def test_review_attenuation_linearity_attitude_and_export(
 def test_review_reanalysis_side_by_side_and_audit(
     page: Any, system: System, dive_with_data: dict[str, Any], artifacts: Path
 ) -> None:
+    # A stored calibration record is offered as a starting point and fills the form.
+    setup = {
+        "cameras": {
+            "A": {"distance_m": 21.56, "distance_err_m": 0.02},
+            "B": {"distance_m": 41.9, "distance_err_m": 0.05},
+        },
+        "emission_ratio": {"405": {"value": 1.04, "err": 0.03}},
+        "linear_range": [5, 235],
+    }
+    resp = page.request.post(
+        system.url("/api/calibrations"),
+        data={"name": "browser-test", "setup": setup, "source": "test"},
+        headers={"Authorization": f"Bearer {system.token}"},
+    )
+    assert resp.ok, resp.text()
+    record = resp.json()["id"]
     page.goto(system.url("/review#tab=reanalysis"))
     page.wait_for_selector("#reanalysis-form [name='cam-B-v']")
+    page.select_option("#reanalysis-form [name=from]", str(record))
+    page.wait_for_function(
+        "() => document.querySelector(\"#reanalysis-form [name='cam-B-v']\").value === '41.9'"
+    )
+    assert page.input_value("#reanalysis-form [name='lin-hi']") == "235"
+    page.select_option("#reanalysis-form [name=from]", "")
+    page.wait_for_function(
+        "() => document.querySelector(\"#reanalysis-form [name='cam-B-v']\").value === '41.62'"
+    )
     assert page.is_disabled("#reanalysis-submit")
     page.click("#login")
     page.fill("#login-token", system.token)

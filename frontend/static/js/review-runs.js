@@ -8,6 +8,8 @@ import { $, el, toast } from "./ui.js";
 
 let poll = null;
 let current = null;
+/** Stored calibration records (GET /api/calibrations), offered as starting points. */
+let calibrations = [];
 
 function input(name, value, title) {
   return el("input", { type: "number", name, value: value ?? "", step: "any", min: 0, required: true, "aria-label": title || name });
@@ -27,15 +29,37 @@ function pair(label, name, value, err, unit) {
 }
 
 /** The form, filled with the live run's calibration: change what you want to try. */
-function buildForm(ctx) {
+function buildForm(ctx, from = null) {
   const f = $("#reanalysis-form");
   const live = ctx.runs.find((r) => r.id === ctx.liveRunId) || ctx.runs[0];
-  const cal = live?.calibration || {};
+  const record = from === null ? null : calibrations.find((c) => c.id === from);
+  const cal = record ? record.values?.setup || {} : live?.calibration || {};
   const cams = cal.cameras || {};
   const ratios = cal.emission_ratio || {};
   const [lo, hi] = cal.linear_range || [5, 240];
   const op = operator();
+  const start = el(
+    "select",
+    { name: "from", "aria-label": "start from", onchange: (ev) => buildForm(ctx, ev.target.value ? Number(ev.target.value) : null) },
+    el("option", { value: "" }, "the live run's calibration"),
+    ...calibrations.map((c) => el("option", { value: c.id }, `calibration record ${c.name} v${c.version}${c.source ? ` (${c.source})` : ""}`)),
+  );
+  start.value = record ? String(record.id) : "";
   f.replaceChildren(
+    el(
+      "div",
+      { class: "filters" },
+      el("label", {}, "start from", start),
+      el(
+        "span",
+        { class: "muted" },
+        record
+          ? "the run records this calibration; what you change below overrides its values"
+          : calibrations.length
+            ? "or pick a stored calibration record"
+            : "",
+      ),
+    ),
     el(
       "div",
       { class: "form-grid" },
@@ -80,17 +104,17 @@ function buildForm(ctx) {
       "div",
       { style: { display: "flex", gap: "0.8rem", alignItems: "center", marginTop: "0.7rem", flexWrap: "wrap" } },
       el("button", { type: "submit", class: "primary", id: "reanalysis-submit", disabled: !op }, "Start re-analysis"),
-      el("button", { type: "button", onclick: () => buildForm(ctx) }, "Reset to the live run's values"),
+      el("button", { type: "button", onclick: () => buildForm(ctx, from) }, "Reset the values"),
       el("span", { class: op ? "muted" : "error-msg", id: "reanalysis-note" }, op ? `as ${op.name}` : "Log in as operator to start a re-analysis."),
     ),
   );
   f.onsubmit = (ev) => {
     ev.preventDefault();
-    submit(ctx, f, cams, ratios);
+    submit(ctx, f, cams, ratios, record ? record.id : null);
   };
 }
 
-async function submit(ctx, f, cams, ratios) {
+async function submit(ctx, f, cams, ratios, calibrationId) {
   const v = (n) => Number(f.elements[n].value);
   const body = {
     label: f.elements.label.value.trim(),
@@ -98,6 +122,7 @@ async function submit(ctx, f, cams, ratios) {
     emission_ratio: Object.fromEntries(Object.keys(ratios).map((wl) => [wl, { value: v(`er-${wl}-v`), err: v(`er-${wl}-e`) }])),
     linear_range: [v("lin-lo"), v("lin-hi")],
   };
+  if (calibrationId !== null) body.calibration_id = calibrationId;
   const button = $("#reanalysis-submit");
   button.disabled = true;
   try {
@@ -115,8 +140,8 @@ async function submit(ctx, f, cams, ratios) {
 
 /** Frames analysed by a re-analysis, against the dive's frames. */
 function progress(ctx, r) {
-  const n = ctx.dive.n_frames;
-  if (!n) return String(r.n_frames);
+  const n = Math.max(ctx.dive.n_frames || 0, r.n_frames);
+  if (!n || r.status !== "running") return `${r.n_frames} frames`;
   const pct = Math.min(100, Math.round((100 * r.n_frames) / n));
   return el("span", {}, el("progress", { max: 100, value: pct, style: { width: "6rem", verticalAlign: "middle" } }), ` ${r.n_frames} / ${n}`);
 }
@@ -139,8 +164,8 @@ function renderRuns(ctx) {
           el("td", {}, utc(r.created_unix_s)),
           el("td", {}, el("span", { class: "run-status", "data-status": r.status }, r.kind === "live" && r.status === "running" ? "live (ongoing)" : r.status)),
           el("td", { class: "r" }, r.kind === "live" ? "–" : progress(ctx, r)),
-          el("td", {}, Object.entries(c.cameras || {}).map(([m, d]) => `${m} ${fmt(d.distance_m, 2)}±${fmt(d.distance_err_m, 2)}`).join(", ")),
-          el("td", {}, Object.entries(c.emission_ratio || {}).map(([wl, e]) => `${wl}: ${fmt(e.value, 2)}`).join(", ")),
+          el("td", { style: { whiteSpace: "normal" } }, Object.entries(c.cameras || {}).map(([m, d]) => `${m} ${fmt(d.distance_m, 2)}±${fmt(d.distance_err_m, 2)}`).join(", ")),
+          el("td", { style: { whiteSpace: "normal" } }, Object.entries(c.emission_ratio || {}).map(([wl, e]) => `${wl}: ${fmt(e.value, 2)}`).join(", ")),
           el("td", {}, c.linear_range ? `${c.linear_range[0]}–${c.linear_range[1]}` : "–"),
         );
       }),
@@ -152,7 +177,9 @@ function renderRuns(ctx) {
 async function refreshRuns(ctx) {
   clearTimeout(poll);
   try {
-    ctx.runs = await api(`/api/dives/${ctx.dive.id}/runs`);
+    const [runs, dive] = await Promise.all([api(`/api/dives/${ctx.dive.id}/runs`), api(`/api/dives/${ctx.dive.id}`)]);
+    ctx.runs = runs;
+    ctx.dive.n_frames = dive.n_frames;
   } catch (err) {
     toast(err.message);
   }
@@ -249,6 +276,7 @@ async function compare(ctx) {
 
 export async function showReanalysis(ctx) {
   current = ctx;
+  calibrations = await api("/api/calibrations").catch(() => []);
   buildForm(ctx);
   mountSpan(ctx, "compare", () => compare(ctx));
   await refreshRuns(ctx);

@@ -53,8 +53,15 @@ def run_server(settings: Settings, tokens: dict[str, str], events: str | None) -
             linear_range=settings.linear_range,
         )
     )
+    # No permessage-deflate: compressing every event once per browser costs the ship more CPU than
+    # the bytes it saves on its own network (events are a few hundred bytes of JSON).
     config = uvicorn.Config(
-        app, host=settings.http_host, port=settings.http_port, log_level="warning", ws_ping_interval=20
+        app,
+        host=settings.http_host,
+        port=settings.http_port,
+        log_level="warning",
+        ws_ping_interval=20,
+        ws_per_message_deflate=False,
     )
     try:
         uvicorn.Server(config).run()
@@ -110,6 +117,16 @@ def up(
     frame_scale: Annotated[float, typer.Option(help="Simulated sensor scale (1 = 5 MP).")] = 0.5,
     schedule: Annotated[str, typer.Option(help="Schedule of the simulated modules.")] = "trex-subsampled",
     seed: Annotated[int, typer.Option(help="Seed of the simulated dive.")] = 0,
+    deck_s: Annotated[
+        float, typer.Option(help="Simulated time on deck before the descent, in seconds.")
+    ] = 60.0,
+    winch_m_per_s: Annotated[float, typer.Option(help="Simulated descent and ascent speed, in m/s.")] = 1.0,
+    test_stop_s: Annotated[
+        float, typer.Option(help="Simulated time at each test stop (1200 m, 2021 m), in seconds.")
+    ] = 120.0,
+    station_s: Annotated[
+        float, typer.Option(help="Simulated time on station at 3420 m, in seconds.")
+    ] = 1800.0,
     operator_token: Annotated[
         list[str] | None, typer.Option(help="NAME=TOKEN of an operator (repeat).")
     ] = None,
@@ -173,6 +190,14 @@ def up(
                             str(seed),
                             "--epoch",
                             str(epoch),
+                            "--deck-s",
+                            str(deck_s),
+                            "--winch-m-per-s",
+                            str(winch_m_per_s),
+                            "--test-stop-s",
+                            str(test_stop_s),
+                            "--station-s",
+                            str(station_s),
                         ],
                         logs / f"module-{m}.log",
                     ),

@@ -68,6 +68,18 @@ async def timeline(
     return await run_in_threadpool(q)
 
 
+@router.get("/api/dives/{dive_id}/settings")
+async def settings_of_dive(dive_id: int, store: StoreDep) -> dict[str, Any]:
+    """The modules, wavelengths, exposures and gains the dive's frames were taken with."""
+    dive_or_404(store, dive_id)
+
+    def q() -> dict[str, Any]:
+        with store.read() as s:
+            return queries.frame_settings(s, dive_id)
+
+    return await run_in_threadpool(q)
+
+
 @router.get("/api/dives/{dive_id}/runs", response_model=list[RunPublic])
 async def runs(dive_id: IdPath, store: StoreDep) -> list[dict[str, Any]]:
     """The dive's analysis runs: the live one and every re-analysis."""

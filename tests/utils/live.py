@@ -18,7 +18,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import zmq
 
+from camcal import wire
 from camcal.schedule import CameraLimits, Schedule
 from lrm.agent import Agent, AgentConfig
 from lrm.runner import ScheduleRunner
@@ -228,3 +230,56 @@ class TcpProxy:
         drop_all()
         if listener is not None:
             listener.close()
+
+
+class FakeShip:
+    """The ship's side of the protocol, driven by the test: a real ROUTER on 127.0.0.1.
+
+    It greets modules, acknowledges every data message and records what the
+    module says; `pump` runs it until a condition holds.
+    """
+
+    def __init__(self, ctx: Any, window: int = 8) -> None:
+        self.sock = wire.ship_socket(ctx, "tcp://127.0.0.1:*")
+        self.endpoint = self.sock.getsockopt(zmq.LAST_ENDPOINT).decode()
+        self.window = window
+        self.identity: bytes | None = None
+        self.statuses: list[wire.CommandStatus] = []
+        self.heartbeats: list[wire.ModuleHeartbeat] = []
+        self.hellos: list[wire.Hello] = []
+        self.data: list[tuple[str, str, int]] = []
+
+    def pump(self, until: Any = lambda: False, timeout: float = 10.0) -> bool:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if until():
+                return True
+            if not self.sock.poll(20):
+                continue
+            parts = self.sock.recv_multipart()
+            self.identity = parts[0]
+            msg, _ = wire.decode(parts[1:], allowed=wire.MODULE_TYPES)
+            if msg.type == "hello":
+                self.hellos.append(msg)
+                self.send(wire.Welcome(module="ship", window=self.window))
+            elif msg.type in ("frame", "sensors"):
+                self.data.append((msg.type, msg.boot, msg.seq))
+                self.send(wire.Ack(module="ship", ranges=((msg.boot, msg.seq, msg.seq),), window=self.window))
+            elif msg.type == "command_status":
+                self.statuses.append(msg)
+            elif msg.type == "heartbeat":
+                self.heartbeats.append(msg)
+        return until()
+
+    def send(self, msg: Any) -> None:
+        assert self.identity is not None, "no module has connected yet"
+        self.sock.send_multipart([self.identity, *wire.encode(msg)])
+
+    def command(self, command_id: str, action: str, **fields: Any) -> None:
+        self.send(wire.Command(module="ship", command_id=command_id, action=action, **fields))
+
+    def states_of(self, command_id: str) -> list[str]:
+        return [s.state for s in self.statuses if s.command_id == command_id]
+
+    def close(self) -> None:
+        self.sock.close(0)

@@ -8,8 +8,11 @@ over TCP on 127.0.0.1, SQLite files, PNG codecs, processes.
 from __future__ import annotations
 
 import contextlib
+import os
 import selectors
 import socket
+import subprocess
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -146,6 +149,7 @@ class TcpProxy:
         probe.close()
         self._stop = threading.Event()
         self._cut = threading.Event()
+        self._stall = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
 
@@ -154,10 +158,16 @@ class TcpProxy:
         return f"tcp://127.0.0.1:{self.port}"
 
     def cut(self) -> None:
+        """Break every connection and refuse new ones (a cut fibre)."""
         self._cut.set()
 
     def restore(self) -> None:
         self._cut.clear()
+        self._stall.clear()
+
+    def stall(self) -> None:
+        """Hold everything the ship sends (acks, welcomes) while the modules' bytes still get through."""
+        self._stall.set()
 
     def close(self) -> None:
         self._stop.set()
@@ -167,6 +177,7 @@ class TcpProxy:
         sel = selectors.DefaultSelector()
         listener: socket.socket | None = None
         peers: dict[socket.socket, socket.socket] = {}
+        upstream: set[socket.socket] = set()
 
         def drop_all() -> None:
             for s in list(peers):
@@ -174,6 +185,7 @@ class TcpProxy:
                     sel.unregister(s)
                 s.close()
             peers.clear()
+            upstream.clear()
 
         while not self._stop.is_set():
             if self._cut.is_set():
@@ -204,9 +216,13 @@ class TcpProxy:
                         a.setblocking(False)
                         peers[a] = b
                         sel.register(a, selectors.EVENT_READ)
+                    upstream.add(up)
                     continue
                 other = peers.get(s)
                 if other is None:
+                    continue
+                if self._stall.is_set() and s in upstream:
+                    time.sleep(0.005)  # leave the ship's bytes unread
                     continue
                 try:
                     data = s.recv(1 << 16)
@@ -217,6 +233,7 @@ class TcpProxy:
                 if not data:
                     for x in (s, other):
                         peers.pop(x, None)
+                        upstream.discard(x)
                         with contextlib.suppress(KeyError, ValueError):
                             sel.unregister(x)
                         x.close()
@@ -283,3 +300,22 @@ class FakeShip:
 
     def close(self) -> None:
         self.sock.close(0)
+
+
+def camcal_cli(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[str]:
+    """Run the real ``camcal`` command of this checkout in a subprocess (exit status and output)."""
+    return subprocess.run(
+        [sys.executable, "-c", "from camcal.cli import main; main()", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=cli_env(),
+    )
+
+
+def cli_env() -> dict[str, str]:
+    """The environment for a ``camcal`` subprocess: this checkout first on the import path."""
+    root = str(Path(__file__).resolve().parents[2])
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
+    return env

@@ -46,7 +46,7 @@ from ingest.derived import geometry_and_ratios, linearity_rows
 from ingest.events import EventBus
 from ingest.rolling import RollingAttenuation, Sample
 from ingest.seqtrack import SeqTracker
-from ingest.worker import analyse_stored_frame
+from ingest.worker import analyse_stored_frame, warm_up
 from storage.store import FrameRow, SensorBatchRow, Store
 
 log = logging.getLogger("camcal.ingest")
@@ -182,6 +182,10 @@ class IngestService:
         if calibration is not None and self.run.calibration_id != calibration["id"]:
             self.store.use_calibration(self.dive.id, self.run.id, calibration["id"], actor="ingest")
         self._pool = process_pool(self.config.n_workers)
+        # Start the fork server and the workers now: started by the first frame, they would make
+        # the first results of a dive wait a second or more (the fork server imports the analysis).
+        for _ in range(self.config.n_workers):
+            self._pool.submit(warm_up)
         for name, target in (("ingest-net", self._net_loop), ("ingest-store", self._store_loop)):
             t = threading.Thread(target=self._guard(target), name=name, daemon=True)
             t.start()

@@ -354,7 +354,13 @@ class Agent:
                     entry = self.outbox.get(*key)
                     if entry is None:  # acknowledged meanwhile
                         continue
-                    header, payload = self.outbox.message(entry, cfg.module)
+                    try:
+                        header, payload = self.outbox.message(entry, cfg.module)
+                    except (OSError, ValueError) as exc:  # the SD card lost or damaged it
+                        log.error("outbox entry %s/%d cannot be sent, skipped: %s", key[0], key[1], exc)
+                        self.outbox.discard(*key)
+                        self.counters["unsendable"] += 1
+                        continue
                     try:
                         sock.send_multipart(wire.encode(header, payload), zmq.NOBLOCK)
                     except zmq.Again:

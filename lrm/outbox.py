@@ -193,6 +193,15 @@ class Outbox:
                 os.fsync(self._acked_fh.fileno())
             return settled
 
+    def discard(self, boot: str, seq: int) -> None:
+        """Stop offering an entry that cannot be sent (its image is gone or damaged).
+
+        Nothing is written: the entry is found again after a restart and
+        skipped again. The ship keeps a gap for it.
+        """
+        with self._lock:
+            self._pending.pop((boot, seq), None)
+
     # ------------------------------------------------------------ reading
     def pending(self) -> list[Entry]:
         """Unacknowledged entries, oldest boot first, in sequence order."""

@@ -277,3 +277,25 @@ def test_a_change_waiting_for_the_end_of_the_setting_survives_a_restart(
         assert ship.pump(lambda: again.camera.settings and again.camera.settings[-1] == (0.2, 6.0))
     finally:
         again.stop()
+
+
+def test_an_outbox_entry_whose_file_is_gone_is_skipped_and_the_rest_is_sent(
+    tmp_path: Path, ship: FakeShip
+) -> None:
+    outbox = tmp_path / "outbox"
+    m = Module(outbox, "tcp://127.0.0.1:1", schedule(1))  # no ship: everything stays in the outbox
+    while m.agent.counters["frames_captured"] < 4:
+        time.sleep(0.01)
+    m.stop()
+    pending = m.agent.outbox.pending()
+    frames = [e for e in pending if e.kind == "frame"]
+    (outbox / "frames" / frames[1].ref.file).unlink()  # the SD card lost one image
+
+    again = Module(outbox, ship.endpoint, schedule(1), state="stopped")
+    try:
+        expected = {("frame", e.boot, e.seq) for e in frames} - {("frame", frames[1].boot, frames[1].seq)}
+        assert ship.pump(lambda: expected <= set(ship.data), 10), "the rest of the outbox was not sent"
+        assert again.agent.counters["unsendable"] == 1
+        assert not again.agent.stopped
+    finally:
+        again.stop()

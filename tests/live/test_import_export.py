@@ -47,7 +47,9 @@ def test_link_lost_for_good_then_the_sd_card_import_fills_the_gap_and_export_wri
     svc = IngestService(ingest_config(data))
     svc.start()
     proxy = TcpProxy(int(svc.endpoint.rsplit(":", 1)[1]))
-    agent, _ = make_agent("A", proxy.endpoint, outbox, link_timeout_s=2.0, ack_timeout_s=5.0)
+    # Frequent heartbeats: the ship hears how far the module got well before the stalled
+    # link's ZMTP heartbeat timeout (3 s) breaks the connection.
+    agent, _ = make_agent("A", proxy.endpoint, outbox, link_timeout_s=2.0, ack_timeout_s=5.0, heartbeat_s=0.3)
     try:
         agent.start()
         assert wait_for(lambda: agent.counters["acked"] >= 6, 30)
@@ -55,7 +57,7 @@ def test_link_lost_for_good_then_the_sd_card_import_fills_the_gap_and_export_wri
         # still tell the ship how far it has got; then nothing gets through any more.
         proxy.stall()
         link = svc.links["A"]
-        assert wait_for(lambda: link.last_seq > max(svc.store.known_seqs("A", agent.boot)) + 2, 20)
+        assert wait_for(lambda: link.last_seq > max(svc.store.known_seqs("A", agent.boot)) + 2, 10)
         proxy.cut()
         assert wait_for(lambda: svc.store.open_gaps("A"), 15), "no gap after the link was lost"
         gap = svc.store.open_gaps("A")[0]

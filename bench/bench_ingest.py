@@ -235,6 +235,8 @@ def ingest_run(folder: Path, work: Path, speed: float) -> dict[str, Any]:
         "result_p95": pct(to_result, 95),
         "cpu_ms_per_frame": {"modules": 1e3 * modules_cpu / n, "ingest": 1e3 * ingest_cpu / n},
         "analysis_wall_ms": 1e3 * statistics.median(a for a in analysis_s if a),
+        # how busy the analysis processes were between the first frame and the last result
+        "pool_busy": sum(a for a in analysis_s if a) / ((os.cpu_count() or 1) * (max(analysed) - t0)),
     }
 
 
@@ -351,7 +353,8 @@ def main() -> None:
     print()
     print(
         f"The two replaying modules took {full['cpu_ms_per_frame']['modules']:.0f} ms of CPU per frame "
-        "on the same cores (on a dive they run on the modules)."
+        "on the same cores (on a dive they run on the modules); the analysis processes were busy "
+        f"{full['pool_busy']:.0%} of the time at full speed."
     )
 
 

@@ -255,10 +255,9 @@ def test_a_change_waiting_for_the_end_of_the_setting_survives_a_restart(
     tmp_path: Path, ship: FakeShip
 ) -> None:
     outbox = tmp_path / "outbox"
-    m = Module(outbox, ship.endpoint, schedule(1))
+    # Paused from the start: no shot is being taken, so the change cannot apply before the reboot.
+    m = Module(outbox, ship.endpoint, schedule(1), state="paused")
     assert ship.pump(lambda: ship.hellos)
-    ship.command("c1", "pause")
-    assert answered(ship, "c1", "accepted", "done")
     new = schedule(2, exposures_s=(0.2,))
     ship.command("c2", "set_schedule", target_version=2, schedule=spec(new), apply="end_of_setting")
     assert answered(ship, "c2", "accepted", "in_progress")

@@ -84,7 +84,7 @@ def test_link_lost_for_good_then_the_sd_card_import_fills_the_gap_and_export_wri
 
         before = mtimes()
         # Back on deck: the SD card is imported while the ingest still runs.
-        res = camcal_cli("import", str(outbox), "--data", str(data))
+        res = camcal_cli("import", str(outbox), "--data", str(data), "--workers", "1")
         assert res.returncode == 0, res.stderr
         assert f"{len(missing)} frames imported, {len(live)} already present" in res.stdout
         stored = frame_keys(svc.store, "A")
@@ -110,7 +110,7 @@ def test_link_lost_for_good_then_the_sd_card_import_fills_the_gap_and_export_wri
 
         # Importing again changes nothing.
         n_sensor_batches = count(svc.store, SensorBatch)
-        again = camcal_cli("import", str(outbox), "--data", str(data))
+        again = camcal_cli("import", str(outbox), "--data", str(data), "--workers", "1")
         assert again.returncode == 0, again.stderr
         assert f"0 frames imported, {len(sd)} already present, 0 sensor batches, 0 analysed" in again.stdout
         assert count(svc.store, Frame) == n_frames
@@ -156,7 +156,7 @@ def test_import_of_a_set_with_bad_files_imports_the_rest_and_names_each_bad_one(
     (folder / rows[10].file).write_text("not an image at all\n")
 
     store_dir = tmp_path / "data"
-    res = camcal_cli("import", str(folder), "--data", str(store_dir))
+    res = camcal_cli("import", str(folder), "--data", str(store_dir), "--workers", "1")
     assert res.returncode == 0, res.stderr
     good = len(rows) - len(bad)
     assert f"{good} frames imported, 0 already present" in res.stdout

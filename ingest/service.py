@@ -46,7 +46,7 @@ from ingest.derived import geometry_and_ratios, linearity_rows
 from ingest.events import EventBus
 from ingest.rolling import RollingAttenuation, Sample
 from ingest.seqtrack import SeqTracker
-from ingest.worker import analyse_stored_frame
+from ingest.worker import analyse_stored_frame, warm_up
 from storage.store import FrameRow, SensorBatchRow, Store
 
 log = logging.getLogger("camcal.ingest")
@@ -98,6 +98,7 @@ class Link:
     schedule: dict[str, Any] = field(default_factory=dict)
     outbox_pending: int = 0
     in_flight: int = 0
+    last_seq: int = 0  # the highest sequence number of ``boot`` the module says it has produced
     frames: deque[float] = field(default_factory=lambda: deque(maxlen=200))
     last_heartbeat_sent: float = 0.0
     clock_offset_s: float | None = None
@@ -181,6 +182,10 @@ class IngestService:
         if calibration is not None and self.run.calibration_id != calibration["id"]:
             self.store.use_calibration(self.dive.id, self.run.id, calibration["id"], actor="ingest")
         self._pool = process_pool(self.config.n_workers)
+        # Start the fork server and the workers now: started by the first frame, they would make
+        # the first results of a dive wait a second or more (the fork server imports the analysis).
+        for _ in range(self.config.n_workers):
+            self._pool.submit(warm_up)
         for name, target in (("ingest-net", self._net_loop), ("ingest-store", self._store_loop)):
             t = threading.Thread(target=self._guard(target), name=name, daemon=True)
             t.start()
@@ -280,7 +285,7 @@ class IngestService:
         if kind == "hello":
             link.boot, link.welcomed = msg.boot, True
             link.schedule = msg.schedule.model_dump()
-            link.outbox_pending = msg.outbox_pending
+            link.outbox_pending, link.last_seq = msg.outbox_pending, msg.last_seq
             self._send(
                 router,
                 identity,
@@ -295,6 +300,7 @@ class IngestService:
             )
             link.schedule = msg.schedule.model_dump()
             link.outbox_pending, link.in_flight, link.boot = msg.outbox_pending, msg.in_flight, msg.boot
+            link.last_seq = msg.last_seq
             if not link.welcomed:  # the ship restarted under a running module: greet it again
                 link.welcomed = True
                 self._send(
@@ -312,7 +318,7 @@ class IngestService:
             self._q.put(_Incoming(kind, module, msg, None, t_unix, t_mono))
         elif kind == "bye":
             link.up = False
-            self._q.put(_Incoming("link", module, {"up": False, "reason": "bye"}, None, t_unix, t_mono))
+            self._q.put(_Incoming("link", module, self._down(link, "bye"), None, t_unix, t_mono))
 
     def _send(self, router: Any, identity: bytes, msg: Any) -> None:
         try:
@@ -335,12 +341,16 @@ class IngestService:
         for link in list(self.links.values()):
             if link.up and now - link.last_seen_mono > self.config.link_timeout_s:
                 link.up, link.welcomed = False, False
-                self._q.put(
-                    _Incoming("link", link.module, {"up": False, "reason": "timeout"}, None, time.time(), now)
-                )
+                down = self._down(link, "timeout")
+                self._q.put(_Incoming("link", link.module, down, None, time.time(), now))
             if link.up and now - link.last_heartbeat_sent >= self.config.heartbeat_s:
                 link.last_heartbeat_sent = now
                 self._send(router, link.identity, wire.ShipHeartbeat(module="ship", window=self.window))
+
+    @staticmethod
+    def _down(link: Link, reason: str) -> dict[str, Any]:
+        """A link-down notice, with how far the module said it had got (for the store thread's gaps)."""
+        return {"up": False, "reason": reason, "boot": link.boot, "last_seq": link.last_seq}
 
     # ------------------------------------------------------------ store thread
     def _store_loop(self) -> None:
@@ -438,6 +448,7 @@ class IngestService:
                 "outbox_pending": link.outbox_pending,
                 "in_flight": link.in_flight,
                 "clock_offset_s": round(link.clock_offset_s, 3) if link.clock_offset_s is not None else None,
+                "last_seq": link.last_seq,
             }
         return {
             "modules": modules,
@@ -809,6 +820,31 @@ class _StoreState:
             "link",
             {"state": "up" if info["up"] else "down", "reason": info.get("reason")},
             module=it.module,
+            dive_id=self.svc.dive.id,
+        )
+        if not info["up"] and info.get("boot") and info.get("last_seq"):
+            self._tail_gap(it.module, info["boot"], int(info["last_seq"]))
+
+    def _tail_gap(self, module: str, boot: str, last_seq: int) -> None:
+        """Record as a gap what the module said it had produced but the ship does not have.
+
+        Everything received before the link went down is committed by now
+        (the notice queued behind it), so numbers above the highest stored
+        one, up to the module's ``last_seq``, are in its outbox only: after a
+        link lost for good they arrive only by `camcal import`, and the open
+        gap says so. A reconnect that resends them fills it.
+        """
+        if not self.seqs.known(module, boot):
+            self.seqs.seed(module, boot, self.store.known_seqs(module, boot))
+        gap = self.seqs.expect(module, boot, last_seq)
+        if gap is None:
+            return
+        self.store.record_gap(module, boot, *gap)
+        self.gappy.add((module, boot))
+        self.svc.events.emit(
+            "gap",
+            {"boot": boot, "first_seq": gap[0], "last_seq": gap[1], "reason": "link_lost"},
+            module=module,
             dive_id=self.svc.dive.id,
         )
 

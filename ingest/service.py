@@ -619,6 +619,7 @@ class _StoreState:
                     {
                         "frame_id": fid,
                         **{k: v for k, v in meta.items() if k != "received_mono"},
+                        "schedule_version": m.schedule_version,
                         "stored_latency_s": round(t_done - it.received_mono, 4),
                     },
                     module=m.module,

@@ -10,7 +10,13 @@ export function el(tag, attrs = {}, ...children) {
     if (k.startsWith("on") && typeof v === "function") node.addEventListener(k.slice(2), v);
     else if (k === "class") node.className = v;
     else if (k === "dataset") Object.assign(node.dataset, v);
-    else if (k === "style" && typeof v === "object") Object.assign(node.style, v);
+    else if (k === "style" && typeof v === "object") {
+      // Custom properties ("--wl") only take through setProperty, not as plain style fields.
+      for (const [name, value] of Object.entries(v)) {
+        if (name.startsWith("--")) node.style.setProperty(name, value);
+        else node.style[name] = value;
+      }
+    }
     else node.setAttribute(k, v === true ? "" : v);
   }
   for (const c of children.flat()) {

@@ -156,3 +156,37 @@ export function mountOperator(container) {
   });
   render();
 }
+
+// ------------------------------------------------------------------ confirmation
+/**
+ * Ask before something disruptive. Resolves true only when the person presses the confirm button;
+ * Escape or Cancel resolve false. `message` says what will happen, in full.
+ */
+export function confirmDialog({ title, message, details = [], okLabel = "Confirm", danger = false }) {
+  return new Promise((resolve) => {
+    const dialog = el(
+      "dialog",
+      { class: "confirm", id: "confirm-dialog", "aria-labelledby": "confirm-title", "aria-describedby": "confirm-message" },
+      el(
+        "form",
+        { method: "dialog" },
+        el("h2", { id: "confirm-title", style: { margin: 0 } }, title),
+        el("p", { id: "confirm-message", class: "confirm-message" }, message),
+        details.length ? el("ul", { class: "confirm-details" }, ...details.map((d) => el("li", {}, d))) : null,
+        el(
+          "div",
+          { class: "dialog-buttons" },
+          el("button", { type: "submit", value: "cancel", id: "confirm-cancel" }, "Cancel"),
+          el("button", { type: "submit", value: "ok", id: "confirm-ok", class: danger ? "primary danger" : "primary" }, okLabel),
+        ),
+      ),
+    );
+    document.body.append(dialog);
+    dialog.addEventListener("close", () => {
+      resolve(dialog.returnValue === "ok");
+      dialog.remove();
+    });
+    dialog.showModal();
+    $("#confirm-cancel", dialog).focus();
+  });
+}

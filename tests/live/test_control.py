@@ -113,6 +113,23 @@ def test_a_command_to_an_offline_module_waits_pending_and_applies_once_after_rec
     assert states.count("done") == 1
 
 
+def test_commands_queued_while_offline_reach_the_module_in_the_order_they_were_issued(system) -> None:
+    svc, proxy, agent, _camera, client = system
+    proxy.cut()
+    assert wait_for(lambda: svc.health()["modules"]["A"]["link"] == "down", 10)
+    ids = []
+    for action in ("pause", "resume"):
+        r = client.post("/api/modules/A/commands", json={"action": action}, headers=AUTH)
+        assert r.status_code == 202
+        ids.append(r.json()["id"])
+        time.sleep(0.05)  # distinct issue times
+    proxy.restore()
+    assert wait_for(lambda: all(command_state(client, c) == "done" for c in ids), 30)
+    assert agent.runner.state == "running", "the resume issued last must be applied last"
+    applied = [c["command_id"] for c in agent.outbox.read_jsonl("commands.jsonl") if c["state"] == "done"]
+    assert applied.index(ids[0]) < applied.index(ids[1])
+
+
 def test_bad_requests_get_clear_errors(system) -> None:
     _svc, _proxy, _agent, _camera, client = system
     good = presets()["quick-check"].model_dump(mode="json")

@@ -50,7 +50,9 @@ export function describe(a) {
   if (a.action.startsWith("command.")) {
     return `asked ${moduleOf(a.target)} to ${a.action.slice(8)} ${shortId(d.command_id)}`;
   }
-  if (a.action === "alarm.ack") return `acknowledged the ${d.kind || ""} alarm ${d.key ? `(${d.key})` : a.target}`;
+  if (a.action === "alarm.ack") {
+    return `acknowledged the ${String(d.kind || "").replaceAll("_", " ")} alarm ${d.key ? `(${d.key})` : a.target}`;
+  }
   if (a.action === "calibration.add") {
     return `stored calibration ${String(a.target).replace(/^calibration:/, "")}${d.source ? ` from ${d.source}` : ""}`;
   }

@@ -60,7 +60,11 @@ export function renderTracker(box, c, module) {
     box.dataset.state = "";
     return;
   }
-  const steps = STEPS.filter((s) => s !== "in_progress" || (c.action === "set_schedule" && c.apply === "end_of_setting"));
+  const steps = STEPS.filter(
+    (s) =>
+      (s !== "in_progress" || (c.action === "set_schedule" && c.apply === "end_of_setting")) &&
+      (s !== "done" || c.state !== "rejected"),
+  );
   const reached = c.state === "rejected" ? -1 : steps.indexOf(c.state);
   const offline = c.state === "pending" && module && module.link !== "up";
   box.dataset.state = c.state;

@@ -619,6 +619,7 @@ class _StoreState:
                     {
                         "frame_id": fid,
                         **{k: v for k, v in meta.items() if k != "received_mono"},
+                        "schedule_version": m.schedule_version,
                         "stored_latency_s": round(t_done - it.received_mono, 4),
                     },
                     module=m.module,
@@ -905,10 +906,14 @@ class _StoreState:
             )
 
     def _deliver_commands(self) -> None:
-        """Send queued commands to linked modules; repeat until the module answers."""
+        """Send queued commands to linked modules, oldest first; repeat until the module answers.
+
+        Oldest first: commands queued while a module was offline (pause, then
+        resume) must reach it in the order the operator issued them.
+        """
         svc = self.svc
         now = time.time()
-        for cmd in self.store.commands(states=("pending", "sent", "accepted")):
+        for cmd in reversed(self.store.commands(states=("pending", "sent", "accepted"))):
             link = svc.links.get(cmd["module"])
             if link is None or not link.up:
                 continue  # stays pending: delivered when the module is back

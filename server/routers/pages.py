@@ -53,3 +53,8 @@ def live_page() -> FileResponse:
 @router.get("/review")
 def review_page() -> FileResponse:
     return _page("review.html")
+
+
+@router.get("/control")
+def control_page() -> FileResponse:
+    return _page("control.html")

@@ -9,6 +9,7 @@ reach the camcal server: any other request is refused and fails the test
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -44,8 +45,8 @@ def browser() -> Iterator[Any]:
         b.close()
 
 
-@pytest.fixture
-def page(browser: Any, system: System) -> Iterator[Any]:
+@contextlib.contextmanager
+def camcal_page(browser: Any, system: System) -> Iterator[Any]:
     """A fresh page that can reach only the camcal server; page errors fail the test."""
     context = browser.new_context(viewport={"width": 1280, "height": 900}, accept_downloads=True)
     context.set_default_timeout(20_000)
@@ -68,6 +69,13 @@ def page(browser: Any, system: System) -> Iterator[Any]:
     context.close()
     assert not foreign, f"the page asked for something outside the camcal server: {foreign}"
     assert not errors, f"JavaScript errors on the page: {errors}"
+
+
+@pytest.fixture
+def page(browser: Any, system: System) -> Iterator[Any]:
+    """A fresh page of the session's system (see `camcal_page`)."""
+    with camcal_page(browser, system) as pg:
+        yield pg
 
 
 @pytest.fixture(scope="session")

@@ -63,7 +63,7 @@ def test_traversal_in_the_url_is_refused(system: System, path: str) -> None:
 
 
 def test_static_files_and_pages_are_served(system: System) -> None:
-    for path in ("/", "/review", "/static/css/camcal.css", "/static/js/live.js"):
+    for path in ("/", "/review", "/control", "/static/css/camcal.css", "/static/js/live.js"):
         status, body = raw_get(system, path)
         assert status == 200 and body, path
 

@@ -13,7 +13,7 @@ from camcal import wire
 from camcal.schedule import presets
 from server.app import create_app
 from server.settings import ServerSettings
-from storage.models import Frame
+from storage.models import Event, Frame
 from tests.live.conftest import ingest_config
 from tests.live.test_ingest import wait_for
 from tests.utils.live import TcpProxy, make_agent
@@ -68,6 +68,7 @@ def test_send_a_schedule_see_frames_change_then_back_exactly_once(system) -> Non
     assert wait_for(lambda: len(camera.settings) >= n_before + 4, 20)
     assert {e for e, _ in camera.settings[n_before:]} <= {0.01, 0.02, 0.03, 0.05, 0.07, 0.11, 0.15, 0.2, 0.3}
     assert wait_for(lambda: frames_with_version(svc, 2) >= 2, 20), "frames do not carry the new version"
+    assert frame_events_with_version(svc, 2) >= 1, "the live frame events do not carry the schedule version"
 
     # The same command delivered again (a lost status): answered, not applied again.
     before = agent.counters["commands_repeated"]
@@ -112,6 +113,23 @@ def test_a_command_to_an_offline_module_waits_pending_and_applies_once_after_rec
     assert states.count("done") == 1
 
 
+def test_commands_queued_while_offline_reach_the_module_in_the_order_they_were_issued(system) -> None:
+    svc, proxy, agent, _camera, client = system
+    proxy.cut()
+    assert wait_for(lambda: svc.health()["modules"]["A"]["link"] == "down", 10)
+    ids = []
+    for action in ("pause", "resume"):
+        r = client.post("/api/modules/A/commands", json={"action": action}, headers=AUTH)
+        assert r.status_code == 202
+        ids.append(r.json()["id"])
+        time.sleep(0.05)  # distinct issue times
+    proxy.restore()
+    assert wait_for(lambda: all(command_state(client, c) == "done" for c in ids), 30)
+    assert agent.runner.state == "running", "the resume issued last must be applied last"
+    applied = [c["command_id"] for c in agent.outbox.read_jsonl("commands.jsonl") if c["state"] == "done"]
+    assert applied.index(ids[0]) < applied.index(ids[1])
+
+
 def test_bad_requests_get_clear_errors(system) -> None:
     _svc, _proxy, _agent, _camera, client = system
     good = presets()["quick-check"].model_dump(mode="json")
@@ -146,6 +164,12 @@ def scan_frames(s: dict) -> int:
 def frames_with_version(svc, version: int) -> int:
     with svc.store.read() as s:
         return len(s.execute(select(Frame.id).where(Frame.schedule_version == version)).all())
+
+
+def frame_events_with_version(svc, version: int) -> int:
+    with svc.store.read() as s:
+        payloads = s.scalars(select(Event.payload).where(Event.kind == "frame")).all()
+    return sum(1 for p in payloads if p.get("schedule_version") == version)
 
 
 def resend_to(svc, cmd: dict, schedule: dict) -> None:

@@ -108,6 +108,22 @@ def _children(pid: int) -> list[int]:
     return out
 
 
+def module_pid(system: System, module: str) -> int:
+    """The pid of a simulated module that ``camcal up`` started (its ``lrm simulate --camera MODULE``)."""
+    for pid in _children(system.process.pid):
+        try:
+            args = (Path("/proc") / str(pid) / "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        if (
+            b"simulate" in args
+            and b"--camera" in args
+            and args[args.index(b"--camera") + 1] == module.encode()
+        ):
+            return pid
+    raise LookupError(f"no simulated module {module} among the children of camcal up ({system.process.pid})")
+
+
 def stop_system(proc: subprocess.Popen[bytes], timeout_s: float = 40.0) -> None:
     children = _children(proc.pid)
     if proc.poll() is None:

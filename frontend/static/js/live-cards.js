@@ -57,7 +57,12 @@ export function createCard(mid) {
       el("h2", {}, `LRM-${mid} `, el("span", { class: "dist", "data-field": "distance" })),
       el("span", { class: "pill sev-INVALID", "data-field": "severity" }, "INVALID"),
       el("span", { class: "link-state", "data-field": "link", "data-link": "unknown" }, "link –"),
-      el("span", { class: "muted", "data-field": "schedule" }),
+      el(
+        "a",
+        { class: "control-link", href: `/control#module=${encodeURIComponent(mid)}`, title: `LRM-${mid}'s schedule and commands (control page)` },
+        el("span", { "data-field": "schedule" }),
+        " ▸",
+      ),
     ),
     el("div", { class: "stale-note", "data-field": "stale" }),
     el(

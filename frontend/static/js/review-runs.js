@@ -1,5 +1,5 @@
 // Review: re-analysis with other calibration inputs (a new run; the original stays), the runs and
-// their progress, two runs' λ_att side by side, and the audit log.
+// their progress, and two runs' λ_att side by side.
 
 import { api, operator, query } from "./api.js";
 import { fmt, utc, wlColor } from "./format.js";
@@ -280,36 +280,6 @@ export async function showReanalysis(ctx) {
   buildForm(ctx);
   mountSpan(ctx, "compare", () => compare(ctx));
   await refreshRuns(ctx);
-}
-
-export async function showAudit() {
-  const t = $("#audit-table");
-  let rows;
-  try {
-    rows = await api(`/api/audit${query({ limit: 500 })}`);
-  } catch (err) {
-    t.replaceChildren(el("caption", { class: "error-msg" }, err.message));
-    return;
-  }
-  t.replaceChildren(
-    el("thead", {}, el("tr", {}, ...["time (UTC)", "who", "action", "target", "details"].map((h) => el("th", {}, h)))),
-    el(
-      "tbody",
-      {},
-      ...rows.map((a) =>
-        el(
-          "tr",
-          {},
-          el("td", {}, utc(a.t_unix_s)),
-          el("td", {}, a.actor),
-          el("td", {}, a.action),
-          el("td", {}, a.target),
-          el("td", { class: "muted", style: { whiteSpace: "normal", maxWidth: "50rem", fontSize: "0.85rem" } }, a.details ? JSON.stringify(a.details) : ""),
-        ),
-      ),
-      ...(rows.length ? [] : [el("tr", {}, el("td", { colspan: 5, class: "empty" }, "The audit log is empty."))]),
-    ),
-  );
 }
 
 window.addEventListener("camcal:auth", () => {

@@ -5,7 +5,8 @@ import { api } from "./api.js";
 import { fmt, utc } from "./format.js";
 import { showAttenuation, showAttitude, showLinearity } from "./review-analysis.js";
 import { openFrame, showFrames } from "./review-frames.js";
-import { showAudit, showReanalysis } from "./review-runs.js";
+import { showAudit } from "./review-audit.js";
+import { showReanalysis } from "./review-runs.js";
 import { $, el, initTheme, mountOperator, setText } from "./ui.js";
 
 const TABS = {

@@ -10,7 +10,13 @@ export function el(tag, attrs = {}, ...children) {
     if (k.startsWith("on") && typeof v === "function") node.addEventListener(k.slice(2), v);
     else if (k === "class") node.className = v;
     else if (k === "dataset") Object.assign(node.dataset, v);
-    else if (k === "style" && typeof v === "object") Object.assign(node.style, v);
+    else if (k === "style" && typeof v === "object") {
+      // Custom properties ("--wl") only take through setProperty, not as plain style fields.
+      for (const [name, value] of Object.entries(v)) {
+        if (name.startsWith("--")) node.style.setProperty(name, value);
+        else node.style[name] = value;
+      }
+    }
     else node.setAttribute(k, v === true ? "" : v);
   }
   for (const c of children.flat()) {
@@ -149,4 +155,38 @@ export function mountOperator(container) {
     toast(`${ev.detail.message} — log in again`);
   });
   render();
+}
+
+// ------------------------------------------------------------------ confirmation
+/**
+ * Ask before something disruptive. Resolves true only when the person presses the confirm button;
+ * Escape or Cancel resolve false. `message` says what will happen, in full.
+ */
+export function confirmDialog({ title, message, details = [], okLabel = "Confirm", danger = false }) {
+  return new Promise((resolve) => {
+    const dialog = el(
+      "dialog",
+      { class: "confirm", id: "confirm-dialog", "aria-labelledby": "confirm-title", "aria-describedby": "confirm-message" },
+      el(
+        "form",
+        { method: "dialog" },
+        el("h2", { id: "confirm-title", style: { margin: 0 } }, title),
+        el("p", { id: "confirm-message", class: "confirm-message" }, message),
+        details.length ? el("ul", { class: "confirm-details" }, ...details.map((d) => el("li", {}, d))) : null,
+        el(
+          "div",
+          { class: "dialog-buttons" },
+          el("button", { type: "submit", value: "cancel", id: "confirm-cancel" }, "Cancel"),
+          el("button", { type: "submit", value: "ok", id: "confirm-ok", class: danger ? "primary danger" : "primary" }, okLabel),
+        ),
+      ),
+    );
+    document.body.append(dialog);
+    dialog.addEventListener("close", () => {
+      resolve(dialog.returnValue === "ok");
+      dialog.remove();
+    });
+    dialog.showModal();
+    $("#confirm-cancel", dialog).focus();
+  });
 }

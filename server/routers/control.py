@@ -155,11 +155,15 @@ async def send_schedule(
 async def send_action(
     module_id: ModuleId, body: ActionCommand, store: StoreDep, who: OperatorDep
 ) -> dict[str, Any]:
-    """Start, pause, resume or stop a module's schedule (operator token)."""
+    """Start, pause, resume or stop whatever schedule the module runs (operator token).
+
+    The command targets version 0 ("the running schedule"): a pause sent while
+    a new schedule waits for the end of a setting must pause the module, not
+    be refused because the new version is not running yet.
+    """
     _module_or_404(store, module_id)
-    current = await run_in_threadpool(store.schedule_version, module_id)
     return await run_in_threadpool(
-        lambda: store.create_command(uuid.uuid4().hex, module_id, body.action, who, target_version=current)
+        lambda: store.create_command(uuid.uuid4().hex, module_id, body.action, who, target_version=0)
     )
 
 

@@ -125,6 +125,34 @@ async def attenuation_table(
     return await run_in_threadpool(q)
 
 
+@router.get("/api/dives/{dive_id}/fits")
+async def chisq_fits(dive_id: IdPath, store: StoreDep) -> list[dict[str, Any]]:
+    """The χ² fits (λ_abs, λ_sca) kept for the dive by ``camcal fit --dive``, oldest first (no documents)."""
+    dive_or_404(store, dive_id)
+
+    def q() -> list[dict[str, Any]]:
+        with store.read() as s:
+            return queries.chisq_fits(s, dive_id)
+
+    return await run_in_threadpool(q)
+
+
+@router.get("/api/dives/{dive_id}/fits/latest")
+async def latest_chisq_fit(dive_id: IdPath, store: StoreDep, run: IdQuery = None) -> dict[str, Any]:
+    """The newest χ² fit of the dive (of one run's inputs if ``run`` is given), with its document:
+    λ_abs, λ_sca per wavelength with errors, the I_center check, the Δχ² map and the fitted profiles."""
+    dive = dive_or_404(store, dive_id)
+
+    def q() -> dict[str, Any] | None:
+        with store.read() as s:
+            return queries.latest_chisq_fit(s, dive_id, run)
+
+    fit = await run_in_threadpool(q)
+    if fit is None:
+        raise NotFound(f"no χ² fit kept for dive {dive_id}: run `camcal fit --dive {dive.name}`")
+    return fit
+
+
 @router.post("/api/dives/{dive_id}/reanalyses", status_code=202, response_model=RunPublic)
 async def create_reanalysis(
     dive_id: IdPath, body: ReanalysisCreate, store: StoreDep, settings: SettingsDep, who: OperatorDep

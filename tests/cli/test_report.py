@@ -117,6 +117,12 @@ def test_fit_of_a_stored_dive_is_reported_and_kept(dive: dict[str, Any], reports
         store.close()
     assert kept is not None and kept["result"]["fits"][0]["lambda_abs_m"] == f["lambda_abs_m"]
     assert kept["span"]["n_frames"] == inputs["span"]["n_frames"]
+    # And the API serves it.
+    with TestClient(create_app(ServerSettings(data_dir=dive["data"], events=None))) as client:
+        listed = client.get(f"/api/dives/{dive['id']}/fits").json()
+        latest = client.get(f"/api/dives/{dive['id']}/fits/latest").json()
+    assert [x["id"] for x in listed] == [kept["id"]] and "result" not in listed[0]
+    assert latest["result"]["fits"][0]["lambda_sca_m"] == f["lambda_sca_m"]
 
 
 def test_fit_of_a_stored_dive_refuses_in_one_line(dive: dict[str, Any], tmp_path: Path) -> None:

@@ -94,7 +94,8 @@ def timeline(
     ax.set_ylabel("depth [m]")
     _time_axis(ax)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=5, frameon=False)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=8, loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=5, frameon=False)
     fig.tight_layout()
     return png_uri(fig)
 

@@ -168,6 +168,8 @@ def _timeline(d: ReportData) -> str:
     t0 = d.dive["first_frame_unix_s"] or d.dive["started_unix_s"]
     t1 = d.dive["last_frame_unix_s"] or d.dive["ended_unix_s"] or t0
     alarms = [a for a in d.timeline["alarms"] if t0 - 3600 <= a["raised_unix_s"] <= t1 + 3600]
+    if not d.frames and not any(ser["n_samples"] for ser in d.sensors.values()):
+        return section("timeline", note("No frame and no sensor sample of this dive is stored."))
     body = figure(
         figures.timeline(d.sensors, d.frames, alarms),
         "Depth of each module over the dive (lines, from its pressure sensor), every frame at its depth "

@@ -200,6 +200,23 @@ def test_report_of_an_unknown_dive_is_refused(dive: dict[str, Any], tmp_path: Pa
     assert code == 2 and "no camcal store" in out
 
 
+def test_report_of_a_dive_without_data_says_so(tmp_path: Path) -> None:
+    store = Store.open(tmp_path / "data")
+    try:
+        dive = store.create_dive("empty-dive")
+        code, out = run("report", "empty-dive", "--data", tmp_path / "data", "--out", tmp_path / "r.html")
+        assert code == 2 and "has no analysis run yet" in out
+        store.analysis_run(dive.id, "live", software_version=__version__)
+    finally:
+        store.close()
+    code, out = run("report", "empty-dive", "--data", tmp_path / "data", "--out", tmp_path / "r.html")
+    assert code == 0, out
+    page = (tmp_path / "r.html").read_text(encoding="utf-8")
+    for sid, _ in SECTIONS:
+        assert f'<section id="{sid}">' in page
+    assert "No frame and no sensor sample" in page and "No χ² fit has been kept" in page
+
+
 @pytest.mark.browser
 def test_report_renders_offline_in_a_browser(reports: dict[str, Any], tmp_path: Path) -> None:
     if not CHROMIUM.exists():

@@ -46,8 +46,9 @@ def png_uri(fig: Figure) -> str:
     return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def _times(ts: Sequence[float]) -> list[datetime]:
-    return [datetime.fromtimestamp(t, UTC) for t in ts]
+def _times(ts: Sequence[float] | np.ndarray) -> np.ndarray:
+    """UTC seconds as matplotlib date numbers (days)."""
+    return np.asarray(mdates.date2num([datetime.fromtimestamp(t, UTC) for t in ts]), dtype=float)
 
 
 def _time_axis(ax: Any) -> None:
@@ -82,12 +83,13 @@ def timeline(
                 label=f"frames {status} ({len(sel)})",
                 zorder=3,
             )
+    x_end = ax.get_xlim()[1]
     for a in alarms:
         col = SEVERITY_COLORS.get(a["severity"], "#7f7f7f")
-        t0 = datetime.fromtimestamp(a["raised_unix_s"], UTC)
+        t0 = float(_times([a["raised_unix_s"]])[0])
         ax.axvline(t0, color=col, lw=1, ls="--")
-        if a["cleared_unix_s"]:
-            ax.axvspan(t0, datetime.fromtimestamp(a["cleared_unix_s"], UTC), color=col, alpha=0.12)
+        t1 = float(_times([a["cleared_unix_s"]])[0]) if a["cleared_unix_s"] else max(x_end, t0)
+        ax.axvspan(t0, t1, color=col, alpha=0.12)
     if alarms:
         ax.plot([], [], "--", color=SEVERITY_COLORS["MAJOR"], label=f"alarms raised ({len(alarms)})")
     ax.invert_yaxis()

@@ -164,6 +164,12 @@ def _calibration_name(d: ReportData) -> str:
     return f"{c['name']} v{c['version']} (record {c['id']})"
 
 
+def _cleared(a: dict[str, Any]) -> str:
+    if a["cleared_unix_s"]:
+        return iso(a["cleared_unix_s"])
+    return "still active" if a["active"] else "—"
+
+
 def _timeline(d: ReportData) -> str:
     t0 = d.dive["first_frame_unix_s"] or d.dive["started_unix_s"]
     t1 = d.dive["last_frame_unix_s"] or d.dive["ended_unix_s"] or t0
@@ -173,7 +179,8 @@ def _timeline(d: ReportData) -> str:
     body = figure(
         figures.timeline(d.sensors, d.frames, alarms),
         "Depth of each module over the dive (lines, from its pressure sensor), every frame at its depth "
-        "(dots: accepted, crosses: rejected) and the alarms (dashed: raised; shaded: until cleared).",
+        "(dots: accepted, crosses: rejected) and the alarms (dashed: raised; shaded: until cleared, or to "
+        "the end if still active).",
         "depth over time with frames and alarms",
     )
     if alarms:
@@ -186,7 +193,7 @@ def _timeline(d: ReportData) -> str:
                     a["module"] or "—",
                     a["kind"],
                     a["message"],
-                    iso(a["cleared_unix_s"]),
+                    _cleared(a),
                     f"{a['acked_by']} {iso(a['acked_unix_s'])}" if a["acked_by"] else "—",
                 )
                 for a in sorted(alarms, key=lambda a: a["raised_unix_s"])

@@ -56,6 +56,8 @@ def dive(
     try:
         with store.read() as s:
             d = queries.dives(s)[0]
+        # An alarm whose text must be escaped, not run.
+        store.raise_alarm("tilt:A", "tilt", "MAJOR", "module A tilted 7.2° <script>alert(1)</script>", "A")
     finally:
         store.close()
     with TestClient(create_app(ServerSettings(data_dir=data, events=None))) as client:
@@ -184,6 +186,7 @@ def test_report_has_every_section_and_the_numbers(dive: dict[str, Any], reports:
     assert "R²" in sections["linearity"] and "knee" in sections["linearity"]
     assert "heave period" in sections["attitude"] and "tilt" in sections["attitude"]
     assert "depth over time" in sections["timeline"]
+    assert "module A tilted 7.2° &lt;script&gt;" in sections["timeline"] and "still active" in page
     assert f"camcal {__version__}" in sections["software"]
 
 

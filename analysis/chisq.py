@@ -352,7 +352,12 @@ class _Problem:
         is noisiest. Held fixed, only the model moves.
         """
         self.frozen_halo_err = None
-        self.frozen_halo_err = self.model(lambda_abs_m, lambda_sca_m)["halo_err"]
+        mod = self.model(lambda_abs_m, lambda_sca_m)
+        self.frozen_halo_err = mod["halo_err"][None] / self._norm(mod["total"])[:, None, None]
+
+    def _norm(self, total: np.ndarray) -> np.ndarray:
+        """The model's normalisation per setting: its near-camera sum over the bands used."""
+        return np.sum(np.where(self.used[:, 0], self.counts[:, 0] * total[:, 0], 0.0), axis=1)
 
     # -- geometry at the working point ---------------------------------
     def _set_working_point(self, work: np.ndarray) -> None:
@@ -438,16 +443,19 @@ class _Problem:
         self.n_eval += 1
         mod = self.model(lambda_abs_m, lambda_sca_m)
         total = mod["total"]
-        norm = np.sum(np.where(self.used[:, 0], self.counts[:, 0] * total[:, 0], 0.0), axis=1)  # (set,)
+        norm = self._norm(total)  # (set,)
         t = total / norm[:, None, None]
         # Model uncertainty: the templates' MC error, and a relative one taken on the data (not
-        # the model), so that the weights do not move with the parameters being fitted.
-        halo_err = mod["halo_err"] if self.frozen_halo_err is None else self.frozen_halo_err
+        # the model), so that the weights do not move with the parameters being fitted. The MC
+        # error is held in the normalised units of the data: dividing a held error by the
+        # normalisation of the current model would let it move again (see freeze_template_errors).
+        if self.frozen_halo_err is None:
+            halo_err = mod["halo_err"][None] / norm[:, None, None]
+        else:
+            halo_err = self.frozen_halo_err
         if not self.config.template_errors:
             halo_err = np.zeros_like(halo_err)
-        terr = np.sqrt(
-            (halo_err[None] / norm[:, None, None]) ** 2 + (self.config.model_rel_err * self.data) ** 2
-        )
+        terr = np.sqrt(halo_err**2 + (self.config.model_rel_err * self.data) ** 2)
         g = mod["deriv"][self.active] / norm[None, :, None, None]  # (k, set, cam, band)
         var = self.data_err**2 + terr**2
         wgt = np.where(self.used, 1.0 / var, 0.0)

@@ -52,8 +52,9 @@ class FitOptions:
     The templates: camera ``focal_px``, scattering-length nodes, Mie
     ⟨cos θ⟩, Rayleigh share, refractive index, Monte Carlo photons per node
     and seed, the cache directory (None: the default). ``min_frames``
-    accepted frames per camera and wavelength are required. ``fit`` holds
-    the χ² fit's own settings.
+    accepted frames per camera and wavelength are required; only
+    ``wavelengths_nm`` are fitted if given. ``fit`` holds the χ² fit's own
+    settings.
     """
 
     focal_px: float = TREX_FOCAL_PX
@@ -66,6 +67,7 @@ class FitOptions:
     cache_dir: str | None = None
     min_frames: int = 3
     workers: int | None = None
+    wavelengths_nm: tuple[int, ...] | None = None
     fit: FitConfig = field(default_factory=FitConfig)
 
     def __post_init__(self) -> None:
@@ -182,11 +184,32 @@ def fit_folder(
     """
     options = options or FitOptions()
     workers = options.workers or os.cpu_count() or 1
+    report = _stage(progress, "analysing")
+    an = analyze_folder(folder, overrides, workers=workers, progress=report)
+    return fit_analysis(an, options, progress=progress)
+
+
+def _stage(progress: Callable[[str, int, int], None] | None, name: str) -> Callable[[int, int], None] | None:
+    return (lambda done, total: progress(name, done, total)) if progress else None
+
+
+def fit_analysis(
+    an: FrameSetAnalysis,
+    options: FitOptions | None = None,
+    *,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> FolderFit:
+    """Fit λ_abs, λ_sca for every wavelength of an analysed frame set (a folder's or a stored dive's).
+
+    Raises `FitInputError` when no wavelength can be fitted (the message
+    gives each wavelength's reason).
+    """
+    options = options or FitOptions()
+    workers = options.workers or os.cpu_count() or 1
 
     def stage(name: str) -> Callable[[int, int], None] | None:
-        return (lambda done, total: progress(name, done, total)) if progress else None
+        return _stage(progress, name)
 
-    an = analyze_folder(folder, overrides, workers=workers, progress=stage("analysing"))
     cameras = sorted({r.camera for r in an.rows if not r.error})
     if len(cameras) < 2:
         have = ", ".join(cameras) or "none"
@@ -199,6 +222,12 @@ def fit_folder(
     _check_disk_radii(an, geometry, options.focal_px)
     ratios = {wl: EmissionRatio(r.value, r.err) for wl, r in an.setup.emission_ratio.items()}
     wavelengths = sorted({r.wavelength_nm for r in an.rows if not r.error and r.wavelength_nm})
+    if options.wavelengths_nm is not None:
+        missing = sorted(set(options.wavelengths_nm) - set(wavelengths))
+        if missing:
+            have = ", ".join(map(str, wavelengths)) or "none"
+            raise FitInputError(f"no frames at {', '.join(map(str, missing))} nm (frames at: {have} nm)")
+        wavelengths = [wl for wl in wavelengths if wl in options.wavelengths_nm]
     todo: dict[int, list[SettingProfiles]] = {}
     skipped: dict[int, str] = {}
     for wl in wavelengths:
@@ -242,46 +271,81 @@ def _r(x: float | None, digits: int = 4) -> float | None:
     return None if x is None or not math.isfinite(x) else round(float(x), digits)
 
 
+def _sig(values: Any, digits: int = 5) -> Any:
+    """Nested lists of floats at ``digits`` significant digits; NaN and inf become None."""
+    arr = np.asarray(values, dtype=np.float64)
+    if arr.ndim == 0:
+        x = float(arr)
+        return float(f"{x:.{digits}g}") if math.isfinite(x) else None
+    return [_sig(v, digits) for v in arr]
+
+
+def fit_detail(fit: ChiSquareFit) -> dict[str, Any]:
+    """The Δχ² map and each setting's normalised profiles (data, error, model, halo, bands used)."""
+    c = fit.contour
+    return {
+        "contour": {
+            "lambda_abs_m": _sig(c.lambda_abs_m),
+            "lambda_sca_m": _sig(c.lambda_sca_m),
+            "delta_chi2": _sig(c.delta_chi2, 4),
+        },
+        "profiles": [
+            {
+                "exposure_s": m.exposure_s,
+                "gain_db": m.gain_db,
+                "radius_px": _sig(m.radius_px),
+                "data": _sig(m.data),
+                "error": _sig(m.error, 3),
+                "model": _sig(m.model),
+                "halo": _sig(m.halo),
+                "used": np.asarray(m.used, dtype=bool).tolist(),
+            }
+            for m in fit.settings
+        ],
+    }
+
+
+def fit_entry(f: ChiSquareFit, chk: AttenuationCheck) -> dict[str, Any]:
+    """One wavelength's fit as ``camcal fit --json`` writes it (the report and the figures read it)."""
+    return {
+        "wavelength_nm": f.wavelength_nm,
+        "lambda_abs_m": _r(f.lambda_abs_m, 3),
+        "lambda_abs_err_m": _r(f.lambda_abs_err_m, 3),
+        "lambda_abs_interval_m": [_r(v, 3) for v in f.lambda_abs_interval_m],
+        "lambda_sca_m": _r(f.lambda_sca_m, 3),
+        "lambda_sca_err_m": _r(f.lambda_sca_err_m, 3),
+        "lambda_sca_interval_m": [_r(v, 3) for v in f.lambda_sca_interval_m],
+        "lambda_sca_sys_err_m": _r(f.lambda_sca_sys_err_m, 3),
+        "correlation": _r(f.correlation),
+        "lambda_att_fit_m": _r(chk.lambda_att_fit_m, 3),
+        "lambda_att_fit_err_m": _r(chk.lambda_att_fit_err_m, 3),
+        "lambda_att_icenter_m": _r(chk.lambda_att_icenter_m, 3),
+        "lambda_att_icenter_err_m": _r(chk.lambda_att_icenter_err_m, 3),
+        "att_check_z": _r(chk.z, 3),
+        "att_check_agrees": chk.agrees,
+        "chi2": _r(f.chi2, 2),
+        "ndof": f.ndof,
+        "mie_g": f.mie_g,
+        "at_edge": list(f.at_edge),
+        "nuisances": [
+            {
+                "name": n.name,
+                "unit": n.unit,
+                "shift": _r(n.shift, 5),
+                "sigma": _r(n.sigma, 5),
+                "pull": _r(n.pull, 3),
+            }
+            for n in f.nuisances
+        ],
+        "settings": [{"exposure_s": s.exposure_s, "gain_db": s.gain_db} for s in f.settings],
+        "n_evaluations": f.n_evaluations,
+        **fit_detail(f),
+    }
+
+
 def to_json(result: FolderFit) -> dict[str, Any]:
     """The ``camcal fit --json`` document."""
-    out = []
-    for wl, f in sorted(result.fits.items()):
-        chk = result.checks[wl]
-        out.append(
-            {
-                "wavelength_nm": wl,
-                "lambda_abs_m": _r(f.lambda_abs_m, 3),
-                "lambda_abs_err_m": _r(f.lambda_abs_err_m, 3),
-                "lambda_abs_interval_m": [_r(v, 3) for v in f.lambda_abs_interval_m],
-                "lambda_sca_m": _r(f.lambda_sca_m, 3),
-                "lambda_sca_err_m": _r(f.lambda_sca_err_m, 3),
-                "lambda_sca_interval_m": [_r(v, 3) for v in f.lambda_sca_interval_m],
-                "lambda_sca_sys_err_m": _r(f.lambda_sca_sys_err_m, 3),
-                "correlation": _r(f.correlation),
-                "lambda_att_fit_m": _r(chk.lambda_att_fit_m, 3),
-                "lambda_att_fit_err_m": _r(chk.lambda_att_fit_err_m, 3),
-                "lambda_att_icenter_m": _r(chk.lambda_att_icenter_m, 3),
-                "lambda_att_icenter_err_m": _r(chk.lambda_att_icenter_err_m, 3),
-                "att_check_z": _r(chk.z, 3),
-                "att_check_agrees": chk.agrees,
-                "chi2": _r(f.chi2, 2),
-                "ndof": f.ndof,
-                "mie_g": f.mie_g,
-                "at_edge": list(f.at_edge),
-                "nuisances": [
-                    {
-                        "name": n.name,
-                        "unit": n.unit,
-                        "shift": _r(n.shift, 5),
-                        "sigma": _r(n.sigma, 5),
-                        "pull": _r(n.pull, 3),
-                    }
-                    for n in f.nuisances
-                ],
-                "settings": [{"exposure_s": s.exposure_s, "gain_db": s.gain_db} for s in f.settings],
-                "n_evaluations": f.n_evaluations,
-            }
-        )
+    out = [fit_entry(f, result.checks[wl]) for wl, f in sorted(result.fits.items())]
     return {
         "fits": out,
         "skipped": {str(k): v for k, v in sorted(result.skipped.items())},
@@ -303,6 +367,8 @@ __all__ = [
     "FitOptions",
     "FolderFit",
     "FrameSetError",
+    "fit_analysis",
+    "fit_entry",
     "fit_folder",
     "to_json",
 ]

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -128,6 +128,65 @@ def span_attenuation(rows: Iterable[ResultRow], setup: Setup) -> dict[int, Atten
         if usable:
             out[wl] = combine_pairs(usable, geometry, ratios[wl])
     return out
+
+
+#: The station: frames within this many metres of the deepest frame of a dive.
+STATION_SPAN_M = 50.0
+
+
+@dataclass(frozen=True)
+class Span:
+    """A part of a dive: frames between two depths and two times (each bound optional).
+
+    `select` fills a missing lower depth with the station's: the deepest
+    frame's depth minus `STATION_SPAN_M`.
+    """
+
+    depth_min_m: float | None = None
+    depth_max_m: float | None = None
+    t_from: float | None = None
+    t_to: float | None = None
+
+    def select(self, rows: Sequence[Mapping[str, Any]]) -> tuple[list[Mapping[str, Any]], dict[str, Any]]:
+        """The rows (``depth_m``, ``captured_unix_s``) inside the span, and the span as applied."""
+        depths = [r["depth_m"] for r in rows if r["depth_m"] is not None]
+        lo = self.depth_min_m
+        if lo is None and depths:
+            lo = max(depths) - STATION_SPAN_M
+        hi = self.depth_max_m
+        sel = [
+            r
+            for r in rows
+            if (lo is None or (r["depth_m"] is not None and r["depth_m"] >= lo))
+            and (hi is None or (r["depth_m"] is not None and r["depth_m"] <= hi))
+            and (self.t_from is None or r["captured_unix_s"] >= self.t_from)
+            and (self.t_to is None or r["captured_unix_s"] <= self.t_to)
+        ]
+        info = {
+            "depth_min_m": lo,
+            "depth_max_m": hi,
+            "t_from": self.t_from,
+            "t_to": self.t_to,
+            "n_frames": len(sel),
+        }
+        return sel, info
+
+
+def result_row(r: Mapping[str, Any]) -> ResultRow:
+    """A `ResultRow` from a `storage.store.Store.result_rows` dict."""
+    return ResultRow(*(r[k] for k in ResultRow.__dataclass_fields__))
+
+
+def attenuation_over_span(
+    rows: Sequence[Mapping[str, Any]], setup: Setup, span: Span | None = None
+) -> tuple[dict[str, Any], dict[int, AttenuationResult]]:
+    """λ_att per wavelength over a span of a run's results (default: the station), and the span applied.
+
+    ``rows`` are `storage.store.Store.result_rows` dicts. The API's λ_att
+    table, ``camcal report`` and ``camcal fit --dive`` all take their span here.
+    """
+    sel, info = (span or Span()).select(rows)
+    return info, span_attenuation([result_row(r) for r in sel], setup)
 
 
 def _stack(values: list[tuple[float, float]]) -> tuple[float, float, int]:

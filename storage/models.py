@@ -154,6 +154,27 @@ class AttenuationPoint(Base):
     details: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
 
 
+class ChiSquareFitRecord(Base):
+    """A χ² fit of λ_abs and λ_sca over a span of a dive (``camcal fit --dive``).
+
+    ``result`` is the fit's JSON document (per wavelength: the lengths, their
+    errors, the I_center check, the Δχ² map and the fitted profiles; the
+    inputs and the software version); ``span`` the frames it used.
+    """
+
+    __tablename__ = "chisq_fits"
+    __table_args__ = (Index("ix_chisq_fits_dive", "dive_id", "id"),)
+    id: Mapped[int] = mapped_column(BigId, primary_key=True, autoincrement=True)
+    dive_id: Mapped[int] = mapped_column(ForeignKey("dives.id"))
+    run_id: Mapped[int | None] = mapped_column(ForeignKey("analysis_runs.id"))
+    calibration_id: Mapped[int | None] = mapped_column(ForeignKey("calibrations.id"))
+    created_unix_s: Mapped[float] = mapped_column(Float)
+    software_version: Mapped[str] = mapped_column(String(40), default="")
+    label: Mapped[str] = mapped_column(String(200), default="")
+    span: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    result: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+
+
 class SensorBatch(Base):
     """A received ``sensors`` message (for de-duplication of resends)."""
 

@@ -16,6 +16,7 @@ from storage.models import (
     AttenuationPoint,
     AttitudeSample,
     AuditEntry,
+    ChiSquareFitRecord,
     Dive,
     Event,
     Frame,
@@ -47,8 +48,8 @@ def live_run_id(s: Session, dive_id: int) -> int | None:
     return s.scalar(select(AnalysisRun.id).where(AnalysisRun.dive_id == dive_id, AnalysisRun.kind == "live"))
 
 
-def dives(s: Session) -> list[dict[str, Any]]:
-    """Every dive with its frame count and time range, newest first."""
+def dives(s: Session, dive_id: int | None = None) -> list[dict[str, Any]]:
+    """Every dive (or only ``dive_id``) with its frame count and time range, newest first."""
     counts = (
         select(
             Frame.dive_id,
@@ -60,11 +61,12 @@ def dives(s: Session) -> list[dict[str, Any]]:
         .group_by(Frame.dive_id)
         .subquery()
     )
-    rows = s.execute(
-        select(Dive, counts.c.n, counts.c.t0, counts.c.t1, counts.c.dmax)
-        .outerjoin(counts, counts.c.dive_id == Dive.id)
-        .order_by(Dive.id.desc())
-    ).all()
+    q = select(Dive, counts.c.n, counts.c.t0, counts.c.t1, counts.c.dmax).outerjoin(
+        counts, counts.c.dive_id == Dive.id
+    )
+    if dive_id is not None:
+        q = q.where(Dive.id == dive_id)
+    rows = s.execute(q.order_by(Dive.id.desc())).all()
     return [
         {
             "id": d.id,
@@ -529,3 +531,72 @@ def latest_attitude(s: Session, dive_id: int | None = None) -> dict[str, dict[st
         if row is not None:
             out[m] = {"t_unix_s": row.t_unix_s, **{c: getattr(row, c) for c in ATTITUDE_COLUMNS}}
     return out
+
+
+def chisq_fit_dict(r: ChiSquareFitRecord, *, full: bool = True) -> dict[str, Any]:
+    out: dict[str, Any] = {
+        "id": r.id,
+        "dive_id": r.dive_id,
+        "run_id": r.run_id,
+        "calibration_id": r.calibration_id,
+        "created_unix_s": r.created_unix_s,
+        "software_version": r.software_version,
+        "label": r.label,
+        "span": r.span,
+    }
+    if full:
+        out["result"] = r.result
+    return out
+
+
+def chisq_fits(s: Session, dive_id: int) -> list[dict[str, Any]]:
+    """The χ² fits kept for a dive, oldest first, without their documents."""
+    q = select(ChiSquareFitRecord).where(ChiSquareFitRecord.dive_id == dive_id)
+    return [chisq_fit_dict(r, full=False) for r in s.scalars(q.order_by(ChiSquareFitRecord.id))]
+
+
+def latest_chisq_fit(s: Session, dive_id: int, run_id: int | None = None) -> dict[str, Any] | None:
+    """The newest χ² fit of a dive (of one run's calibration if given), with its document."""
+    q = select(ChiSquareFitRecord).where(ChiSquareFitRecord.dive_id == dive_id)
+    if run_id is not None:
+        q = q.where(ChiSquareFitRecord.run_id == run_id)
+    r = s.scalars(q.order_by(ChiSquareFitRecord.id.desc()).limit(1)).first()
+    return chisq_fit_dict(r) if r is not None else None
+
+
+def dive_record(s: Session, dive_id: int) -> dict[str, Any] | None:
+    """One dive as `dives` lists it (frame count, time range, deepest depth), with its setup."""
+    rows = dives(s, dive_id)
+    if not rows:
+        return None
+    dive = s.get(Dive, dive_id)
+    return {**rows[0], "setup": dive.setup if dive else {}}
+
+
+def frame_outcomes(s: Session, dive_id: int, run_id: int | None) -> list[dict[str, Any]]:
+    """Every frame of a dive in capture order with its outcome in a run (``pending`` without one)."""
+    join = and_(FrameResult.frame_id == Frame.id, FrameResult.run_id == (run_id or -1))
+    rows = s.execute(
+        select(
+            Frame.captured_unix_s,
+            Frame.depth_m,
+            Frame.module_id,
+            Frame.wavelength_nm,
+            FrameResult.status,
+            FrameResult.reason,
+        )
+        .outerjoin(FrameResult, join)
+        .where(Frame.dive_id == dive_id)
+        .order_by(Frame.captured_unix_s, Frame.id)
+    ).all()
+    return [
+        {
+            "t_unix_s": t,
+            "depth_m": d,
+            "module": m,
+            "wavelength_nm": wl,
+            "status": status or "pending",
+            "reason": reason,
+        }
+        for t, d, m, wl, status, reason in rows
+    ]

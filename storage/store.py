@@ -26,6 +26,7 @@ from storage.models import (
     AttitudeSample,
     AuditEntry,
     Calibration,
+    ChiSquareFitRecord,
     CommandRecord,
     Dive,
     Event,
@@ -478,6 +479,33 @@ class Store:
             else:
                 for k, v in row.items():
                     setattr(obj, k, v)
+
+    def add_chisq_fit(
+        self,
+        dive_id: int,
+        result: dict[str, Any],
+        *,
+        run_id: int | None = None,
+        calibration_id: int | None = None,
+        span: dict[str, Any] | None = None,
+        label: str = "",
+        software_version: str = "",
+    ) -> int:
+        """Keep a χ² fit of a dive (its JSON document); earlier fits stay. Returns its id."""
+        with self.session() as s:
+            rec = ChiSquareFitRecord(
+                dive_id=dive_id,
+                run_id=run_id,
+                calibration_id=calibration_id,
+                created_unix_s=now_unix_s(),
+                software_version=software_version,
+                label=label,
+                span=span or {},
+                result=result,
+            )
+            s.add(rec)
+            s.flush()
+            return rec.id
 
     # ------------------------------------------------------------ events, alarms
     def add_events(self, events: Sequence[dict[str, Any]]) -> list[int]:

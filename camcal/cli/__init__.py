@@ -15,6 +15,7 @@ from camcal.cli import (
     fit,
     ingest,
     lrm,
+    report,
     serve,
     simulate,
     simulate_lab,
@@ -34,6 +35,7 @@ analyze.register(app)
 demo.register(app)
 fit.register(app)
 transport.register(app)
+report.register(app)
 # The live system.
 ingest.register(app)
 lrm.register(app)

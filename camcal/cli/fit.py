@@ -6,7 +6,7 @@ import json
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
@@ -18,7 +18,8 @@ from camcal.frameset import FrameSetError, write_atomic
 from lrm.sim.camera import CameraModel
 
 if TYPE_CHECKING:
-    from camcal.fitset import FolderFit
+    from camcal.fitset import FitOptions, FolderFit
+    from camcal.pipeline import Overrides
 
 TREX_FOCAL_PX = CameraModel().focal_px
 
@@ -51,7 +52,32 @@ def stage_progress(quiet: bool) -> Iterator[Callable[[str, int, int], None]]:
 
 
 def fit(
-    folder: Annotated[Path, typer.Argument(help="Frame-set folder (manifest.csv, setup.json, images).")],
+    folder: Annotated[
+        Path | None, typer.Argument(help="Frame-set folder (manifest.csv, setup.json, images).")
+    ] = None,
+    dive: Annotated[
+        str | None, typer.Option(help="Fit a stored dive instead of a folder (its frames in --data).")
+    ] = None,
+    data: Annotated[Path, typer.Option(help="Data folder of the store (with --dive).")] = Path("camcal-data"),
+    db_url: Annotated[
+        str | None, typer.Option(help="SQLAlchemy URL (default: SQLite in the data folder).")
+    ] = None,
+    run: Annotated[
+        int | None, typer.Option(help="Analysis run whose calibration inputs to use (default: the live one).")
+    ] = None,
+    calibration: Annotated[
+        str | None, typer.Option(help="Use this calibration record instead: ID, NAME or NAME@VERSION.")
+    ] = None,
+    depth_min: Annotated[
+        float | None, typer.Option(help="Frames at or below this depth [m] (default: deepest - 50 m).")
+    ] = None,
+    depth_max: Annotated[float | None, typer.Option(help="Frames at or above this depth [m].")] = None,
+    store_result: Annotated[
+        bool, typer.Option("--store/--no-store", help="Keep a dive's fit in the store (for the report).")
+    ] = True,
+    wavelength: Annotated[
+        list[int] | None, typer.Option(help="Fit only this wavelength [nm] (repeatable).")
+    ] = None,
     json_out: Annotated[Path | None, typer.Option("--json", help="Write the results as JSON here.")] = None,
     plots: Annotated[
         Path | None, typer.Option(help="Write contour and fit figures (PNG) into this folder.")
@@ -96,9 +122,15 @@ def fit(
 ) -> None:
     """Fit absorption and scattering lengths to both cameras' radial profiles, per wavelength.
 
-    Templates (photon transport) are built on first use and cached. Checks
-    that 1/λ_abs + 1/λ_sca agrees with the I_center attenuation length.
+    Of a frame-set FOLDER, or of a stored dive (--dive NAME --data DIR: by
+    default the station's frames, frames within 50 m of the deepest, with
+    the live run's calibration inputs; the fit is kept in the store for
+    `camcal report`). Templates (photon transport) are built on first use
+    and cached. Checks that 1/λ_abs + 1/λ_sca agrees with the I_center
+    attenuation length.
     """
+    if (folder is None) == (dive is None):
+        raise fail("give a frame-set FOLDER or --dive NAME (one of them)")
     nodes = parse_floats(sca_nodes, "--sca-nodes")
     from analysis.chisq import FitConfig, FitInputError
     from camcal.fitplots import write_fit_plots
@@ -117,6 +149,7 @@ def fit(
             cache_dir=str(cache_dir) if cache_dir else None,
             min_frames=min_frames,
             workers=workers or None,
+            wavelengths_nm=tuple(sorted(set(wavelength))) if wavelength else None,
             fit=FitConfig(
                 psf_sigma_px=psf_sigma, psf_sigma_err_px=psf_sigma_err, template_errors=template_errors
             ),
@@ -126,18 +159,80 @@ def fit(
             distance_errs_m=parse_mapping(distance_err, "--distance-err") or None,
             emission_ratios=parse_ratios(ratio) or None,
         )
-        with stage_progress(quiet) as update:
-            result = fit_folder(folder, options, overrides, progress=update)
-    except (FrameSetError, FitInputError, ValueError) as exc:
+        if dive is not None:
+            doc, result = fit_stored_dive(
+                dive,
+                data,
+                db_url,
+                run,
+                calibration,
+                depth_min,
+                depth_max,
+                options,
+                overrides,
+                quiet,
+                store_result,
+            )
+        else:
+            assert folder is not None
+            with stage_progress(quiet) as update:
+                result = fit_folder(folder, options, overrides, progress=update)
+            doc = None
+    except (FrameSetError, FitInputError, ValueError, LookupError) as exc:
         raise fail(str(exc).splitlines()[0]) from None
     print_fits(result)
     if json_out:
         json_out.parent.mkdir(parents=True, exist_ok=True)
-        write_atomic(json_out, (json.dumps(to_json(result), indent=1) + "\n").encode(), fsync=False)
+        text = json.dumps(doc if doc is not None else to_json(result), indent=1) + "\n"
+        write_atomic(json_out, text.encode(), fsync=False)
         console.print(f"wrote {json_out}")
     if plots:
         for p in write_fit_plots(result, plots):
             console.print(f"wrote {p}")
+
+
+def fit_stored_dive(
+    dive: str,
+    data: Path,
+    db_url: str | None,
+    run: int | None,
+    calibration: str | None,
+    depth_min: float | None,
+    depth_max: float | None,
+    options: FitOptions,
+    overrides: Overrides,
+    quiet: bool,
+    keep: bool,
+) -> tuple[dict[str, Any], FolderFit]:
+    """Fit a dive of the store over a span; keep the result there unless told not to."""
+    from camcal.cli.data import open_store
+    from camcal.divefit import dive_fit_json, dive_inputs, fit_dive, store_dive_fit
+    from ingest.derived import Span
+
+    store = open_store(data, db_url)
+    try:
+        inputs = dive_inputs(
+            store,
+            dive,
+            run_id=run,
+            calibration=calibration,
+            span=Span(depth_min_m=depth_min, depth_max_m=depth_max),
+            overrides=overrides,
+        )
+        console.print(
+            f"dive {dive}: {len(inputs.rows)} frames of run {inputs.run['id']} ({inputs.run['kind']}) "
+            f"at depths >= {inputs.span['depth_min_m']:.0f} m",
+            highlight=False,
+        )
+        with stage_progress(quiet) as update:
+            result = fit_dive(inputs, options, progress=update)
+        doc = dive_fit_json(result)
+        if keep:
+            fit_id = store_dive_fit(store, result, doc)
+            console.print(f"kept as fit {fit_id} of dive {dive} (camcal report {dive} shows it)")
+    finally:
+        store.close()
+    return doc, result.fit
 
 
 def print_fits(result: FolderFit) -> None:

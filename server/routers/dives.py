@@ -15,7 +15,7 @@ from fastapi.responses import Response
 
 from camcal.calibrations import setup_of
 from camcal.frameset import Setup, parse_setup
-from ingest.derived import ResultRow, attenuation_dict, span_attenuation
+from ingest.derived import Span, attenuation_dict, attenuation_over_span
 from ingest.reanalysis import ReanalysisOptions, reanalyse, start_run
 from server.deps import FloatQuery, IdPath, IdQuery, OperatorDep, SettingsDep, StoreDep
 from server.errors import Invalid, NotFound
@@ -126,42 +126,43 @@ async def attenuation_table(
 
     def q() -> dict[str, Any]:
         rows = store.result_rows(run_id, dive_id)
-        depths = [r["depth_m"] for r in rows if r["depth_m"] is not None]
-        lo = depth_min_m if depth_min_m is not None else (max(depths) - 50.0 if depths else None)
-        sel = [
-            ResultRow(
-                r["module"],
-                r["wavelength_nm"],
-                r["exposure_s"],
-                r["gain_db"],
-                r["captured_unix_s"],
-                r["depth_m"],
-                r["status"],
-                r["center_gray"],
-                r["i_center_gray"],
-                r["i_center_err_gray"],
-            )
-            for r in rows
-            if (lo is None or (r["depth_m"] is not None and r["depth_m"] >= lo))
-            and (depth_max_m is None or (r["depth_m"] is not None and r["depth_m"] <= depth_max_m))
-            and (t_from is None or r["captured_unix_s"] >= t_from)
-            and (t_to is None or r["captured_unix_s"] <= t_to)
-        ]
-        table = span_attenuation(sel, setup)
+        span, table = attenuation_over_span(rows, setup, Span(depth_min_m, depth_max_m, t_from, t_to))
         return {
             "run_id": run_id,
-            "span": {
-                "depth_min_m": lo,
-                "depth_max_m": depth_max_m,
-                "t_from": t_from,
-                "t_to": t_to,
-                "n_frames": len(sel),
-            },
+            "span": span,
             "calibration": setup.to_json(),
             "rows": [attenuation_dict(table[wl]) for wl in sorted(table)],
         }
 
     return await run_in_threadpool(q)
+
+
+@router.get("/api/dives/{dive_id}/fits")
+async def chisq_fits(dive_id: IdPath, store: StoreDep) -> list[dict[str, Any]]:
+    """The χ² fits (λ_abs, λ_sca) kept for the dive by ``camcal fit --dive``, oldest first (no documents)."""
+    dive_or_404(store, dive_id)
+
+    def q() -> list[dict[str, Any]]:
+        with store.read() as s:
+            return queries.chisq_fits(s, dive_id)
+
+    return await run_in_threadpool(q)
+
+
+@router.get("/api/dives/{dive_id}/fits/latest")
+async def latest_chisq_fit(dive_id: IdPath, store: StoreDep, run: IdQuery = None) -> dict[str, Any]:
+    """The newest χ² fit of the dive (of one run's inputs if ``run`` is given), with its document:
+    λ_abs, λ_sca per wavelength with errors, the I_center check, the Δχ² map and the fitted profiles."""
+    dive = dive_or_404(store, dive_id)
+
+    def q() -> dict[str, Any] | None:
+        with store.read() as s:
+            return queries.latest_chisq_fit(s, dive_id, run)
+
+    fit = await run_in_threadpool(q)
+    if fit is None:
+        raise NotFound(f"no χ² fit kept for dive {dive_id}: run `camcal fit --dive {dive.name}`")
+    return fit
 
 
 @router.post("/api/dives/{dive_id}/reanalyses", status_code=202, response_model=RunPublic)

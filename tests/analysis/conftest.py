@@ -6,11 +6,11 @@ Templates are built once per session into a temporary cache directory.
 from __future__ import annotations
 
 import pytest
-from transport_cases import CASES, grid_settings, simulate_profiles
 
 from analysis.chisq import SettingProfiles
 from analysis.transport.cache import TemplateCache
 from analysis.transport.templates import TemplateGrid, build_template_grid
+from tests.analysis.transport_cases import CASES, grid_settings, simulate_profiles
 
 
 @pytest.fixture(scope="session")

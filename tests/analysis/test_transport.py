@@ -8,7 +8,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from transport_cases import CASES, FOCAL_PX, GEOMETRY, small_camera
 
 from analysis.profile import radial_profile
 from analysis.scattering import WaterOptics, single_scatter_halo
@@ -38,6 +37,7 @@ from analysis.transport.templates import (
 from lrm.sim import FrameRenderer
 from lrm.sim.render import TransportHalo
 from lrm.sim.scene import TREX_PLACEMENTS, Water
+from tests.analysis.transport_cases import CASES, FOCAL_PX, GEOMETRY, small_camera
 
 A = LEM_RADIUS_M
 

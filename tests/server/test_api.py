@@ -22,6 +22,14 @@ def test_dives_and_timeline(client: TestClient, dive_data) -> None:
     assert client.get("/api/dives/999").status_code == 404
 
 
+def test_a_dive_without_a_kept_fit(client: TestClient) -> None:
+    dive_id = client.get("/api/dives").json()[0]["id"]
+    assert client.get(f"/api/dives/{dive_id}/fits").json() == []
+    r = client.get(f"/api/dives/{dive_id}/fits/latest")
+    assert r.status_code == 404 and "camcal fit --dive" in r.json()["error"]["message"]
+    assert client.get("/api/dives/999/fits").status_code == 404
+
+
 def test_frames_filter_and_page(client: TestClient) -> None:
     page = client.get("/api/frames", params={"limit": 5}).json()
     assert page["limit"] == 5 and len(page["items"]) == 5 and page["total"] > 20

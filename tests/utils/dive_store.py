@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 import time
 from datetime import UTC, datetime
 from pathlib import Path
@@ -85,3 +86,9 @@ def run_simulated_dive(data: Path, *, station_s: float = 240.0, seed: int = 5) -
             a.stop()
         svc.stop()
     return {"sim": sim, "frames": {a.config.module: a.counters["frames_captured"] for a in agents}}
+
+
+def copy_data(src: Path, dst: Path) -> Path:
+    """A copy of a data folder (database with its WAL, frame files) to change without touching ``src``."""
+    shutil.copytree(src, dst)
+    return dst

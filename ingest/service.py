@@ -13,6 +13,14 @@ Three kinds of worker, each owning what it touches:
   alarms, and publishes every new result as an event;
 * a **process pool** (one process per core) decodes and analyses frames off
   the receive loop.
+
+Several ingest processes may share one database (PostgreSQL) and one data
+folder, each serving its own set of modules (``modules``; see
+``docs/scaling.md``). A process refuses modules it does not serve: their
+``hello`` gets no ``welcome`` and their data no ``ack``, so a wrongly wired
+module keeps everything in its outbox. Recovery after a crash, temporary
+files, gaps and alarms are scoped to the served modules; the dive (by name)
+and its live run are shared.
 """
 
 from __future__ import annotations
@@ -72,11 +80,14 @@ class IngestConfig:
     command_retry_s: float = 3.0
     thumbnails: bool = True
     alarm_limits: AlarmLimits = field(default_factory=AlarmLimits)
-    modules: tuple[str, ...] = ()
+    modules: tuple[str, ...] = ()  # the modules this process serves; empty: any module
 
     @property
     def n_workers(self) -> int:
         return self.workers or os.cpu_count() or 1
+
+    def serves(self, module: str) -> bool:
+        return not self.modules or module in self.modules
 
 
 @dataclass
@@ -126,6 +137,7 @@ class IngestService:
         self._links_lock = threading.Lock()
         self.counters: Counter[str] = Counter()
         self.malformed: Counter[str] = Counter()
+        self.refused: Counter[str] = Counter()
         self.window = config.window
         self.endpoint = ""
         self.events_endpoint = ""
@@ -140,7 +152,7 @@ class IngestService:
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
         """Bind the sockets (so `endpoint` is known), then run the threads."""
-        self.store.files.remove_temporaries()
+        self.store.files.remove_temporaries(self.config.modules)
         self._router = wire.ship_socket(
             self.ctx,
             self.config.bind,
@@ -250,6 +262,14 @@ class IngestService:
                 log.warning("dropped malformed message from %r: %s", identity[:40], exc)
             return
         module = msg.module
+        if not self.config.serves(module):
+            self.refused[module] += 1
+            self.counters["refused"] += 1
+            if self.refused[module] == 1:
+                log.warning(
+                    "refusing module %s: this ingest serves %s", module, ", ".join(self.config.modules)
+                )
+            return
         with self._links_lock:
             link = self.links.get(module)
             if link is None or link.identity != identity:
@@ -397,7 +417,7 @@ class IngestService:
 
     def _recover_unanalysed(self) -> None:
         """Frames committed before a crash but never analysed go back in the queue."""
-        for f in self.store.frames_without_result(self.dive.id, self.run.id):
+        for f in self.store.frames_without_result(self.dive.id, self.run.id, modules=self.config.modules):
             self.queue_analysis(f.id, f.path, _frame_meta_from_row(f))
 
     # -- status ----------------------------------------------------------
@@ -426,6 +446,8 @@ class IngestService:
             "window": self.window,
             "counters": dict(self.counters),
             "malformed": dict(self.malformed),
+            "served_modules": list(self.config.modules),
+            "refused": dict(self.refused),
             "dive": {"id": self.dive.id, "name": self.dive.name},
             "latency_p50_s": _pct(self.latency_s, 50),
             "latency_p95_s": _pct(self.latency_s, 95),
@@ -466,7 +488,9 @@ class _StoreState:
                 gr[0], gr[1], svc.config.rolling_window_s, svc.config.rolling_interval_s
             )
         self.alarms = AlarmEvaluator(svc.config.alarm_limits)
-        self.active_alarms = {a.key for a in self.store.active_alarms()}
+        self.active_alarms = {
+            a.key for a in self.store.active_alarms() if a.module_id is None or svc.config.serves(a.module_id)
+        }
         self.sensors: dict[str, deque[tuple[float, float, float, float, float, float, float]]] = defaultdict(
             lambda: deque(maxlen=20000)
         )
@@ -477,7 +501,9 @@ class _StoreState:
         self.recent_committed: deque[tuple[str, str, int]] = deque(maxlen=4096)
         self.recent_set: set[tuple[str, str, int]] = set()
         self.last_sensor_event: dict[str, float] = {}
-        self.gappy: set[tuple[str, str]] = {(g.module_id, g.boot) for g in self.store.open_gaps()}
+        self.gappy: set[tuple[str, str]] = {
+            (g.module_id, g.boot) for g in self.store.open_gaps() if svc.config.serves(g.module_id)
+        }
 
     # -- batches ---------------------------------------------------------
     def handle(self, items: list[_Incoming]) -> None:
@@ -894,7 +920,8 @@ class _StoreState:
         for link in list(svc.links.values()):
             age_up = link.up and mono - link.last_seen_mono <= svc.config.link_timeout_s
             self.alarms.observe_link(link.module, age_up, link.last_seen_unix_s or None)
-        for module in {g.module_id for g in self.store.open_gaps()} | set(svc.links):
+        gap_modules = {g.module_id for g in self.store.open_gaps() if svc.config.serves(g.module_id)}
+        for module in gap_modules | set(svc.links):
             gaps = [(g.first_seq, g.last_seq, g.detected_unix_s) for g in self.store.open_gaps(module)]
             self.alarms.observe_gaps(module, gaps)
         self._apply_alarms(self.alarms.evaluate(now))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from camcal.cli import analyze, calibrate, data, demo, ingest, lrm, serve, simulate, simulate_lab
+from camcal.cli import analyze, calibrate, data, demo, ingest, lrm, reanalyze, serve, simulate, simulate_lab
 
 app = typer.Typer(
     name="camcal",
@@ -22,6 +22,7 @@ data.register(app)
 serve.register(app)
 simulate_lab.register(app)
 calibrate.register(app)
+reanalyze.register(app)
 
 
 def main() -> None:

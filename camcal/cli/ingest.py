@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import re
 import signal
 import threading
 from pathlib import Path
@@ -38,6 +39,17 @@ def load_setup(setup: Path | None) -> Setup:
         raise fail(str(exc)) from None
 
 
+def parse_modules(text: str | None) -> tuple[str, ...]:
+    """``"A,B"`` -> ``("A", "B")``; each a valid module id."""
+    if not text:
+        return ()
+    out = tuple(dict.fromkeys(m.strip() for m in text.split(",") if m.strip()))
+    bad = [m for m in out if not re.fullmatch(r"[A-Za-z0-9_.-]{1,64}", m)]
+    if bad or not out:
+        raise fail(f"--modules: expected module ids such as A,B (letters, digits, _ . -), got {text!r}")
+    return out
+
+
 def ingest(
     data: Annotated[Path, typer.Option(help="Data folder (database and frame files).")] = Path("camcal-data"),
     bind: Annotated[str, typer.Option(help="Where modules connect: tcp://*:PORT.")] = "tcp://*:5555",
@@ -53,6 +65,13 @@ def ingest(
     dive: Annotated[
         str | None, typer.Option(help="Name of the dive to record into (default: the open one).")
     ] = None,
+    modules: Annotated[
+        str | None,
+        typer.Option(
+            help="Modules this process serves, comma-separated (default: any). Required when several "
+            "ingests share one database: each module is served by exactly one; others are refused."
+        ),
+    ] = None,
     workers: Annotated[int, typer.Option(help="Analysis processes (default: all cores).")] = 0,
     window: Annotated[
         int, typer.Option(help="Credit: unacknowledged messages a module may have in flight.")
@@ -64,6 +83,7 @@ def ingest(
     from ingest.service import IngestConfig, IngestService
 
     logging.basicConfig(level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    served = parse_modules(modules)
     cfg = IngestConfig(
         data_dir=data,
         bind=bind,
@@ -74,6 +94,7 @@ def ingest(
         workers=workers,
         window=window,
         fsync=fsync,
+        modules=served,
     )
     try:
         svc = IngestService(cfg)
@@ -82,7 +103,7 @@ def ingest(
         raise fail(f"cannot start the ingest: {exc}") from None
     console.print(
         f"ingest: modules connect to {svc.endpoint}; events on {svc.events_endpoint}; "
-        f"dive {svc.dive.name}; data in {data}"
+        f"dive {svc.dive.name}; data in {data}" + (f"; serving {', '.join(served)}" if served else "")
     )
     done = threading.Event()
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import Engine, Table, func, literal, select, text, tuple_, update
+from sqlalchemy import Engine, func, literal, select, text, tuple_, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -152,7 +152,7 @@ class Store:
         return self._sessions()
 
     # ------------------------------------------------------------ helpers
-    def _insert(self, table: Table) -> Any:
+    def _insert(self, table: Any) -> Any:
         name = self.engine.dialect.name
         if name == "sqlite":
             return sqlite.insert(table)

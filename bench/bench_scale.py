@@ -3,7 +3,8 @@
 For each module count (default 2, 8 and 32) a fresh ``camcal ingest`` runs in
 its own process (analysis pool of ``--workers``, frame files fsynced as in
 production), and the modules run as real `lrm.agent.Agent` instances spread
-over a few processes, each sending small simulated frames (320 x 256 PNGs
+over a few processes, each sampling its sensors at 10 Hz (a message a second,
+as a real module does) and sending small simulated frames (320 x 256 PNGs
 cut from a T-REX camera, the LEM at its true size in pixels) at ``--rate``
 frames per second for ``--seconds``, then draining their outboxes. Latency
 is capture -> result stored (the ingest's ``result`` event, after the frame
@@ -151,6 +152,24 @@ class PacedSource:
         return Capture(frame, Shot(460, 0.05, 6.0, 0), 460, 1)
 
 
+class Sensors:
+    """A module's housing and attitude sensors, read at 10 Hz (one ``sensors`` message a second)."""
+
+    def read(self) -> Any:
+        from types import SimpleNamespace
+
+        t = time.time()
+        heave = 0.2 * np.sin(2 * np.pi * t / 7.0)
+        return SimpleNamespace(
+            t=datetime.now(UTC),
+            temperature_c=4.0,
+            humidity_pct=30.0,
+            acc_m_s2=(0.05, 0.0, 9.81 + heave),
+            gyro_dps=(0.05, 0.0, 0.02),
+            depth_m=3400.0,
+        )
+
+
 def run_modules(
     modules: list[str],
     files: dict[str, list[str]],
@@ -160,6 +179,7 @@ def run_modules(
     outbox: str,
     out: Any,
     go: Any,
+    sensors: bool,
 ) -> None:
     """One process holding several modules (agents): connect, report ready, send when told, drain."""
     import logging
@@ -175,7 +195,7 @@ def run_modules(
         phase = float(rng.uniform(0, 1.0 / rate_hz)) if rate_hz > 0 else 0.0
         src = PacedSource(m, files["A" if i % 2 == 0 else "B"], rate_hz, phase)
         cfg = AgentConfig(module=m, connect=endpoint, outbox=Path(outbox) / m, fsync=False, initial_window=8)
-        agents.append(Agent(cfg, clock=clock, source=src))
+        agents.append(Agent(cfg, clock=clock, source=src, sensors=Sensors() if sensors else None))
         sources.append(src)
     for a in agents:
         a.start()
@@ -188,6 +208,8 @@ def run_modules(
     for src in sources:
         src.begin(t_start, seconds)
     time.sleep(seconds)
+    for a in agents:
+        a.stop_producing()
     end = time.time() + 120
     while time.time() < end and not all(a.capture_done() and a.outbox.pending_count() == 0 for a in agents):
         time.sleep(0.1)
@@ -245,7 +267,10 @@ def measure(n: int, args: argparse.Namespace, files: dict[str, list[str]], tmp: 
     endpoint = f"tcp://127.0.0.1:{port}"
     outbox = str(root / "outbox")
     procs = [
-        mp.Process(target=run_modules, args=(g, files, endpoint, args.rate, args.seconds, outbox, out, go))
+        mp.Process(
+            target=run_modules,
+            args=(g, files, endpoint, args.rate, args.seconds, outbox, out, go, args.sensors),
+        )
         for g in groups
     ]
     ingest_ps = psutil.Process(ingest.pid)
@@ -325,6 +350,9 @@ def main() -> None:
     parser.add_argument("--warmup", type=float, default=3.0, help="seconds left out of the figures")
     parser.add_argument("--workers", type=int, default=2, help="analysis processes of the ingest")
     parser.add_argument("--module-procs", type=int, default=4, help="processes the modules are spread over")
+    parser.add_argument(
+        "--sensors", action=argparse.BooleanOptionalAction, default=True, help="modules send sensors at 10 Hz"
+    )
     parser.add_argument(
         "--fsync", action=argparse.BooleanOptionalAction, default=True, help="ingest fsyncs frames"
     )

@@ -27,12 +27,13 @@ from lrm.simset import SimulationSpec, simulate_frame_set
 from storage.store import Store
 
 
-def timed_run(store: Store, dive_id: int, setup, runner, batch_size: int) -> tuple[int, float]:
+def timed_run(store: Store, dive_id: int, setup, runner, batch_size: int) -> tuple[int, float, float]:
+    """Frames, wall seconds, and CPU seconds of this process (all of it for the in-process runner)."""
     run_id = start_run(store, dive_id, setup, "bench")
     opts = ReanalysisOptions(reuse_live=False, batch_size=batch_size)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     n = reanalyse(store, dive_id, run_id, setup, opts, runner=runner)
-    return n, time.perf_counter() - t0
+    return n, time.perf_counter() - t0, time.process_time() - c0
 
 
 def main() -> None:
@@ -71,12 +72,13 @@ def main() -> None:
             finally:
                 runner.close()
             rows.append((label, best[0], best[1]))
+            cpu = f"; {1e3 * best[2] / best[0]:.0f} ms CPU per frame" if label == "in-process" else ""
             print(
-                f"{label:>16}: {best[0]} frames in {best[1]:.2f} s = {best[0] / best[1]:.1f} frames/s",
+                f"{label:>16}: {best[0]} frames in {best[1]:.2f} s = {best[0] / best[1]:.1f} frames/s{cpu}",
                 flush=True,
             )
         base = rows[1][2]
-        print(f"2 workers vs 1: {base / rows[2][2]:.2f}x faster")
+        print(f"2 workers vs 1: {base / rows[2][2]:.2f}x faster; load average {os.getloadavg()[0]:.1f}")
         store.close()
 
 

@@ -14,7 +14,7 @@ from sqlalchemy import func, select
 
 from camcal.frameset import read_manifest
 from ingest.service import IngestService
-from storage.models import AnalysisRun, Dive, Frame, FrameResult
+from storage.models import AnalysisRun, AttenuationPoint, Dive, Frame, FrameResult
 from storage.store import Store
 from tests.live.conftest import ingest_config
 from tests.live.test_faults import free_port
@@ -43,6 +43,16 @@ def test_an_ingest_refuses_the_modules_it_does_not_serve(tmp_path: Path) -> None
         for x in agents:
             x.stop()
         svc.stop()
+
+
+@pytest.mark.parametrize("bad", ["A,,B!", ",", "x" * 65])
+def test_ingest_refuses_a_bad_module_list(tmp_path: Path, bad: str) -> None:
+    from typer.testing import CliRunner
+
+    from camcal.cli import app
+
+    res = CliRunner().invoke(app, ["ingest", "--data", str(tmp_path), "--modules", bad])
+    assert res.exit_code == 2 and "--modules: expected module ids" in res.output
 
 
 def start_ingest(
@@ -133,6 +143,8 @@ def test_two_ingests_share_a_database_and_one_survives_sigkill(tmp_path: Path, p
         assert [r.kind for r in runs] == ["live"]
         per_frame = s.execute(select(FrameResult.frame_id, func.count()).group_by(FrameResult.frame_id)).all()
         assert {n for _, n in per_frame} == {1} and len(per_frame) == n_frames
+        # near and far camera on different ingests: no live λ_att (docs/scaling.md: shard whole pairs)
+        assert s.scalar(select(func.count(AttenuationPoint.id))) == 0
         for m, a in agents.items():
             sent = {(r.boot, r.seq): r for r in read_manifest(a.config.outbox / "frames")}
             rows = list(s.scalars(select(Frame).where(Frame.module_id == m)))

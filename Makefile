@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 DATA   ?= camcal-data
 PORT   ?= 8000
 
-.PHONY: run test lint bench demo clean
+.PHONY: run test test-browser lint bench bench-dashboard demo clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -16,11 +16,17 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 run: $(STAMP)
+	$(BIN)/camcal up --data $(DATA) --port $(PORT)
+
+demo: $(STAMP)
 	$(BIN)/camcal demo --out demo-output
 
 test: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest
+
+test-browser: $(STAMP)
+	$(BIN)/python -m pytest -m browser tests/browser
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
@@ -28,6 +34,10 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python bench/bench_analysis.py
+	$(BIN)/python bench/bench_ingest.py
+
+bench-dashboard: $(STAMP)
+	$(BIN)/python bench/bench_dashboard.py
 
 clean:
 	rm -rf $(VENV) demo-output .pytest_cache .ruff_cache

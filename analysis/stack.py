@@ -21,7 +21,9 @@ class StackResult:
     larger of the frame-to-frame scatter of the single-frame values over
     sqrt(n) and the single-frame errors propagated: the scatter catches what
     the per-frame errors cannot (flicker, pointing), the propagation protects
-    small stacks from a lucky small scatter.
+    small stacks from a lucky small scatter. ``center_xy`` is the sub-pixel
+    centre of the LEM in ``stacked_pixels`` (the mean of the frames' centres),
+    around which the profile's bands were drawn.
     """
 
     i_center_gray: float
@@ -32,6 +34,7 @@ class StackResult:
     frame_values_gray: tuple[float, ...]
     measurement: CropMeasurement | None = field(default=None, repr=False, compare=False)
     stacked_pixels: np.ndarray | None = field(default=None, repr=False, compare=False)
+    center_xy: tuple[float, float] | None = None
 
 
 def stack_crops(crops: Sequence[Crop]) -> Crop:
@@ -85,6 +88,7 @@ def stack_frames(results: Sequence[FrameAnalysis], center_pixels: int = DEFAULT_
         frame_values_gray=tuple(float(v) for v in values),
         measurement=m,
         stacked_pixels=stacked.pixels,
+        center_xy=stacked.center_xy,
     )
 
 

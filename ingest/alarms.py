@@ -27,6 +27,7 @@ class AlarmLimits:
     reject_window_frames: int = 60
     reject_fraction: float = 0.8
     gap_age_s: float = 30.0
+    disk_min_free_gb: float = 5.0
 
 
 @dataclass(frozen=True)
@@ -57,6 +58,7 @@ class AlarmEvaluator:
     def __init__(self, limits: AlarmLimits | None = None) -> None:
         self.limits = limits or AlarmLimits()
         self._m: dict[str, _ModuleState] = defaultdict(_ModuleState)
+        self._disk_free_gb: float | None = None
 
     # -- observations ----------------------------------------------------
     def observe_link(self, module: str, linked: bool, last_seen_unix_s: float | None) -> None:
@@ -93,6 +95,9 @@ class AlarmEvaluator:
         elif reason == "no_source":
             st.near_edge.append(False)
 
+    def observe_disk(self, free_gb: float) -> None:
+        self._disk_free_gb = free_gb
+
     def observe_gaps(self, module: str, gaps: list[tuple[int, int, float]]) -> None:
         self._m[module].open_gaps = gaps
 
@@ -100,6 +105,16 @@ class AlarmEvaluator:
     def evaluate(self, now_unix_s: float) -> dict[str, Condition]:
         lim = self.limits
         out: dict[str, Condition] = {}
+        if self._disk_free_gb is not None and self._disk_free_gb < lim.disk_min_free_gb:
+            out["disk:ship"] = Condition(
+                "disk:ship",
+                "disk",
+                "MAJOR",
+                f"only {self._disk_free_gb:.1f} GB free in the data folder "
+                f"(limit {lim.disk_min_free_gb:g} GB): "
+                "export and remove old dives, or set a retention",
+                None,
+            )
 
         def add(kind: str, module: str, severity: str, message: str) -> None:
             key = f"{kind}:{module}"

@@ -116,6 +116,7 @@ def import_frame_set(
         new.extend((fid, by_key[k].path) for k, fid in outcome.new_frames.items())
         batch.clear()
 
+    stored: dict[tuple[str, str], set[int]] = {}
     for i, row in enumerate(rows):
         if progress:
             progress(i, len(rows))
@@ -124,6 +125,12 @@ def import_frame_set(
             continue
         boot = row.boot or fallback
         seq = row.seq if row.seq is not None else i + 1
+        if (row.camera, boot) not in stored:
+            stored[(row.camera, boot)] = store.known_seqs(row.camera, boot)
+        if seq in stored[(row.camera, boot)]:  # arrived over the link, or imported before
+            report.already_present += 1
+            report.sources[(row.camera, boot, seq)] = frames_dir.file_url(row.file)
+            continue
         try:
             data = frames_dir.read_bytes(row.file)
             frame = decode_frame(data, row.file)

@@ -53,6 +53,16 @@ class SeqTracker:
             st.ahead.add(seq)
         return gap
 
+    def expect(self, module: str, boot: str, last_seq: int) -> tuple[int, int] | None:
+        """The module says it produced up to ``last_seq``: returns the numbers above the highest
+        seen as a newly opened gap ``(first, last)``, or None; later arrivals in it fill it."""
+        st = self._boots.setdefault((module, boot), _BootSeqs())
+        if last_seq <= st.max_seen:
+            return None
+        gap = (st.max_seen + 1, last_seq)
+        st.max_seen = last_seq
+        return gap
+
     def missing(self, module: str, boot: str) -> list[tuple[int, int]]:
         """Ranges not yet arrived below the highest number seen."""
         st = self._boots.get((module, boot))

@@ -25,10 +25,12 @@ and its live run are shared.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import logging
 import os
 import queue
+import shutil
 import threading
 import time
 import uuid
@@ -45,6 +47,7 @@ import zmq
 from analysis import FrameConfig
 from analysis.attitude import attitude_from_samples
 from camcal import __version__, wire
+from camcal.calibrations import setup_of
 from camcal.frameset import Setup
 from camcal.parallel import process_pool
 from ingest.alarms import AlarmEvaluator, AlarmLimits
@@ -52,7 +55,7 @@ from ingest.derived import geometry_and_ratios, linearity_rows
 from ingest.events import EventBus
 from ingest.rolling import RollingAttenuation, Sample
 from ingest.seqtrack import SeqTracker
-from ingest.worker import analyse_stored_frame
+from ingest.worker import analyse_stored_frame, warm_up
 from storage.store import FrameRow, SensorBatchRow, Store
 
 log = logging.getLogger("camcal.ingest")
@@ -79,6 +82,8 @@ class IngestConfig:
     rolling_window_s: float = 300.0
     rolling_interval_s: float = 10.0
     command_retry_s: float = 3.0
+    retention_days: float | None = None
+    calibration: str | None = None
     thumbnails: bool = True
     alarm_limits: AlarmLimits = field(default_factory=AlarmLimits)
     modules: tuple[str, ...] = ()  # the modules this process serves; empty: any module
@@ -105,8 +110,10 @@ class Link:
     schedule: dict[str, Any] = field(default_factory=dict)
     outbox_pending: int = 0
     in_flight: int = 0
+    last_seq: int = 0  # the highest sequence number of ``boot`` the module says it has produced
     frames: deque[float] = field(default_factory=lambda: deque(maxlen=200))
     last_heartbeat_sent: float = 0.0
+    clock_offset_s: float | None = None
 
 
 @dataclass
@@ -149,10 +156,19 @@ class IngestService:
         self.latency_s: deque[float] = deque(maxlen=2000)
         self.started = threading.Event()
         self.error: BaseException | None = None
+        self.disk_free_gb: float | None = None
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
         """Bind the sockets (so `endpoint` is known), then run the threads."""
+        calibration = None
+        if self.config.calibration:  # before binding anything: a wrong name leaves nothing open
+            calibration = self.store.calibration(self.config.calibration)
+            if calibration is None:
+                raise ValueError(
+                    f"no calibration {self.config.calibration!r} in the store (see `camcal calibration list`)"
+                )
+            self.config = dataclasses.replace(self.config, setup=setup_of(calibration))
         self.store.files.remove_temporaries(self.config.modules)
         self._router = wire.ship_socket(
             self.ctx,
@@ -176,7 +192,13 @@ class IngestService:
             self.dive.id, "live", software_version=__version__, calibration=setup.to_json()
         )
         assert self.run is not None
+        if calibration is not None and self.run.calibration_id != calibration["id"]:
+            self.store.use_calibration(self.dive.id, self.run.id, calibration["id"], actor="ingest")
         self._pool = process_pool(self.config.n_workers)
+        # Start the fork server and the workers now: started by the first frame, they would make
+        # the first results of a dive wait a second or more (the fork server imports the analysis).
+        for _ in range(self.config.n_workers):
+            self._pool.submit(warm_up)
         for name, target in (("ingest-net", self._net_loop), ("ingest-store", self._store_loop)):
             t = threading.Thread(target=self._guard(target), name=name, daemon=True)
             t.start()
@@ -284,7 +306,7 @@ class IngestService:
         if kind == "hello":
             link.boot, link.welcomed = msg.boot, True
             link.schedule = msg.schedule.model_dump()
-            link.outbox_pending = msg.outbox_pending
+            link.outbox_pending, link.last_seq = msg.outbox_pending, msg.last_seq
             self._send(
                 router,
                 identity,
@@ -292,8 +314,14 @@ class IngestService:
             )
             self._q.put(_Incoming("hello", module, msg, None, t_unix, t_mono))
         elif kind == "heartbeat":
+            # Module clock minus ship clock (network delay is small on a fibre): smoothed.
+            offset = msg.sent_at.timestamp() - t_unix
+            link.clock_offset_s = (
+                offset if link.clock_offset_s is None else 0.8 * link.clock_offset_s + 0.2 * offset
+            )
             link.schedule = msg.schedule.model_dump()
             link.outbox_pending, link.in_flight, link.boot = msg.outbox_pending, msg.in_flight, msg.boot
+            link.last_seq = msg.last_seq
             if not link.welcomed:  # the ship restarted under a running module: greet it again
                 link.welcomed = True
                 self._send(
@@ -311,7 +339,7 @@ class IngestService:
             self._q.put(_Incoming(kind, module, msg, None, t_unix, t_mono))
         elif kind == "bye":
             link.up = False
-            self._q.put(_Incoming("link", module, {"up": False, "reason": "bye"}, None, t_unix, t_mono))
+            self._q.put(_Incoming("link", module, self._down(link, "bye"), None, t_unix, t_mono))
 
     def _send(self, router: Any, identity: bytes, msg: Any) -> None:
         try:
@@ -334,12 +362,16 @@ class IngestService:
         for link in list(self.links.values()):
             if link.up and now - link.last_seen_mono > self.config.link_timeout_s:
                 link.up, link.welcomed = False, False
-                self._q.put(
-                    _Incoming("link", link.module, {"up": False, "reason": "timeout"}, None, time.time(), now)
-                )
+                down = self._down(link, "timeout")
+                self._q.put(_Incoming("link", link.module, down, None, time.time(), now))
             if link.up and now - link.last_heartbeat_sent >= self.config.heartbeat_s:
                 link.last_heartbeat_sent = now
                 self._send(router, link.identity, wire.ShipHeartbeat(module="ship", window=self.window))
+
+    @staticmethod
+    def _down(link: Link, reason: str) -> dict[str, Any]:
+        """A link-down notice, with how far the module said it had got (for the store thread's gaps)."""
+        return {"up": False, "reason": reason, "boot": link.boot, "last_seq": link.last_seq}
 
     # ------------------------------------------------------------ store thread
     def _store_loop(self) -> None:
@@ -436,6 +468,8 @@ class IngestService:
                 "schedule": link.schedule,
                 "outbox_pending": link.outbox_pending,
                 "in_flight": link.in_flight,
+                "clock_offset_s": round(link.clock_offset_s, 3) if link.clock_offset_s is not None else None,
+                "last_seq": link.last_seq,
             }
         return {
             "modules": modules,
@@ -450,6 +484,7 @@ class IngestService:
             "served_modules": list(self.config.modules),
             "refused": dict(self.refused),
             "dive": {"id": self.dive.id, "name": self.dive.name},
+            "disk_free_gb": self.disk_free_gb,
             "latency_p50_s": _pct(self.latency_s, 50),
             "latency_p95_s": _pct(self.latency_s, 95),
         }
@@ -506,6 +541,8 @@ class _StoreState:
         self.gappy: set[tuple[str, str]] = {
             (g.module_id, g.boot) for g in self.store.open_gaps() if svc.config.serves(g.module_id)
         }
+        self.last_housekeeping = -1e18
+        self.last_purge = -1e18
 
     # -- batches ---------------------------------------------------------
     def handle(self, items: list[_Incoming]) -> None:
@@ -813,6 +850,31 @@ class _StoreState:
             module=it.module,
             dive_id=self.svc.dive.id,
         )
+        if not info["up"] and info.get("boot") and info.get("last_seq"):
+            self._tail_gap(it.module, info["boot"], int(info["last_seq"]))
+
+    def _tail_gap(self, module: str, boot: str, last_seq: int) -> None:
+        """Record as a gap what the module said it had produced but the ship does not have.
+
+        Everything received before the link went down is committed by now
+        (the notice queued behind it), so numbers above the highest stored
+        one, up to the module's ``last_seq``, are in its outbox only: after a
+        link lost for good they arrive only by `camcal import`, and the open
+        gap says so. A reconnect that resends them fills it.
+        """
+        if not self.seqs.known(module, boot):
+            self.seqs.seed(module, boot, self.store.known_seqs(module, boot))
+        gap = self.seqs.expect(module, boot, last_seq)
+        if gap is None:
+            return
+        self.store.record_gap(module, boot, *gap)
+        self.gappy.add((module, boot))
+        self.svc.events.emit(
+            "gap",
+            {"boot": boot, "first_seq": gap[0], "last_seq": gap[1], "reason": "link_lost"},
+            module=module,
+            dive_id=self.svc.dive.id,
+        )
 
     def _module_info(self, it: _Incoming) -> None:
         m = it.msg
@@ -831,6 +893,25 @@ class _StoreState:
                 else None
             ),
         )
+
+    # -- disk ------------------------------------------------------------
+    def _housekeeping(self, now: float) -> None:
+        """Free disk (an alarm when it runs low) and, hourly, the retention of old frame files."""
+        svc = self.svc
+        free_gb = shutil.disk_usage(svc.store.files.root).free / 1e9
+        svc.disk_free_gb = round(free_gb, 2)
+        self.alarms.observe_disk(free_gb)
+        days = svc.config.retention_days
+        if days and time.monotonic() - self.last_purge >= 3600.0:
+            self.last_purge = time.monotonic()
+            n, freed = self.store.purge_frame_files(now - days * 86400.0, svc.config.modules)
+            if n:
+                log.info(
+                    "retention: deleted %d frame files older than %g days (%.1f MB)", n, days, freed / 1e6
+                )
+                svc.events.emit(
+                    "retention", {"files": n, "bytes": freed, "older_than_days": days}, dive_id=svc.dive.id
+                )
 
     # -- commands --------------------------------------------------------
     def _command_status(self, it: _Incoming) -> None:
@@ -928,6 +1009,9 @@ class _StoreState:
                 gaps[g.module_id].append((g.first_seq, g.last_seq, g.detected_unix_s))
         for module in set(gaps) | set(svc.links):
             self.alarms.observe_gaps(module, gaps.get(module, []))
+        if mono - self.last_housekeeping >= 30.0:
+            self.last_housekeeping = mono
+            self._housekeeping(now)
         self._apply_alarms(self.alarms.evaluate(now))
         self._update_linearity()
         self._deliver_commands()

@@ -80,6 +80,10 @@ def result_row(res: FrameAnalysis) -> dict[str, Any]:
     return row
 
 
+def warm_up() -> None:
+    """Nothing: submitting it to a pool starts a worker process, which imports this module."""
+
+
 def analyse_stored_frame(path: str, config: FrameConfig, thumb_path: str | None) -> dict[str, Any]:
     """Analyse the frame file at ``path``; write its thumbnail; return the result columns.
 

@@ -106,8 +106,23 @@ class Agent:
                             runner._set_state(saved["state"])
                 except ValidationError:
                     log.warning("ignoring an unreadable saved schedule")
+            self._restore_pending(runner)
             runner.on_change = self._schedule_changed
             self._schedule_changed(runner.schedule, runner.state)
+
+    def _restore_pending(self, runner: ScheduleRunner) -> None:
+        """Re-arm a schedule change that was waiting for the end of a setting when the module stopped."""
+        waiting = []
+        for rec in self._commands.values():
+            if rec.get("state") != "in_progress" or not rec.get("schedule"):
+                continue
+            try:
+                waiting.append(Schedule.model_validate(rec["schedule"]))
+            except ValidationError:
+                continue
+        for sched in sorted(waiting, key=lambda s: s.version):
+            if sched.version > runner.schedule.version:
+                runner.set_schedule(sched, "end_of_setting")
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -339,7 +354,13 @@ class Agent:
                     entry = self.outbox.get(*key)
                     if entry is None:  # acknowledged meanwhile
                         continue
-                    header, payload = self.outbox.message(entry, cfg.module)
+                    try:
+                        header, payload = self.outbox.message(entry, cfg.module)
+                    except (OSError, ValueError) as exc:  # the SD card lost or damaged it
+                        log.error("outbox entry %s/%d cannot be sent, skipped: %s", key[0], key[1], exc)
+                        self.outbox.discard(*key)
+                        self.counters["unsendable"] += 1
+                        continue
                     try:
                         sock.send_multipart(wire.encode(header, payload), zmq.NOBLOCK)
                     except zmq.Again:
@@ -446,7 +467,13 @@ class Agent:
             self._commands[cmd.command_id] = {"command_id": cmd.command_id, "target_version": sched.version}
             self._status(cmd.command_id, "accepted", target_version=sched.version)
             if cmd.apply == "end_of_setting":
-                self._status(cmd.command_id, "in_progress", target_version=sched.version)
+                # The schedule is kept with the status, so that a reboot before the switch re-arms it.
+                self._status(
+                    cmd.command_id,
+                    "in_progress",
+                    target_version=sched.version,
+                    schedule=sched.model_dump(mode="json"),
+                )
                 runner.set_schedule(sched, "end_of_setting")
             else:
                 self._commands[cmd.command_id]["state"] = "in_progress"

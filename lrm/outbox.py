@@ -41,6 +41,41 @@ class Entry:
     ref: Any  # ManifestRow for a frame, the parsed JSON line for sensors
 
 
+def drop_cut_line(path: Path) -> bool:
+    """Remove a last line that has no newline: a power loss cut it while it was being written.
+
+    Every line of the outbox's logs is written whole before its message is
+    sent, so a cut line was never sent and holds nothing to keep. Left in
+    place, the next line appended after a reboot would run on from it, and
+    both would be unreadable. Returns True if something was removed.
+    """
+    try:
+        fh = path.open("rb+")
+    except FileNotFoundError:
+        return False
+    with fh:
+        end = fh.seek(0, os.SEEK_END)
+        if end == 0:
+            return False
+        fh.seek(end - 1)
+        if fh.read(1) == b"\n":
+            return False
+        keep, pos = 0, end
+        while pos > 0:
+            step = min(pos, 1 << 16)
+            pos -= step
+            fh.seek(pos)
+            chunk = fh.read(step)
+            i = chunk.rfind(b"\n")
+            if i >= 0:
+                keep = pos + i + 1
+                break
+        fh.truncate(keep)
+        fh.flush()
+        os.fsync(fh.fileno())
+        return True
+
+
 def png_size(data: bytes) -> tuple[int, int]:
     """(width, height) from a PNG's IHDR chunk, without decoding the image."""
     if len(data) < 24 or data[:8] != b"\x89PNG\r\n\x1a\n" or data[12:16] != b"IHDR":
@@ -58,6 +93,8 @@ class Outbox:
         self.root.mkdir(parents=True, exist_ok=True)
         self._lock = threading.RLock()
         frames_dir = self.root / "frames"
+        for name in (f"frames/{MANIFEST}", "sensors.jsonl", "acked.log", "commands.jsonl"):
+            drop_cut_line(self.root / name)
         fresh = not (frames_dir / MANIFEST).exists()
         self._writer = FrameSetWriter(frames_dir, setup if fresh else None, fsync=fsync)
         self._sensors = (self.root / "sensors.jsonl").open("a", encoding="utf-8")
@@ -155,6 +192,15 @@ class Outbox:
             if self.fsync:
                 os.fsync(self._acked_fh.fileno())
             return settled
+
+    def discard(self, boot: str, seq: int) -> None:
+        """Stop offering an entry that cannot be sent (its image is gone or damaged).
+
+        Nothing is written: the entry is found again after a restart and
+        skipped again. The ship keeps a gap for it.
+        """
+        with self._lock:
+            self._pending.pop((boot, seq), None)
 
     # ------------------------------------------------------------ reading
     def pending(self) -> list[Entry]:

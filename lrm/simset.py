@@ -30,7 +30,7 @@ from camcal.frameset import (
 from camcal.parallel import process_pool
 from camcal.schedule import Schedule, trex_subsampled
 from lrm.sim.camera import CameraModel
-from lrm.sim.render import FrameRenderer
+from lrm.sim.render import FrameRenderer, TransportHalo
 from lrm.sim.scene import TREX_PLACEMENTS, LEMModel, Placement, Water, water_preset
 
 TRUTH = "truth.json"
@@ -56,6 +56,8 @@ class SimulationSpec:
     double_image_cameras: tuple[str, ...] = ("A",)
     flashes_per_frame: float = 0.0
     lem_on: bool = True
+    halo_model: str = "single"
+    transport: TransportHalo | None = None
 
     def setup(self) -> Setup:
         """The setup.json a lab would write: true distances, lab-calibrated ratios."""
@@ -97,6 +99,8 @@ def _renderer(spec: SimulationSpec, camera: str) -> FrameRenderer:
             spec.lem,
             seed=spec.seed,
             double_image=camera in spec.double_image_cameras,
+            halo_model=spec.halo_model,
+            transport=spec.transport,
         )
     return _RENDERERS[key]
 
@@ -168,6 +172,12 @@ def simulate_frame_set(
         raise FileExistsError(f"{out} already holds a frame set; choose an empty folder")
     jobs = plan_jobs(spec)
     workers = workers or os.cpu_count() or 1
+    if spec.halo_model == "transport":
+        # Compute (or load) each camera's transport halo once here, so that the worker
+        # processes find it in the cache instead of all computing it at once.
+        for p in spec.placements:
+            for wl in spec.schedule.wavelengths_nm:
+                _renderer(spec, p.camera).halo_table(wl)
     truths: list[dict[str, object]] = [{}] * len(jobs)
     done = 0
     if workers <= 1:

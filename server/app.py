@@ -14,7 +14,19 @@ from camcal import __version__
 from frontend import STATIC_DIR
 from server import errors
 from server.relay import LiveHub
-from server.routers import alarms, control, dives, frames, health, live, pages, series
+from server.routers import (
+    alarms,
+    calibrations,
+    control,
+    dives,
+    frames,
+    health,
+    live,
+    metrics,
+    operator,
+    pages,
+    series,
+)
 from server.settings import ServerSettings
 from storage.store import Store
 
@@ -57,7 +69,10 @@ def create_app(settings: ServerSettings | None = None, *, store: Store | None = 
         series.router,
         alarms.router,
         control.router,
+        calibrations.router,
+        metrics.router,
         live.router,
+        operator.router,
         pages.router,
     ):
         app.include_router(r)

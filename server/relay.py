@@ -28,6 +28,9 @@ from storage.store import Store
 
 log = logging.getLogger("camcal.server.live")
 
+#: Key of an event's JSON text, made once in `LiveHub.deliver` (see `encode_for`).
+ENCODED = "_json"
+
 #: Kinds a slow browser can do without (the next one replaces them).
 DROPPABLE = frozenset({"sensors", "attitude", "health", "frame", "result"})
 
@@ -40,10 +43,19 @@ class Client:
     seq: int = 0
     dropped: Counter[str] = field(default_factory=Counter)
     resync: bool = False
+    batch: bool = False
 
     def next_seq(self) -> int:
         self.seq += 1
         return self.seq
+
+
+def encode_for(message: dict[str, Any], seq: int) -> str:
+    """The JSON text of ``message`` with a connection's ``seq``, reusing the text made once per event."""
+    body = message.get(ENCODED)
+    if body is None:
+        return json.dumps({**message, "seq": seq}, default=str)
+    return f'{{"seq":{seq},{body[1:]}'
 
 
 class LiveHub:
@@ -154,6 +166,9 @@ class LiveHub:
             "t": event.get("t"),
             "payload": payload,
         }
+        if self.clients:
+            # Serialised once for every browser; each connection only prepends its own seq.
+            message[ENCODED] = json.dumps(message, default=str)
         for client in list(self.clients):
             self._offer(client, message)
 

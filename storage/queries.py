@@ -82,6 +82,20 @@ def dives(s: Session) -> list[dict[str, Any]]:
     ]
 
 
+def frame_settings(s: Session, dive_id: int) -> dict[str, list[Any]]:
+    """The distinct modules, wavelengths, exposures and gains of a dive's frames (for filter menus)."""
+    out: dict[str, list[Any]] = {}
+    for key, col in (
+        ("modules", Frame.module_id),
+        ("wavelengths_nm", Frame.wavelength_nm),
+        ("exposures_s", Frame.exposure_s),
+        ("gains_db", Frame.gain_db),
+    ):
+        q = select(col).where(Frame.dive_id == dive_id).distinct().order_by(col)
+        out[key] = [v for (v,) in s.execute(q)]
+    return out
+
+
 def frames_page(
     s: Session, f: FrameFilter, run_id: int | None, limit: int, offset: int, order: str = "time"
 ) -> tuple[list[dict[str, Any]], int]:

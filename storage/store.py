@@ -25,6 +25,7 @@ from storage.models import (
     AttenuationPoint,
     AttitudeSample,
     AuditEntry,
+    Calibration,
     CommandRecord,
     Dive,
     Event,
@@ -47,6 +48,19 @@ DIVE_LOCK_KEY = 0x63616D64697665  # "camdive"
 
 #: Order of a command's states: a late, older status never moves it back.
 COMMAND_STATES = {"pending": 0, "sent": 1, "accepted": 2, "in_progress": 3, "done": 4, "rejected": 4}
+
+
+def calibration_dict(c: Calibration) -> dict[str, Any]:
+    return {
+        "id": c.id,
+        "name": c.name,
+        "version": c.version,
+        "source": c.source,
+        "valid_from_unix_s": c.valid_from_unix_s,
+        "valid_to_unix_s": c.valid_to_unix_s,
+        "values": c.values,
+        "created_unix_s": c.created_unix_s,
+    }
 
 
 def command_dict(c: CommandRecord) -> dict[str, Any]:
@@ -742,6 +756,112 @@ class Store:
     def module_exists(self, module_id: str) -> bool:
         with self.read() as s:
             return s.get(Module, module_id) is not None
+
+    # ------------------------------------------------------------ calibrations
+    def add_calibration(
+        self,
+        name: str,
+        values: dict[str, Any],
+        *,
+        actor: str,
+        source: str = "",
+        valid_from_unix_s: float | None = None,
+        valid_to_unix_s: float | None = None,
+    ) -> dict[str, Any]:
+        """Store a new version of a named calibration (the next integer); audited. Old versions stay."""
+        with self.session() as s:
+            latest = s.scalar(select(func.max(Calibration.version)).where(Calibration.name == name)) or 0
+            cal = Calibration(
+                name=name,
+                version=latest + 1,
+                source=source,
+                valid_from_unix_s=valid_from_unix_s,
+                valid_to_unix_s=valid_to_unix_s,
+                values=values,
+                created_unix_s=now_unix_s(),
+            )
+            s.add(cal)
+            s.flush()
+            s.add(
+                AuditEntry(
+                    t_unix_s=now_unix_s(),
+                    actor=actor,
+                    action="calibration.add",
+                    target=f"calibration:{name}@{cal.version}",
+                    details={"id": cal.id, "source": source, "values": values},
+                )
+            )
+            return calibration_dict(cal)
+
+    def calibrations(self, name: str | None = None) -> list[dict[str, Any]]:
+        with self.read() as s:
+            q = select(Calibration)
+            if name:
+                q = q.where(Calibration.name == name)
+            return [calibration_dict(c) for c in s.scalars(q.order_by(Calibration.name, Calibration.version))]
+
+    def calibration(self, ref: int | str) -> dict[str, Any] | None:
+        """A calibration by id, by ``name@version``, or by name (its newest version valid now)."""
+        with self.read() as s:
+            if isinstance(ref, int) or (isinstance(ref, str) and ref.isdigit()):
+                c = s.get(Calibration, int(ref))
+                return calibration_dict(c) if c else None
+            name, _, version = str(ref).partition("@")
+            q = select(Calibration).where(Calibration.name == name)
+            if version:
+                if not version.isdigit():
+                    return None
+                q = q.where(Calibration.version == int(version))
+            else:
+                t = now_unix_s()
+                q = q.where(
+                    (Calibration.valid_from_unix_s.is_(None)) | (Calibration.valid_from_unix_s <= t),
+                    (Calibration.valid_to_unix_s.is_(None)) | (Calibration.valid_to_unix_s >= t),
+                )
+            c = s.scalars(q.order_by(Calibration.version.desc()).limit(1)).first()
+            return calibration_dict(c) if c else None
+
+    def use_calibration(self, dive_id: int, run_id: int, calibration_id: int, actor: str) -> None:
+        """Record that a dive (and its run) uses a calibration; audited."""
+        with self.session() as s:
+            s.execute(update(Dive).where(Dive.id == dive_id).values(calibration_id=calibration_id))
+            s.execute(
+                update(AnalysisRun).where(AnalysisRun.id == run_id).values(calibration_id=calibration_id)
+            )
+            s.add(
+                AuditEntry(
+                    t_unix_s=now_unix_s(),
+                    actor=actor,
+                    action="calibration.use",
+                    target=f"dive:{dive_id}",
+                    details={"calibration_id": calibration_id, "run_id": run_id},
+                )
+            )
+
+    # ------------------------------------------------------------ retention
+    def purge_frame_files(self, older_than_unix_s: float, modules: Sequence[str] = ()) -> tuple[int, int]:
+        """Delete frame files captured before a time (of ``modules`` if given: an ingest that shares
+        the data folder purges its own); rows, results and thumbnails stay.
+
+        Returns (files deleted, bytes freed). The image route then says the
+        file went to retention.
+        """
+        n = freed = 0
+        with self.read() as s:
+            q = select(Frame.path, Frame.size_bytes).where(Frame.captured_unix_s < older_than_unix_s)
+            if modules:
+                q = q.where(Frame.module_id.in_(list(modules)))
+            rows = s.execute(q)
+            for path, size in rows:
+                try:
+                    p = self.files.resolve(path)
+                except ValueError:
+                    continue
+                if p.exists():
+                    p.unlink()
+                    n += 1
+                    freed += int(size or 0)
+        return n, freed
 
     # ------------------------------------------------------------ checks
     def integrity_check(self) -> str:

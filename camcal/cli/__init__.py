@@ -4,7 +4,23 @@ from __future__ import annotations
 
 import typer
 
-from camcal.cli import analyze, calibrate, data, demo, ingest, lrm, reanalyze, serve, simulate, simulate_lab
+from camcal.cli import (
+    analyze,
+    calibrate,
+    calibration,
+    config,
+    data,
+    demo,
+    doctor,
+    fit,
+    ingest,
+    lrm,
+    reanalyze,
+    serve,
+    simulate,
+    simulate_lab,
+    transport,
+)
 
 app = typer.Typer(
     name="camcal",
@@ -13,15 +29,23 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
+# The science: simulate, analyse, fit.
 simulate.register(app)
 analyze.register(app)
 demo.register(app)
+fit.register(app)
+transport.register(app)
+# The live system.
 ingest.register(app)
 lrm.register(app)
-data.register(app)
 serve.register(app)
+data.register(app)
+# Calibrations and operations.
 simulate_lab.register(app)
 calibrate.register(app)
+calibration.register(app)
+config.register(app)
+doctor.register(app)
 reanalyze.register(app)
 
 

@@ -4,16 +4,16 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
 
-from analysis import REASON_HELP
 from camcal.cli.common import console, fail, parse_floats, parse_mapping, progress_bar
 from camcal.frameset import FrameSetError, write_atomic
-from camcal.pipeline import FrameSetAnalysis, Overrides, analyze_rows, load_frame_set, to_json
-from camcal.plots import write_plots
+
+if TYPE_CHECKING:
+    from camcal.pipeline import FrameSetAnalysis
 
 
 def register(app: typer.Typer) -> None:
@@ -53,6 +53,9 @@ def analyze(
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
 ) -> None:
     """Measure I_center on every frame and the attenuation length per wavelength."""
+    from camcal.pipeline import Overrides, analyze_rows, load_frame_set, to_json
+    from camcal.plots import write_plots
+
     lr = None
     if linear_range:
         vals = parse_floats(linear_range, "--linear-range")
@@ -83,6 +86,8 @@ def analyze(
 
 def print_summary(an: FrameSetAnalysis) -> None:
     """λ_att per wavelength and the frame counts by reason, as tables."""
+    from analysis import REASON_HELP
+
     table = Table(title="attenuation length λ_att", title_justify="left")
     for col in ("wavelength", "λ_att [m]", "stat [m]", "sys [m]", "pairs", "χ²/ndof"):
         table.add_column(col, justify="right")

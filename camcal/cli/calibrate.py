@@ -28,7 +28,6 @@ from camcal.calibrate import (
     run_tank_scan,
     tank_scan_document,
 )
-from camcal.calibrate import plots as cplots
 from camcal.calibrate.common import FrameOutcome, reason_counts
 from camcal.calibrate.psf import in_focus
 from camcal.calibrate.scans import LEM_DIAMETER_M
@@ -39,6 +38,12 @@ calibrate_app = typer.Typer(
     help="Lab calibrations of the camera system: one subcommand per experiment, each on a frame set.",
     no_args_is_help=True,
 )
+
+
+def _plots():
+    from camcal.calibrate import plots
+
+    return plots
 
 
 def register(app: typer.Typer) -> None:
@@ -195,7 +200,7 @@ def linearity(
     console.print(f"recommended linear range: {lo:.1f} – {hi:.1f} gray (setup.json linear_range)")
     _frames_table(cal.frames)
     doc = linearity_document(cal, _command_line(ctx))
-    _outputs(doc, json_out, plots, lambda out: cplots.plot_linearity(cal, out))
+    _outputs(doc, json_out, plots, lambda out: _plots().plot_linearity(cal, out))
 
 
 @calibrate_app.command("emission-ratio")
@@ -252,7 +257,7 @@ def emission_ratio(
     console.print(t)
     _frames_table(cal.frames)
     doc = emission_document(cal, _command_line(ctx))
-    _outputs(doc, json_out, plots, lambda out: cplots.plot_emission(cal, out))
+    _outputs(doc, json_out, plots, lambda out: _plots().plot_emission(cal, out))
 
 
 @calibrate_app.command("air-scan")
@@ -306,7 +311,7 @@ def air_scan(
     console.print(t)
     _frames_table(cal.frames)
     doc = air_scan_document(cal, _command_line(ctx))
-    _outputs(doc, json_out, plots, lambda out: cplots.plot_air_scan(cal, out))
+    _outputs(doc, json_out, plots, lambda out: _plots().plot_air_scan(cal, out))
 
 
 @calibrate_app.command("tank-scan")
@@ -346,7 +351,7 @@ def tank_scan(
     console.print(t)
     _frames_table(cal.frames)
     doc = tank_scan_document(cal, _command_line(ctx))
-    _outputs(doc, json_out, plots, lambda out: cplots.plot_tank_scan(cal, out))
+    _outputs(doc, json_out, plots, lambda out: _plots().plot_tank_scan(cal, out))
 
 
 @calibrate_app.command("psf")
@@ -392,4 +397,4 @@ def psf(
     console.print(t)
     _frames_table(cal.frames)
     doc = psf_document(cal, _command_line(ctx))
-    _outputs(doc, json_out, plots, lambda out: cplots.plot_psf(cal, out))
+    _outputs(doc, json_out, plots, lambda out: _plots().plot_psf(cal, out))

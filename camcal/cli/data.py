@@ -80,7 +80,8 @@ def import_cmd(
     console.print(
         f"dive {d.name}: {report.imported} frames imported, {report.already_present} already present, "
         f"{report.sensor_batches} sensor batches, {report.analysed} analysed, "
-        f"{report.gaps_filled} gaps closed"
+        f"{report.gaps_filled} gaps closed",
+        soft_wrap=True,
     )
     if report.problems:
         t = Table(title=f"{len(report.problems)} not imported", title_justify="left")
@@ -113,4 +114,4 @@ def export_cmd(
         raise fail(str(exc)) from None
     finally:
         store.close()
-    console.print(f"dive {d.name}: wrote {len(files)} files to {out}")
+    console.print(f"dive {d.name}: wrote {len(files)} files to {out}", soft_wrap=True)

@@ -12,12 +12,6 @@ from rich.table import Table
 
 from camcal.cli.analyze import print_summary
 from camcal.cli.common import console, fail, progress_bar
-from camcal.frameset import write_atomic
-from camcal.pipeline import analyze_folder, to_json
-from camcal.plots import write_plots
-from camcal.schedule import Schedule
-from lrm.sim.scene import water_preset
-from lrm.simset import SimulationSpec, simulate_frame_set
 
 
 def register(app: typer.Typer) -> None:
@@ -33,6 +27,13 @@ def demo(
     repeats: Annotated[int, typer.Option(help="Frames per setting.")] = 3,
 ) -> None:
     """Simulate a T-REX frame set at 3420 m, analyse it and compare λ_att with the truth."""
+    from camcal.frameset import write_atomic
+    from camcal.pipeline import analyze_folder, to_json
+    from camcal.plots import write_plots
+    from camcal.schedule import Schedule
+    from lrm.sim.scene import water_preset
+    from lrm.simset import SimulationSpec, simulate_frame_set
+
     try:
         w = water_preset(water)
     except ValueError as exc:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import re
 import signal
@@ -12,31 +13,37 @@ from typing import Annotated
 import typer
 
 from camcal.cli.common import console, fail
-from camcal.frameset import FrameSetError, Setup, read_setup
+from camcal.cli.config import settings_or_fail
+from camcal.frameset import FrameSetError, Setup, parse_setup, read_setup
+from camcal.logs import configure_logging
+from camcal.settings import Settings
 
 
 def register(app: typer.Typer) -> None:
     app.command("ingest")(ingest)
 
 
-def load_setup(setup: Path | None) -> Setup:
-    """A setup.json file (or a frame-set folder holding one), or the T-REX defaults."""
+def load_setup(setup: Path | None, settings: Settings) -> Setup:
+    """A setup.json file (or a frame-set folder holding one), else the configured modules and ratios."""
     if setup is None:
-        return Setup()
-    folder = setup if setup.is_dir() else setup.parent
-    if not setup.is_dir() and setup.name != "setup.json":
-        import json
-
-        from camcal.frameset import parse_setup
-
+        return settings.setup()
+    if setup.is_dir():
         try:
-            return parse_setup(json.loads(setup.read_text()), str(setup))
-        except (OSError, ValueError) as exc:
-            raise fail(f"{setup}: {exc}") from None
+            return read_setup(setup)
+        except FrameSetError as exc:
+            raise fail(str(exc)) from None
     try:
-        return read_setup(folder)
+        return parse_setup(json.loads(setup.read_text()), str(setup))
     except FrameSetError as exc:
         raise fail(str(exc)) from None
+    except (OSError, ValueError) as exc:
+        raise fail(f"{setup}: {exc}") from None
+
+
+def alarm_limits(settings: Settings):
+    from ingest.alarms import AlarmLimits
+
+    return AlarmLimits(**settings.alarms.model_dump())
 
 
 def parse_modules(text: str | None) -> tuple[str, ...]:
@@ -51,14 +58,14 @@ def parse_modules(text: str | None) -> tuple[str, ...]:
 
 
 def ingest(
-    data: Annotated[Path, typer.Option(help="Data folder (database and frame files).")] = Path("camcal-data"),
-    bind: Annotated[str, typer.Option(help="Where modules connect: tcp://*:PORT.")] = "tcp://*:5555",
-    events: Annotated[
-        str, typer.Option(help="Where the dashboard subscribes to events.")
-    ] = "tcp://127.0.0.1:5556",
-    db_url: Annotated[
-        str | None, typer.Option(help="SQLAlchemy URL (default: SQLite in the data folder).")
+    data: Annotated[Path | None, typer.Option(help="Data folder [CAMCAL_DATA_DIR].")] = None,
+    bind: Annotated[
+        str | None, typer.Option(help="Where modules connect, tcp://*:PORT [CAMCAL_INGEST_BIND].")
     ] = None,
+    events: Annotated[
+        str | None, typer.Option(help="Event publisher for the dashboard [CAMCAL_EVENTS_BIND].")
+    ] = None,
+    db_url: Annotated[str | None, typer.Option(help="SQLAlchemy URL [CAMCAL_DATABASE_URL].")] = None,
     setup: Annotated[
         Path | None, typer.Option(help="setup.json with distances, I0'/I0, linear range.")
     ] = None,
@@ -72,28 +79,46 @@ def ingest(
             "ingests share one database: each module is served by exactly one; others are refused."
         ),
     ] = None,
-    workers: Annotated[int, typer.Option(help="Analysis processes (default: all cores).")] = 0,
-    window: Annotated[
-        int, typer.Option(help="Credit: unacknowledged messages a module may have in flight.")
-    ] = 8,
-    fsync: Annotated[bool, typer.Option(help="fsync every frame file before acknowledging it.")] = True,
-    log_level: Annotated[str, typer.Option(help="debug, info, warning.")] = "info",
+    workers: Annotated[
+        int | None, typer.Option(help="Analysis processes (0: all cores) [CAMCAL_WORKERS].")
+    ] = None,
+    window: Annotated[int | None, typer.Option(help="Credit per module [CAMCAL_WINDOW].")] = None,
+    fsync: Annotated[
+        bool | None, typer.Option(help="fsync frame files before acknowledging [CAMCAL_FSYNC].")
+    ] = None,
+    config: Annotated[Path | None, typer.Option(help="A TOML configuration file [CAMCAL_CONFIG].")] = None,
+    log_level: Annotated[str | None, typer.Option(help="debug, info, warning [CAMCAL_LOG_LEVEL].")] = None,
 ) -> None:
     """Receive frames and sensor packets from the modules, store, analyse and publish them."""
     from ingest.service import IngestConfig, IngestService
 
-    logging.basicConfig(level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     served = parse_modules(modules)
-    cfg = IngestConfig(
+    s = settings_or_fail(
+        config,
         data_dir=data,
-        bind=bind,
+        ingest_bind=bind,
         events_bind=events,
-        db_url=db_url,
-        setup=load_setup(setup),
-        dive_name=dive,
+        database_url=db_url,
         workers=workers,
         window=window,
         fsync=fsync,
+        log_level=log_level,
+    )
+    configure_logging(s.log_level, s.log_format)
+    cfg = IngestConfig(
+        data_dir=s.data_dir,
+        bind=s.ingest_bind,
+        events_bind=s.events_bind,
+        db_url=s.database_url,
+        setup=load_setup(setup, s),
+        dive_name=dive,
+        workers=s.workers,
+        window=s.window,
+        fsync=s.fsync,
+        sqlite_synchronous=s.sqlite_synchronous,
+        rolling_window_s=s.rolling_window_s,
+        alarm_limits=alarm_limits(s),
+        retention_days=s.retention_days,
         modules=served,
     )
     try:
@@ -103,7 +128,7 @@ def ingest(
         raise fail(f"cannot start the ingest: {exc}") from None
     console.print(
         f"ingest: modules connect to {svc.endpoint}; events on {svc.events_endpoint}; "
-        f"dive {svc.dive.name}; data in {data}" + (f"; serving {', '.join(served)}" if served else "")
+        f"dive {svc.dive.name}; data in {s.data_dir}" + (f"; serving {', '.join(served)}" if served else "")
     )
     done = threading.Event()
 
@@ -118,4 +143,5 @@ def ingest(
     svc.stop()
     if svc.error is not None:
         raise fail(f"ingest stopped after an error: {svc.error}", code=1)
+    logging.getLogger("camcal.ingest").info("ingest stopped cleanly")
     console.print("ingest stopped cleanly")

@@ -14,6 +14,9 @@ from typing import Annotated
 import typer
 
 from camcal.cli.common import console, fail
+from camcal.cli.config import settings_or_fail
+from camcal.logs import configure_logging
+from camcal.settings import Settings
 
 
 def register(app: typer.Typer) -> None:
@@ -21,57 +24,76 @@ def register(app: typer.Typer) -> None:
     app.command("up")(up)
 
 
-def operator_tokens(items: list[str] | None) -> dict[str, str]:
-    """``NAME=TOKEN`` items, plus ``CAMCAL_OPERATOR_TOKENS`` (comma-separated ``NAME=TOKEN``)."""
-    out: dict[str, str] = {}
-    for item in [*(os.environ.get("CAMCAL_OPERATOR_TOKENS", "").split(",")), *(items or [])]:
-        item = item.strip()
-        if not item:
-            continue
-        name, sep, token = item.partition("=")
+def operator_tokens(items: list[str] | None, settings: Settings) -> dict[str, str]:
+    """Configured tokens (``CAMCAL_OPERATOR_TOKENS``) plus ``NAME=TOKEN`` options."""
+    out = settings.tokens()
+    for item in items or []:
+        name, sep, token = item.strip().partition("=")
         if not sep or not name or len(token) < 8:
-            raise fail("operator tokens are NAME=TOKEN with a token of at least 8 characters")
+            raise fail("--operator-token: give NAME=TOKEN with a token of at least 8 characters")
         out[name] = token
+    for name, token in out.items():
+        if len(token) < 8:
+            raise fail(f"operator token of {name!r} is shorter than 8 characters")
     return out
 
 
-def run_server(
-    data: Path, host: str, port: int, events: str | None, tokens: dict[str, str], db_url: str | None = None
-) -> None:
+def run_server(settings: Settings, tokens: dict[str, str], events: str | None) -> None:
     import uvicorn
 
     from server.app import create_app
     from server.settings import ServerSettings
 
-    app = create_app(ServerSettings(data_dir=data, db_url=db_url, events=events, operator_tokens=tokens))
-    config = uvicorn.Config(app, host=host, port=port, log_level="warning", ws_ping_interval=20)
-    server = uvicorn.Server(config)
+    app = create_app(
+        ServerSettings(
+            data_dir=settings.data_dir,
+            db_url=settings.database_url,
+            events=events,
+            operator_tokens=tokens,
+            linear_range=settings.linear_range,
+        )
+    )
+    # No permessage-deflate: compressing every event once per browser costs the ship more CPU than
+    # the bytes it saves on its own network (events are a few hundred bytes of JSON).
+    config = uvicorn.Config(
+        app,
+        host=settings.http_host,
+        port=settings.http_port,
+        log_level="warning",
+        ws_ping_interval=20,
+        ws_per_message_deflate=False,
+    )
     try:
-        server.run()
+        uvicorn.Server(config).run()
     except OSError as exc:
-        raise fail(f"cannot serve on {host}:{port}: {exc}") from None
+        raise fail(f"cannot serve on {settings.http_host}:{settings.http_port}: {exc}") from None
 
 
 def serve(
-    data: Annotated[Path, typer.Option(help="Data folder (database and frame files).")] = Path("camcal-data"),
+    data: Annotated[Path | None, typer.Option(help="Data folder [CAMCAL_DATA_DIR].")] = None,
     host: Annotated[
-        str, typer.Option(help="Address to listen on (0.0.0.0 for the ship's network).")
-    ] = "127.0.0.1",
-    port: Annotated[int, typer.Option(help="HTTP port.")] = 8000,
-    events: Annotated[
-        str, typer.Option(help="The ingest's event publisher; 'none' for review only.")
-    ] = "tcp://127.0.0.1:5556",
-    db_url: Annotated[
-        str | None, typer.Option(help="SQLAlchemy URL (default: SQLite in the data folder).")
+        str | None, typer.Option(help="Address; 0.0.0.0 for the ship's network [CAMCAL_HTTP_HOST].")
     ] = None,
+    port: Annotated[int | None, typer.Option(help="HTTP port [CAMCAL_HTTP_PORT].")] = None,
+    events: Annotated[
+        str | None, typer.Option(help="The ingest's events; 'none' for review only [CAMCAL_EVENTS_CONNECT].")
+    ] = None,
+    db_url: Annotated[str | None, typer.Option(help="SQLAlchemy URL [CAMCAL_DATABASE_URL].")] = None,
     operator_token: Annotated[
         list[str] | None, typer.Option(help="NAME=TOKEN of an operator (repeat).")
     ] = None,
+    config: Annotated[Path | None, typer.Option(help="A TOML configuration file [CAMCAL_CONFIG].")] = None,
 ) -> None:
     """Serve the dashboard and the API (OpenAPI at /docs) for a data folder."""
-    tokens = operator_tokens(operator_token)
-    console.print(f"camcal server: http://{host}:{port}  (API docs at /docs; data {data})")
-    run_server(data, host, port, None if events == "none" else events, tokens, db_url)
+    s = settings_or_fail(
+        config, data_dir=data, http_host=host, http_port=port, events_connect=events, database_url=db_url
+    )
+    configure_logging(s.log_level, s.log_format)
+    tokens = operator_tokens(operator_token, s)
+    console.print(
+        f"camcal server: http://{s.http_host}:{s.http_port}  (API docs at /docs; data {s.data_dir})"
+    )
+    run_server(s, tokens, None if s.events_connect == "none" else s.events_connect)
 
 
 def _spawn(args: list[str], log: Path) -> subprocess.Popen[bytes]:
@@ -85,11 +107,9 @@ def _spawn(args: list[str], log: Path) -> subprocess.Popen[bytes]:
 
 
 def up(
-    data: Annotated[Path, typer.Option(help="Data folder; an open dive there is continued.")] = Path(
-        "camcal-data"
-    ),
-    port: Annotated[int, typer.Option(help="Dashboard port.")] = 8000,
-    host: Annotated[str, typer.Option(help="Dashboard address.")] = "127.0.0.1",
+    data: Annotated[Path | None, typer.Option(help="Data folder; an open dive there is continued.")] = None,
+    port: Annotated[int | None, typer.Option(help="Dashboard port [CAMCAL_HTTP_PORT].")] = None,
+    host: Annotated[str | None, typer.Option(help="Dashboard address [CAMCAL_HTTP_HOST].")] = None,
     ingest_port: Annotated[int, typer.Option(help="Port modules connect to.")] = 5555,
     events_port: Annotated[int, typer.Option(help="Port of the ingest's event publisher.")] = 5556,
     simulate: Annotated[bool, typer.Option(help="Run two simulated modules (A and B).")] = True,
@@ -97,24 +117,36 @@ def up(
     frame_scale: Annotated[float, typer.Option(help="Simulated sensor scale (1 = 5 MP).")] = 0.5,
     schedule: Annotated[str, typer.Option(help="Schedule of the simulated modules.")] = "trex-subsampled",
     seed: Annotated[int, typer.Option(help="Seed of the simulated dive.")] = 0,
+    deck_s: Annotated[
+        float, typer.Option(help="Simulated time on deck before the descent, in seconds.")
+    ] = 60.0,
+    winch_m_per_s: Annotated[float, typer.Option(help="Simulated descent and ascent speed, in m/s.")] = 1.0,
+    test_stop_s: Annotated[
+        float, typer.Option(help="Simulated time at each test stop (1200 m, 2021 m), in seconds.")
+    ] = 120.0,
+    station_s: Annotated[
+        float, typer.Option(help="Simulated time on station at 3420 m, in seconds.")
+    ] = 1800.0,
     operator_token: Annotated[
         list[str] | None, typer.Option(help="NAME=TOKEN of an operator (repeat).")
     ] = None,
+    config: Annotated[Path | None, typer.Option(help="A TOML configuration file [CAMCAL_CONFIG].")] = None,
 ) -> None:
     """Start the whole system: ingest, two simulated modules on a simulated dive, and the dashboard."""
-    data.mkdir(parents=True, exist_ok=True)
-    logs = data / "logs"
+    s = settings_or_fail(config, data_dir=data, http_host=host, http_port=port)
+    configure_logging(s.log_level, s.log_format)
+    data_dir = s.data_dir
+    data_dir.mkdir(parents=True, exist_ok=True)
+    logs = data_dir / "logs"
     logs.mkdir(exist_ok=True)
-    tokens = operator_tokens(operator_token)
-    if not tokens:
-        tokens = {"operator": secrets.token_urlsafe(12)}
+    tokens = operator_tokens(operator_token, s) or {"operator": secrets.token_urlsafe(12)}
     events = f"tcp://127.0.0.1:{events_port}"
     from storage.store import Store
 
     try:
-        Store.open(data).close()  # create or migrate the database before anyone uses it
+        Store.open(data_dir, s.database_url).close()  # create or migrate the database before anyone uses it
     except Exception as exc:
-        raise fail(f"cannot open the store in {data}: {exc}") from None
+        raise fail(f"cannot open the store in {data_dir}: {exc}") from None
     children: list[tuple[str, subprocess.Popen[bytes]]] = [
         (
             "ingest",
@@ -122,7 +154,7 @@ def up(
                 [
                     "ingest",
                     "--data",
-                    str(data),
+                    str(data_dir),
                     "--bind",
                     f"tcp://127.0.0.1:{ingest_port}",
                     "--events",
@@ -147,7 +179,7 @@ def up(
                             "--connect",
                             f"tcp://127.0.0.1:{ingest_port}",
                             "--outbox",
-                            str(data / f"outbox-{m}"),
+                            str(data_dir / f"outbox-{m}"),
                             "--speed",
                             str(speed),
                             "--frame-scale",
@@ -158,18 +190,28 @@ def up(
                             str(seed),
                             "--epoch",
                             str(epoch),
+                            "--deck-s",
+                            str(deck_s),
+                            "--winch-m-per-s",
+                            str(winch_m_per_s),
+                            "--test-stop-s",
+                            str(test_stop_s),
+                            "--station-s",
+                            str(station_s),
                         ],
                         logs / f"module-{m}.log",
                     ),
                 )
             )
-    console.print(f"[bold]camcal is up:[/] dashboard http://{host}:{port}  (review: /review, API: /docs)")
-    console.print(f"data: {data}   logs: {logs}   modules connect to tcp://<this host>:{ingest_port}")
+    console.print(
+        f"[bold]camcal is up:[/] dashboard http://{s.http_host}:{s.http_port}  (review: /review, API: /docs)"
+    )
+    console.print(f"data: {data_dir}   logs: {logs}   modules connect to tcp://<this host>:{ingest_port}")
     for name, token in tokens.items():
         console.print(f"operator token for {name}: {token}")
     console.print("stop with Ctrl-C")
     try:
-        run_server(data, host, port, events, tokens)
+        run_server(s, tokens, events)
     finally:
         stop_children(children)
 

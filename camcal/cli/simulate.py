@@ -84,10 +84,19 @@ def simulate_set(
     offset_y: Annotated[float, typer.Option(help="LEM offset from the optical axis, y [px].")] = 0.0,
     sway: Annotated[float, typer.Option(help="Sway speed of the modules, one sigma [m/s].")] = 0.02,
     flashes: Annotated[float, typer.Option(help="Mean bioluminescence specks per frame.")] = 0.0,
+    halo: Annotated[
+        str,
+        typer.Option(
+            help="Halo model: single (fast once-scattered approximation) or transport "
+            "(photon transport, the χ² fit's physics; computed once, then cached)."
+        ),
+    ] = "single",
     workers: Annotated[int, typer.Option(help="Worker processes (default: all cores).")] = 0,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
 ) -> None:
     """Simulate a dive's frame set (manifest, setup.json, PNGs) and its ground truth (truth.json)."""
+    if halo not in ("single", "transport"):
+        raise fail(f"--halo: unknown halo model {halo!r} (single, transport)")
     w = build_water(water, absorption, scattering, mie_g, rayleigh_fraction)
     distances = parse_mapping(distance, "--distance")
     placements = list(TREX_PLACEMENTS)
@@ -132,6 +141,7 @@ def simulate_set(
         offset_px=(offset_x, offset_y),
         sway_m_per_s=sway,
         flashes_per_frame=flashes,
+        halo_model=halo,
     )
     n = sched.n_frames * len(placements)
     console.print(

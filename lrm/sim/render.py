@@ -5,7 +5,10 @@ gray values:
 
 * the LEM disk: radius ``f * a / sqrt(L² - a²)`` pixels, surface radiance
   ``B * exp(-L / λ_att)`` (B of the side the camera faces), antialiased;
-* the once-scattered halo around it (`analysis.scattering.single_scatter_halo`);
+* the scattered-light halo around it: by default the once-scattered halo of
+  `analysis.scattering.single_scatter_halo`; with ``halo_model="transport"``
+  the photon transport's (`analysis.transport`: exact single scattering plus
+  Monte Carlo multiple scattering, the physics the χ² fit uses), cached;
 * the dark current, and fixed hot pixels of the sensor;
 * optionally bioluminescence specks;
 
@@ -19,17 +22,44 @@ offset, gain, the soft knee above 240, quantisation and clipping at 255.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import cv2
 import numpy as np
 
-from analysis.scattering import single_scatter_halo
+from analysis.scattering import WaterOptics, single_scatter_halo
+from analysis.transport.cache import TemplateCache
+from analysis.transport.templates import EmissionProfile, TemplateGrid, camera_halo
 from lrm.sim.camera import CameraModel
 from lrm.sim.scene import LEMModel, Placement, Water
 
 #: The coarse grid on which the wide halo is evaluated before upsampling.
 HALO_GRID_STEP = 8
+#: The halo models a renderer knows.
+HALO_MODELS = ("single", "transport")
+
+
+@dataclass(frozen=True)
+class TransportHalo:
+    """How a renderer computes its halo with ``halo_model="transport"``.
+
+    By default the halo is a one-node template
+    (`analysis.transport.templates.camera_halo`) at the water's own λ_sca
+    and ⟨cos θ⟩, cached in ``cache_dir`` (None: the default cache). Its
+    ``seed`` differs from the fit templates' default, so simulated frames and
+    the templates fitted to them carry independent Monte Carlo noise.
+
+    ``grid`` instead evaluates a given template grid (it must hold this
+    camera and reach the frame's corner): simulation studies of the fit that
+    want the simulator and the fit to share not only the physics but the
+    same Monte Carlo sample, so that only the fit itself is tested.
+    """
+
+    cache_dir: str | None = None
+    n_photons: int = 1_000_000
+    max_order: int = 6
+    seed: int = 7
+    grid: TemplateGrid | None = field(default=None, repr=False, compare=False)
 
 
 @dataclass(frozen=True)
@@ -87,6 +117,8 @@ class FrameRenderer:
         double_image_edge_fraction: float = 0.08,
         double_image_offset_px: float = 15.0,
         double_image_fraction: float = 0.42,
+        halo_model: str = "single",
+        transport: TransportHalo | None = None,
     ) -> None:
         self.camera = camera
         self.placement = placement
@@ -96,14 +128,23 @@ class FrameRenderer:
         self.double_image_edge_fraction = double_image_edge_fraction
         self.double_image_offset_px = double_image_offset_px
         self.double_image_fraction = double_image_fraction
+        if halo_model not in HALO_MODELS:
+            raise ValueError(f"halo_model must be one of {', '.join(HALO_MODELS)}, got {halo_model!r}")
+        self.halo_model = halo_model
+        self.transport = transport or TransportHalo()
         a, big_l = self.lem.radius_m, placement.distance_m
         if big_l <= a:
             raise ValueError(f"camera {placement.camera} at {big_l} m sits inside the LEM")
         self.disk_radius_px = camera.focal_px * a / math.sqrt(big_l * big_l - a * a)
         half_diag = math.hypot(camera.width_px, camera.height_px)
-        self._psi_grid = np.concatenate(
-            [[0.0], np.geomspace(1e-6, math.atan(half_diag / camera.focal_px) * 1.05, 400)]
-        )
+        psi_max = math.atan(half_diag / camera.focal_px) * 1.05
+        self._psi_grid = np.concatenate([[0.0], np.geomspace(1e-6, psi_max, 400)])
+        if halo_model == "transport":
+            # The transport's halo is tabulated per one-pixel band: sample it every half pixel so
+            # that interpolating here does not reshape it (its kinks would move otherwise).
+            self._psi_grid = np.arctan(
+                np.arange(0.0, math.tan(psi_max) * camera.focal_px + 1.0, 0.5) / camera.focal_px
+            )
         self._halo: dict[int, np.ndarray] = {}
         camera_seed = int(np.frombuffer(placement.camera.encode()[:8].ljust(8, b"\0"), "<u8")[0])
         self._hot = camera.hot_pixels(seed=(seed * 7919 + camera_seed) % (2**63))
@@ -116,13 +157,54 @@ class FrameRenderer:
     def halo_table(self, wavelength_nm: int) -> np.ndarray:
         """h(ψ) on the renderer's ψ grid: halo radiance over LEM surface radiance."""
         if wavelength_nm not in self._halo:
-            self._halo[wavelength_nm] = single_scatter_halo(
+            water = self.water.at(wavelength_nm)
+            if self.halo_model == "transport":
+                self._halo[wavelength_nm] = self._transport_halo(wavelength_nm, water)
+            else:
+                self._halo[wavelength_nm] = single_scatter_halo(
+                    self._psi_grid, self.placement.distance_m, water, self.lem.radius_m
+                )
+        return self._halo[wavelength_nm]
+
+    def _transport_halo(self, wavelength_nm: int, water: WaterOptics) -> np.ndarray:
+        """The transport's halo over the surface radiance of the side this camera faces."""
+        opts = self.transport
+        emission = EmissionProfile(float(self.lem.emission_ratio.get(wavelength_nm, 1.0)))
+        side = -1 if self.placement.faces_far_side else 1
+        if opts.grid is not None:
+            grid = opts.grid
+            if abs(grid.settings.focal_px - self.camera.focal_px) > 1e-6 * self.camera.focal_px:
+                raise ValueError(
+                    f"transport grid focal_px {grid.settings.focal_px} differs from the camera's "
+                    f"{self.camera.focal_px}"
+                )
+            h = grid.halo_at_psi(
+                self._psi_grid,
+                grid.camera_index(self.placement.distance_m, side),
+                water.lambda_abs_m,
+                water.lambda_sca_m,
+                water.mie_g,
+                emission,
+            )
+        else:
+            h = camera_halo(
                 self._psi_grid,
                 self.placement.distance_m,
-                self.water.at(wavelength_nm),
-                self.lem.radius_m,
+                side,
+                self.camera.focal_px,
+                water.lambda_abs_m,
+                water.lambda_sca_m,
+                water.mie_g,
+                water.rayleigh_fraction,
+                emission,
+                lem_radius_m=self.lem.radius_m,
+                refractive_index=water.refractive_index,
+                n_photons=opts.n_photons,
+                max_order=opts.max_order,
+                seed=opts.seed,
+                cache=TemplateCache(opts.cache_dir),
             )
-        return self._halo[wavelength_nm]
+        return h / self.emission_factor(wavelength_nm)
 
     def surface_radiance_e_per_s(self, wavelength_nm: int) -> float:
         """B of the LEM side this camera faces, before the water."""

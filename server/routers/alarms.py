@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import time
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query
 from fastapi.concurrency import run_in_threadpool
 
-from server.deps import IdPath, OperatorDep, StoreDep
+from server.deps import HubDep, IdPath, OperatorDep, StoreDep
 from server.errors import NotFound
 from server.schemas import AckRequest, AlarmPublic
 from storage import queries
@@ -30,13 +31,27 @@ async def list_alarms(
 
 @router.post("/api/alarms/{alarm_id}/ack", response_model=AlarmPublic)
 async def ack(
-    alarm_id: IdPath, store: StoreDep, who: OperatorDep, body: AckRequest | None = None
+    alarm_id: IdPath, store: StoreDep, hub: HubDep, who: OperatorDep, body: AckRequest | None = None
 ) -> dict[str, Any]:
-    """Acknowledge an alarm (operator token); recorded in the audit log."""
+    """Acknowledge an alarm (operator token); recorded in the audit log.
+
+    Every connected browser hears of it as a live ``alarm`` event with
+    ``state: "acked"`` (not stored: the alarm row itself records the ack).
+    """
     alarm = await run_in_threadpool(store.ack_alarm, alarm_id, who)
     if alarm is None:
         raise NotFound(f"no alarm {alarm_id}")
-    return queries.alarm_dict(alarm)
+    out = queries.alarm_dict(alarm)
+    hub.deliver(
+        {
+            "kind": "alarm",
+            "id": None,
+            "module": out["module"],
+            "t": time.time(),
+            "payload": {"alarm_id": out["id"], "state": "acked", **out},
+        }
+    )
+    return out
 
 
 @router.get("/api/audit")

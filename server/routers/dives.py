@@ -13,6 +13,7 @@ from fastapi import APIRouter, Query
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
 
+from camcal.calibrations import setup_of
 from camcal.frameset import Setup, parse_setup
 from ingest.derived import ResultRow, attenuation_dict, span_attenuation
 from ingest.reanalysis import ReanalysisOptions, reanalyse, start_run
@@ -63,6 +64,18 @@ async def timeline(
     def q() -> dict[str, Any]:
         with store.read() as s:
             return queries.timeline(s, dive_id, max_points)
+
+    return await run_in_threadpool(q)
+
+
+@router.get("/api/dives/{dive_id}/settings")
+async def settings_of_dive(dive_id: int, store: StoreDep) -> dict[str, Any]:
+    """The modules, wavelengths, exposures and gains the dive's frames were taken with."""
+    dive_or_404(store, dive_id)
+
+    def q() -> dict[str, Any]:
+        with store.read() as s:
+            return queries.frame_settings(s, dive_id)
 
     return await run_in_threadpool(q)
 
@@ -162,6 +175,11 @@ async def create_reanalysis(
     """
     dive_or_404(store, dive_id)
     _, base = run_setup(store, dive_id, None)
+    if body.calibration_id is not None:
+        record = store.calibration(body.calibration_id)
+        if record is None:
+            raise NotFound(f"no calibration {body.calibration_id}")
+        base = setup_of(record)
     data = base.model_dump()
     if body.cameras:
         for cam, d in body.cameras.items():
@@ -175,9 +193,15 @@ async def create_reanalysis(
         setup = parse_setup(data, "re-analysis")
     except Exception as exc:
         raise Invalid(str(exc)) from None
-    run_id = start_run(store, dive_id, setup, body.label or f"re-analysis by {who}", body.calibration_id)
+    label = body.label or f"re-analysis by {who}"
+    if body.calibration_id is not None and not body.label:
+        label = f"calibration {record['name']} v{record['version']}"
+    run_id = start_run(store, dive_id, setup, label, body.calibration_id)
     store.audit(
-        who, "reanalysis.start", f"dive:{dive_id}", {"run_id": run_id, "calibration": setup.to_json()}
+        who,
+        "reanalysis.start",
+        f"dive:{dive_id}",
+        {"run_id": run_id, "calibration_id": body.calibration_id, "calibration": setup.to_json()},
     )
 
     def job() -> None:

@@ -128,7 +128,18 @@ def _stored_path(store: Any, frame_id: IdPath) -> tuple[Path, Path]:
     responses={200: {"content": {"image/jpeg": {}}}},
 )
 async def thumbnail(frame_id: IdPath, store: StoreDep) -> Response:
-    """A 512 px JPEG of the frame, made once and cached."""
+    """A 512 px JPEG of the frame, made once and cached.
+
+    A cached thumbnail is served straight from ``thumbs/<id>.jpg`` (the id is
+    an integer, so the name cannot leave that folder) without a database
+    query: every live browser asks for every new one.
+    """
+    headers = {"Cache-Control": "public, max-age=86400, immutable"}
+    cached = store.files.root / "thumbs" / f"{frame_id}.jpg"
+    try:
+        return Response(cached.read_bytes(), media_type="image/jpeg", headers=headers)
+    except FileNotFoundError:
+        pass
 
     def make() -> bytes:
         image, thumb = _stored_path(store, frame_id)
@@ -143,9 +154,7 @@ async def thumbnail(frame_id: IdPath, store: StoreDep) -> Response:
         return data
 
     data = await run_in_threadpool(make)
-    return Response(
-        data, media_type="image/jpeg", headers={"Cache-Control": "public, max-age=86400, immutable"}
-    )
+    return Response(data, media_type="image/jpeg", headers=headers)
 
 
 @router.get(
@@ -157,6 +166,8 @@ async def image(frame_id: IdPath, store: StoreDep) -> FileResponse:
     """The full frame as stored (lossless PNG, exactly the module's bytes)."""
     path, _ = await run_in_threadpool(_stored_path, store, frame_id)
     if not path.exists():
-        raise Unavailable(f"frame {frame_id}: its file is missing from the data folder")
+        raise Unavailable(
+            f"frame {frame_id}: its file is no longer in the data folder (removed by retention?)"
+        )
     media = "image/tiff" if path.suffix == ".tif" else "image/png"
     return FileResponse(path, media_type=media, headers={"Cache-Control": "public, max-age=86400, immutable"})

@@ -12,12 +12,15 @@ from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from fastapi.concurrency import run_in_threadpool
 
 from server.deps import HubDep, SettingsDep, StoreDep
-from server.relay import LiveHub
+from server.relay import LiveHub, encode_for
 from server.settings import ServerSettings
 from storage import queries
 from storage.store import Store
 
 router = APIRouter(tags=["live"])
+#: How long a batching connection gathers events after the first one, and how many at most.
+BATCH_WINDOW_S = 0.05
+BATCH_MAX = 200
 
 
 def build_snapshot(store: Store, hub: LiveHub, settings: ServerSettings) -> dict[str, Any]:
@@ -86,6 +89,12 @@ async def live(ws: WebSocket) -> None:
     and then gets ``{"type": "missed", "dropped": {...}, "resync": bool}``;
     with ``resync`` it should ask for a new snapshot by sending
     ``{"type": "resync"}``. The ingest never waits for a browser.
+
+    A browser that sends ``{"type": "batch"}`` gets the events that arrive
+    within ``BATCH_WINDOW_S`` of each other in one WebSocket message,
+    ``{"type": "batch", "messages": [...]}`` (each with its own ``seq``): one
+    send per burst instead of one per event, which is what twenty browsers
+    cost the ship when frames come fast.
     """
     app = ws.app
     hub: LiveHub = app.state.hub
@@ -106,7 +115,9 @@ async def live(ws: WebSocket) -> None:
                     req = json.loads(msg)
                 except json.JSONDecodeError:
                     continue
-                if isinstance(req, dict) and req.get("type") == "resync":
+                if isinstance(req, dict) and req.get("type") == "batch":
+                    client.batch = True
+                elif isinstance(req, dict) and req.get("type") == "resync":
                     client.resync = False
                     data = await run_in_threadpool(build_snapshot, store, hub, settings)
                     await ws.send_text(
@@ -116,6 +127,11 @@ async def live(ws: WebSocket) -> None:
         async def send() -> None:
             while True:
                 message = await client.queue.get()
+                batch = [message]
+                if client.batch:
+                    await asyncio.sleep(BATCH_WINDOW_S)
+                    while len(batch) < BATCH_MAX and not client.queue.empty():
+                        batch.append(client.queue.get_nowait())
                 if client.dropped:
                     dropped, client.dropped = dict(client.dropped), type(client.dropped)()
                     await ws.send_text(
@@ -128,7 +144,11 @@ async def live(ws: WebSocket) -> None:
                             }
                         )
                     )
-                await ws.send_text(json.dumps({**message, "seq": client.next_seq()}, default=str))
+                if len(batch) == 1:
+                    await ws.send_text(encode_for(message, client.next_seq()))
+                else:
+                    texts = ",".join(encode_for(m, client.next_seq()) for m in batch)
+                    await ws.send_text(f'{{"type":"batch","messages":[{texts}]}}')
 
         tasks = [asyncio.create_task(receive()), asyncio.create_task(send())]
         done, pending = await asyncio.wait(tasks, return_when=asyncio.FIRST_EXCEPTION)

@@ -67,7 +67,7 @@ def test_simulated_dive_everything_stored_once_and_lambda_att_tracks_the_water(t
         real_duration = profile.duration_s / SPEED + 2.0
         time.sleep(real_duration)
         for a in agents:
-            a.runner.stop()
+            a.stop_producing()  # the sensors too: at 25x they send 25 batches a second
         assert all(a.wait_drained(30) for a in agents)
         with svc.store.read() as s:
             n = s.scalar(select(func.count(Frame.id)))

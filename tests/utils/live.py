@@ -8,8 +8,11 @@ over TCP on 127.0.0.1, SQLite files, PNG codecs, processes.
 from __future__ import annotations
 
 import contextlib
+import os
 import selectors
 import socket
+import subprocess
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -18,7 +21,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import zmq
 
+from camcal import wire
 from camcal.schedule import CameraLimits, Schedule
 from lrm.agent import Agent, AgentConfig
 from lrm.runner import ScheduleRunner
@@ -144,6 +149,7 @@ class TcpProxy:
         probe.close()
         self._stop = threading.Event()
         self._cut = threading.Event()
+        self._stall = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
 
@@ -152,10 +158,16 @@ class TcpProxy:
         return f"tcp://127.0.0.1:{self.port}"
 
     def cut(self) -> None:
+        """Break every connection and refuse new ones (a cut fibre)."""
         self._cut.set()
 
     def restore(self) -> None:
         self._cut.clear()
+        self._stall.clear()
+
+    def stall(self) -> None:
+        """Hold everything the ship sends (acks, welcomes) while the modules' bytes still get through."""
+        self._stall.set()
 
     def close(self) -> None:
         self._stop.set()
@@ -165,6 +177,7 @@ class TcpProxy:
         sel = selectors.DefaultSelector()
         listener: socket.socket | None = None
         peers: dict[socket.socket, socket.socket] = {}
+        upstream: set[socket.socket] = set()
 
         def drop_all() -> None:
             for s in list(peers):
@@ -172,6 +185,7 @@ class TcpProxy:
                     sel.unregister(s)
                 s.close()
             peers.clear()
+            upstream.clear()
 
         while not self._stop.is_set():
             if self._cut.is_set():
@@ -202,9 +216,13 @@ class TcpProxy:
                         a.setblocking(False)
                         peers[a] = b
                         sel.register(a, selectors.EVENT_READ)
+                    upstream.add(up)
                     continue
                 other = peers.get(s)
                 if other is None:
+                    continue
+                if self._stall.is_set() and s in upstream:
+                    time.sleep(0.005)  # leave the ship's bytes unread
                     continue
                 try:
                     data = s.recv(1 << 16)
@@ -215,6 +233,7 @@ class TcpProxy:
                 if not data:
                     for x in (s, other):
                         peers.pop(x, None)
+                        upstream.discard(x)
                         with contextlib.suppress(KeyError, ValueError):
                             sel.unregister(x)
                         x.close()
@@ -228,3 +247,75 @@ class TcpProxy:
         drop_all()
         if listener is not None:
             listener.close()
+
+
+class FakeShip:
+    """The ship's side of the protocol, driven by the test: a real ROUTER on 127.0.0.1.
+
+    It greets modules, acknowledges every data message and records what the
+    module says; `pump` runs it until a condition holds.
+    """
+
+    def __init__(self, ctx: Any, window: int = 8) -> None:
+        self.sock = wire.ship_socket(ctx, "tcp://127.0.0.1:*")
+        self.endpoint = self.sock.getsockopt(zmq.LAST_ENDPOINT).decode()
+        self.window = window
+        self.identity: bytes | None = None
+        self.statuses: list[wire.CommandStatus] = []
+        self.heartbeats: list[wire.ModuleHeartbeat] = []
+        self.hellos: list[wire.Hello] = []
+        self.data: list[tuple[str, str, int]] = []
+
+    def pump(self, until: Any = lambda: False, timeout: float = 10.0) -> bool:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if until():
+                return True
+            if not self.sock.poll(20):
+                continue
+            parts = self.sock.recv_multipart()
+            self.identity = parts[0]
+            msg, _ = wire.decode(parts[1:], allowed=wire.MODULE_TYPES)
+            if msg.type == "hello":
+                self.hellos.append(msg)
+                self.send(wire.Welcome(module="ship", window=self.window))
+            elif msg.type in ("frame", "sensors"):
+                self.data.append((msg.type, msg.boot, msg.seq))
+                self.send(wire.Ack(module="ship", ranges=((msg.boot, msg.seq, msg.seq),), window=self.window))
+            elif msg.type == "command_status":
+                self.statuses.append(msg)
+            elif msg.type == "heartbeat":
+                self.heartbeats.append(msg)
+        return until()
+
+    def send(self, msg: Any) -> None:
+        assert self.identity is not None, "no module has connected yet"
+        self.sock.send_multipart([self.identity, *wire.encode(msg)])
+
+    def command(self, command_id: str, action: str, **fields: Any) -> None:
+        self.send(wire.Command(module="ship", command_id=command_id, action=action, **fields))
+
+    def states_of(self, command_id: str) -> list[str]:
+        return [s.state for s in self.statuses if s.command_id == command_id]
+
+    def close(self) -> None:
+        self.sock.close(0)
+
+
+def camcal_cli(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[str]:
+    """Run the real ``camcal`` command of this checkout in a subprocess (exit status and output)."""
+    return subprocess.run(
+        [sys.executable, "-c", "from camcal.cli import main; main()", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=cli_env(),
+    )
+
+
+def cli_env() -> dict[str, str]:
+    """The environment for a ``camcal`` subprocess: this checkout first on the import path."""
+    root = str(Path(__file__).resolve().parents[2])
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
+    return env

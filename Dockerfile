@@ -1,0 +1,24 @@
+# camcal: the ship-side services (ingest, dashboard) and simulated modules.
+# The same image runs every service of docker-compose.yml; each runs one
+# `camcal` command, exactly as the README runs them without Docker.
+FROM python:3.11-slim
+
+ENV PYTHONUNBUFFERED=1 \
+    PIP_NO_CACHE_DIR=1 \
+    CAMCAL_DATA_DIR=/data
+
+WORKDIR /app
+COPY pyproject.toml README.md ./
+COPY camcal ./camcal
+COPY analysis ./analysis
+COPY lrm ./lrm
+COPY ingest ./ingest
+COPY storage ./storage
+COPY server ./server
+COPY frontend ./frontend
+RUN pip install . && mkdir -p /data
+
+EXPOSE 5555 5556 8000
+VOLUME ["/data"]
+ENTRYPOINT ["camcal"]
+CMD ["--help"]

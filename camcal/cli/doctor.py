@@ -1,0 +1,222 @@
+"""``camcal doctor``: check a deployment and say what to fix."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import socket
+import urllib.error
+import urllib.request
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+import zmq
+from rich.table import Table
+
+from camcal.cli.common import console
+from camcal.cli.config import settings_or_fail
+from camcal.settings import Settings
+
+OK, WARN, FAIL = "ok", "warn", "FAIL"
+
+
+def register(app: typer.Typer) -> None:
+    app.command("doctor")(doctor)
+
+
+def _port_of(endpoint: str) -> tuple[str, int] | None:
+    if not endpoint.startswith("tcp://") or ":" not in endpoint[6:]:
+        return None
+    host, port = endpoint[6:].rsplit(":", 1)
+    try:
+        return ("127.0.0.1" if host in ("*", "0.0.0.0") else host), int(port)
+    except ValueError:
+        return None
+
+
+def _listening(host: str, port: int) -> bool:
+    with socket.socket() as s:
+        s.settimeout(1.0)
+        return s.connect_ex((host, port)) == 0
+
+
+def check_data(s: Settings) -> list[tuple[str, str, str]]:
+    out = []
+    d = s.data_dir
+    if not d.exists():
+        return [("data folder", FAIL, f"{d} does not exist: create it, or run `camcal up --data {d}`")]
+    probe = d / ".doctor-probe"
+    try:
+        probe.write_bytes(b"x")
+        probe.unlink()
+        out.append(("data folder", OK, f"{d} is writable"))
+    except OSError as exc:
+        out.append(("data folder", FAIL, f"{d} is not writable ({exc.strerror}): fix its permissions"))
+    free = shutil.disk_usage(d).free / 1e9
+    limit = s.alarms.disk_min_free_gb
+    status = OK if free >= 2 * limit else (WARN if free >= limit else FAIL)
+    out.append(
+        (
+            "disk",
+            status,
+            f"{free:.1f} GB free (alarm below {limit:g} GB)"
+            + ("" if status == OK else "; export and delete old dives or set CAMCAL_RETENTION_DAYS"),
+        )
+    )
+    return out
+
+
+def check_database(s: Settings) -> list[tuple[str, str, str]]:
+    from storage.db import DataPaths, current_revision, head_revision, make_engine
+
+    url = s.database_url or DataPaths(s.data_dir).sqlite_url()
+    try:
+        engine = make_engine(url)
+        rev = current_revision(engine)
+        engine.dispose()
+    except Exception as exc:
+        return [("database", FAIL, f"cannot connect to {url.split('@')[-1]}: {str(exc).splitlines()[0]}")]
+    head = head_revision()
+    if rev is None:
+        return [("database", WARN, "empty: the ingest creates the tables when it starts (`camcal ingest`)")]
+    if rev != head:
+        return [
+            (
+                "database",
+                FAIL,
+                f"schema at {rev}, this camcal expects {head}: start `camcal ingest` to migrate",
+            )
+        ]
+    return [("database", OK, f"reachable, schema {rev}")]
+
+
+def check_ingest(s: Settings, wait_s: float) -> tuple[list[tuple[str, str, str]], dict[str, Any] | None]:
+    out = []
+    port = _port_of(s.ingest_bind)
+    if port and _listening(*port):
+        out.append(("ingest port", OK, f"something listens on {port[0]}:{port[1]}"))
+    elif port:
+        out.append(("ingest port", FAIL, f"nothing listens on {port[1]}: start `camcal ingest`"))
+    health = None
+    ctx = zmq.Context.instance()
+    sub = ctx.socket(zmq.SUB)
+    sub.setsockopt(zmq.SUBSCRIBE, b"health")
+    sub.setsockopt(zmq.LINGER, 0)
+    sub.connect(s.events_connect)
+    try:
+        if sub.poll(int(wait_s * 1000)):
+            _, body = sub.recv_multipart()
+            health = json.loads(body)["payload"]
+    finally:
+        sub.close(0)
+    if health is None:
+        out.append(
+            (
+                "ingest events",
+                FAIL,
+                f"no heartbeat on {s.events_connect} within {wait_s:g} s: "
+                "is the ingest running, and CAMCAL_EVENTS_CONNECT pointing at its --events?",
+            )
+        )
+    else:
+        q = health.get("queues", {})
+        out.append(("ingest events", OK, f"heartbeat received; queues {q}"))
+    return out, health
+
+
+def check_modules(s: Settings, health: dict[str, Any] | None) -> list[tuple[str, str, str]]:
+    out = []
+    live = (health or {}).get("modules", {})
+    for m in s.modules:
+        h = live.get(m.id)
+        if health is None:
+            out.append((f"module {m.id}", WARN, "unknown: no ingest heartbeat"))
+            continue
+        if h is None:
+            out.append(
+                (
+                    f"module {m.id}",
+                    FAIL,
+                    "never connected to this ingest: check its --connect address "
+                    f"({s.ingest_bind}), the fibre link and its power",
+                )
+            )
+            continue
+        if h["link"] != "up":
+            out.append((f"module {m.id}", FAIL, f"link down, last packet {h['last_packet_age_s']} s ago"))
+            continue
+        off = h.get("clock_offset_s")
+        if off is not None and abs(off) > 2.0:
+            side = "ahead of" if off > 0 else "behind"
+            out.append(
+                (
+                    f"module {m.id}",
+                    WARN,
+                    f"clock {abs(off):.1f} s {side} the ship: sync it (NTP over the fibre)",
+                )
+            )
+        else:
+            extra = f", clock offset {off:+.2f} s" if off is not None else ""
+            out.append((f"module {m.id}", OK, f"link up, {h['frames_per_s']} frames/s{extra}"))
+    return out
+
+
+def check_http(s: Settings) -> list[tuple[str, str, str]]:
+    host = "127.0.0.1" if s.http_host in ("0.0.0.0", "::") else s.http_host
+    url = f"http://{host}:{s.http_port}/api/health"
+    try:
+        with urllib.request.urlopen(url, timeout=3) as r:
+            body = json.loads(r.read())
+        return [("dashboard", OK, f"{url} answers ({body.get('status')})")]
+    except (urllib.error.URLError, OSError, ValueError) as exc:
+        return [
+            (
+                "dashboard",
+                FAIL,
+                f"{url} does not answer ({getattr(exc, 'reason', exc)}): start `camcal serve`",
+            )
+        ]
+
+
+def doctor(
+    config: Annotated[Path | None, typer.Option(help="A TOML configuration file [CAMCAL_CONFIG].")] = None,
+    wait: Annotated[float, typer.Option(help="Seconds to wait for the ingest's heartbeat.")] = 3.0,
+    check: Annotated[
+        list[str] | None,
+        typer.Option(help="Only these checks (repeat): data, database, ingest, modules, dashboard."),
+    ] = None,
+) -> None:
+    """Check the configuration, data folder, disk, database, ingest, modules and dashboard."""
+    s = settings_or_fail(config)
+    wanted = set(check or ("data", "database", "ingest", "modules", "dashboard"))
+    unknown = wanted - {"data", "database", "ingest", "modules", "dashboard"}
+    if unknown:
+        console.print(f"[red]unknown check(s): {', '.join(sorted(unknown))}[/]")
+        raise typer.Exit(2)
+    rows = [("configuration", OK, "loaded")]
+    if "data" in wanted:
+        rows += check_data(s)
+    if "database" in wanted:
+        rows += check_database(s)
+    health = None
+    if wanted & {"ingest", "modules"}:
+        ingest_rows, health = check_ingest(s, wait)
+        rows += ingest_rows if "ingest" in wanted else []
+    if "modules" in wanted:
+        rows += check_modules(s, health)
+    if "dashboard" in wanted:
+        rows += check_http(s)
+    if not s.operator_tokens and check is None:
+        rows.append(
+            ("operator tokens", WARN, "none configured: nobody can send commands (CAMCAL_OPERATOR_TOKENS)")
+        )
+    table = Table(title="camcal doctor", title_justify="left")
+    for col in ("check", "status", "detail / what to do"):
+        table.add_column(col)
+    colour = {OK: "green", WARN: "yellow", FAIL: "bold red"}
+    for name, status, detail in rows:
+        table.add_row(name, f"[{colour[status]}]{status}[/]", detail)
+    console.print(table)
+    if any(st == FAIL for _, st, _ in rows):
+        raise typer.Exit(1)

@@ -1,0 +1,176 @@
+"""camcal's configuration: one typed, documented place.
+
+Values come from, in order of precedence: command-line options, ``CAMCAL_``
+environment variables (nested fields with ``__``, e.g.
+``CAMCAL_ALARMS__TILT_MAJOR_DEG=8``), a TOML file named by ``CAMCAL_CONFIG``
+(or ``--config``), then the defaults below. ``camcal config show`` prints the
+effective configuration with secrets masked. Every field is documented in
+``docs/configuration.md`` (a test checks it).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, SecretStr, field_validator
+from pydantic_settings import (
+    BaseSettings,
+    PydanticBaseSettingsSource,
+    SettingsConfigDict,
+    TomlConfigSettingsSource,
+)
+
+from camcal.frameset import CameraSetup, RatioSetup, Setup
+
+
+class AlarmSettings(BaseModel):
+    """Limits of the alarm rules (`ingest.alarms.AlarmLimits`)."""
+
+    model_config = ConfigDict(extra="forbid")
+    link_timeout_s: float = Field(5.0, gt=0, description="no packet for this long: link lost (MAJOR)")
+    tilt_minor_deg: float = Field(3.0, gt=0, description="tilt from vertical raising a MINOR alarm")
+    tilt_major_deg: float = Field(6.0, gt=0, description="tilt from vertical raising a MAJOR alarm")
+    humidity_minor_pct: float = Field(
+        50.0, ge=0, le=100, description="housing humidity raising a MINOR alarm"
+    )
+    humidity_major_pct: float = Field(
+        70.0, ge=0, le=100, description="housing humidity raising a MAJOR alarm"
+    )
+    humidity_rise_pct_per_min: float = Field(
+        0.5, gt=0, description="humidity rise rate that means a leak (MAJOR)"
+    )
+    edge_margin_fraction: float = Field(
+        0.08, ge=0, le=0.5, description="LEM this close to the frame edge: leaving the view"
+    )
+    reject_fraction: float = Field(
+        0.8, gt=0, le=1, description="fraction of saturated or too-dark frames raising an alarm"
+    )
+    gap_age_s: float = Field(30.0, ge=0, description="a sequence gap open this long raises an alarm")
+    disk_min_free_gb: float = Field(
+        5.0, ge=0, description="free disk below this in the data folder: MAJOR alarm"
+    )
+
+
+class ModuleSetting(BaseModel):
+    """A module the ship expects and its LEM distance."""
+
+    model_config = ConfigDict(extra="forbid")
+    id: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")
+    distance_m: float = Field(gt=0)
+    distance_err_m: float = Field(0.0, ge=0)
+
+
+def _trex_modules() -> list[ModuleSetting]:
+    return [
+        ModuleSetting(id="A", distance_m=21.56, distance_err_m=0.02),
+        ModuleSetting(id="B", distance_m=41.62, distance_err_m=0.04),
+    ]
+
+
+def _trex_ratios() -> dict[int, RatioSetup]:
+    return dict(Setup().emission_ratio)
+
+
+class Settings(BaseSettings):
+    """Everything a camcal deployment can set."""
+
+    model_config = SettingsConfigDict(env_prefix="CAMCAL_", env_nested_delimiter="__", extra="forbid")
+
+    data_dir: Path = Field(Path("camcal-data"), description="folder of the database (SQLite) and frame files")
+    database_url: str | None = Field(None, description="SQLAlchemy URL; default SQLite in data_dir")
+    ingest_bind: str = Field("tcp://*:5555", description="where modules connect (ZeroMQ ROUTER)")
+    events_bind: str = Field("tcp://127.0.0.1:5556", description="the ingest's event publisher (bind)")
+    events_connect: str = Field("tcp://127.0.0.1:5556", description="where the server subscribes to events")
+    http_host: str = Field("127.0.0.1", description="dashboard address (0.0.0.0 for the ship's network)")
+    http_port: int = Field(8000, ge=1, le=65535, description="dashboard port")
+    modules: list[ModuleSetting] = Field(
+        default_factory=_trex_modules, description="modules and LEM distances"
+    )
+    emission_ratio: dict[int, RatioSetup] = Field(
+        default_factory=_trex_ratios, description="I0'/I0 per wavelength"
+    )
+    linear_range: tuple[float, float] = Field((5.0, 240.0), description="linear gray range of the cameras")
+    calibration: str | None = Field(None, description="calibration record NAME[@VERSION] the ingest uses")
+    operator_tokens: dict[str, SecretStr] = Field(default_factory=dict, description="operator name -> token")
+    workers: int = Field(0, ge=0, le=256, description="analysis processes (0: one per core)")
+    window: int = Field(8, ge=1, le=1024, description="credit: unacknowledged messages per module")
+    fsync: bool = Field(True, description="fsync frame files before acknowledging them")
+    sqlite_synchronous: str = Field(
+        "FULL", pattern="^(OFF|NORMAL|FULL|EXTRA)$", description="SQLite durability"
+    )
+    rolling_window_s: float = Field(300.0, gt=0, description="time window of the rolling λ_att")
+    retention_days: float | None = Field(
+        None, gt=0, description="delete frame files older than this (None: keep)"
+    )
+    log_format: str = Field("text", pattern="^(text|json)$", description="log lines as text or JSON")
+    log_level: str = Field("info", pattern="^(debug|info|warning|error)$", description="log level")
+    alarms: AlarmSettings = Field(default_factory=AlarmSettings, description="alarm limits")
+
+    @field_validator("linear_range")
+    @classmethod
+    def _range(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not 0 <= v[0] < v[1] <= 255:
+            raise ValueError("must satisfy 0 <= low < high <= 255")
+        return v
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        sources: list[PydanticBaseSettingsSource] = [init_settings, env_settings]
+        path = os.environ.get("CAMCAL_CONFIG")
+        if path:
+            sources.append(TomlConfigSettingsSource(settings_cls, toml_file=Path(path)))
+        return tuple(sources)
+
+    def setup(self) -> Setup:
+        """The calibration inputs as a frame-set `Setup` (distances, ratios, linear range)."""
+        return Setup(
+            cameras={
+                m.id: CameraSetup(distance_m=m.distance_m, distance_err_m=m.distance_err_m)
+                for m in self.modules
+            },
+            emission_ratio=self.emission_ratio,
+            linear_range=self.linear_range,
+        )
+
+    def tokens(self) -> dict[str, str]:
+        return {name: tok.get_secret_value() for name, tok in self.operator_tokens.items()}
+
+    def masked(self) -> dict[str, Any]:
+        """The effective configuration with secrets (tokens, database passwords) masked."""
+        data = self.model_dump(mode="json")
+        data["operator_tokens"] = {k: "********" for k in self.operator_tokens}
+        url = data.get("database_url")
+        if url and "@" in url and "://" in url:
+            scheme, rest = url.split("://", 1)
+            creds, host = rest.rsplit("@", 1)
+            user = creds.split(":", 1)[0]
+            data["database_url"] = f"{scheme}://{user}:********@{host}"
+        return data
+
+
+def load_settings(config: Path | None = None, **overrides: Any) -> Settings:
+    """Settings from the environment (and ``config`` TOML if given); ``overrides`` win."""
+    if config is not None:
+        os.environ["CAMCAL_CONFIG"] = str(config)
+    return Settings(**{k: v for k, v in overrides.items() if v is not None})
+
+
+def field_names(model: type[BaseModel], prefix: str = "") -> list[str]:
+    """Every setting's dotted name, nested models included (for the documentation check)."""
+    names = []
+    for name, info in model.model_fields.items():
+        full = f"{prefix}{name}"
+        names.append(full)
+        ann = info.annotation
+        if isinstance(ann, type) and issubclass(ann, BaseModel) and ann is not ModuleSetting:
+            names += field_names(ann, f"{full}.")
+    return names

@@ -1,0 +1,95 @@
+// The live view's shared panels: alarms with acknowledgement, and the rolling λ_att (numbers and plots).
+
+import { WAVELENGTHS, SEVERITY_RANK as RANK, fmt, plural, utc, wlColor } from "./format.js";
+import { attenuationLayout, attenuationTraces, draw, emptyPlot } from "./plots.js";
+import { el, toast } from "./ui.js";
+
+/** The alarm list: active ones first (worst, then newest), then the five last cleared. */
+export function renderAlarms(list, alarms, { operator, onAck }) {
+  const all = [...alarms.values()];
+  const active = all
+    .filter((a) => a.active)
+    .sort((a, b) => RANK[b.severity] - RANK[a.severity] || b.raised_unix_s - a.raised_unix_s);
+  const cleared = all.filter((a) => !a.active).sort((a, b) => (b.cleared_unix_s || 0) - (a.cleared_unix_s || 0));
+  const key = JSON.stringify([active, cleared.slice(0, 5), Boolean(operator)]);
+  if (list.dataset.key === key) return;
+  list.dataset.key = key;
+  const row = (a) =>
+    el(
+      "li",
+      { class: `alarm sev-${a.severity}${a.active ? "" : " cleared"}`, "data-alarm-id": a.id },
+      el("span", { class: `pill sev-${a.severity}${a.active && a.severity === "MAJOR" && !a.acked_by ? " unacked" : ""}` }, a.severity),
+      el(
+        "span",
+        { class: "msg" },
+        `${a.module ? `LRM-${a.module}: ` : ""}${a.message}`,
+        el(
+          "div",
+          { class: "meta" },
+          `${a.kind} · raised ${utc(a.raised_unix_s, { date: false })}` +
+            (a.cleared_unix_s ? ` · cleared ${utc(a.cleared_unix_s, { date: false })}` : "") +
+            (a.acked_by ? ` · acknowledged by ${a.acked_by}` : ""),
+        ),
+      ),
+      a.acked_by || !a.active
+        ? el("span")
+        : el(
+            "button",
+            {
+              type: "button",
+              class: "ack",
+              disabled: !operator,
+              title: operator ? "acknowledge this alarm" : "log in as operator to acknowledge",
+              onclick: (ev) => onAck(a, ev.currentTarget),
+            },
+            "Acknowledge",
+          ),
+    );
+  const items = active.map(row);
+  if (!active.length) items.push(el("li", { class: "empty", id: "no-alarms" }, "No active alarms."));
+  if (cleared.length) {
+    items.push(el("li", { class: "muted", style: { marginTop: "0.3rem" } }, "Recently cleared"));
+    items.push(...cleared.slice(0, 5).map(row));
+  }
+  list.replaceChildren(...items);
+}
+
+/** The latest λ_att per wavelength in large type, with its errors, pairs, depth and time. */
+export function renderLambdaNow(box, attenuation) {
+  const items = [];
+  for (const wl of WAVELENGTHS.map(String)) {
+    const pts = attenuation[wl] || [];
+    const p = pts[pts.length - 1];
+    const about = p
+      ? `± ${fmt(p.stat_err_m, 2)} stat ± ${fmt(p.sys_err_m, 2)} sys · ${plural(p.n_pairs, "pair")} · ` +
+        `${fmt(p.depth_m, 0)} m · ${utc(p.t_unix_s, { date: false })}`
+      : "no point yet";
+    items.push(
+      el(
+        "div",
+        { class: "wl-value", style: { "--wl": wlColor(wl) }, "data-wl": wl },
+        el("div", { class: "wl-name" }, `${wl} nm`),
+        el("div", { class: "huge" }, p ? fmt(p.lambda_att_m, 1) : "–", el("span", { class: "unit" }, "m")),
+        el("div", { class: "errs" }, about),
+      ),
+    );
+  }
+  const key = JSON.stringify(items.map((n) => n.textContent));
+  if (box.dataset.key !== key) {
+    box.dataset.key = key;
+    box.replaceChildren(...items);
+  }
+}
+
+/** λ_att against time and against depth (a zoom survives updates: uirevision). */
+export function drawLambda(timeDiv, depthDiv, attenuation) {
+  const hasPoints = Object.values(attenuation).some((p) => p.length);
+  const note = hasPoints ? {} : emptyPlot("waiting for the first λ_att point…");
+  const lay = (against) => ({
+    ...attenuationLayout(against, { uirevision: "live", title: { text: `against ${against}` } }, attenuation),
+    ...note,
+  });
+  const fail = (err) => toast(err.message);
+  draw(timeDiv, attenuationTraces(attenuation, "time"), lay("time"), "camcal-lambda-att-time").catch(fail);
+  draw(depthDiv, attenuationTraces(attenuation, "depth"), lay("depth"), "camcal-lambda-att-depth").catch(fail);
+}

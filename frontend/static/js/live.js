@@ -1,0 +1,427 @@
+// The live view: a snapshot, then events from WS /ws/live, drawn for a tablet on deck at night.
+//
+// Ages are measured on this browser's clock from when news arrived (never by comparing the
+// ship's timestamps with ours), so a skewed tablet clock cannot make stale data look fresh.
+
+import { api, operator } from "./api.js";
+import { SEVERITY_RANK as RANK, fmtAge } from "./format.js";
+import { createCard, showThumbnail, updateCard, updateQuality } from "./live-cards.js";
+import { LiveSocket } from "./livesocket.js";
+import { drawLambda, renderAlarms, renderLambdaNow } from "./live-panels.js";
+import { $, initTheme, mountOperator, setText, toast } from "./ui.js";
+
+const RECENT = 40; // ticks in a card's strip of latest frames
+const PHASE_WINDOW_S = 30;
+const THUMB_EVERY_MS = 500;
+
+const state = {
+  dive: null,
+  runId: null,
+  staleAfter: 5,
+  modules: new Map(),
+  attenuation: {},
+  alarms: new Map(),
+  ingestUp: false,
+  healthAt: null,
+  conn: "connecting",
+  connInfo: {},
+  lastLiveAt: null,
+};
+
+/** Figures for tests and bench/bench_dashboard.py. */
+const stats = {
+  snapshotAt: null,
+  firstDataAt: null,
+  firstThumbAt: null,
+  thumbLatencyMs: [],
+  events: 0,
+  missed: {},
+  snapshots: 0,
+};
+window.camcal = { state, stats };
+
+const cards = new Map();
+let attDirty = true;
+let attDrawnAt = 0;
+let renderQueued = false;
+
+// ------------------------------------------------------------------ state from the server
+function moduleState(mid) {
+  let m = state.modules.get(mid);
+  if (!m) {
+    m = {
+      id: mid,
+      link: "unknown",
+      lastPacketAt: null,
+      setting: null,
+      shown: null,
+      pending: null,
+      loading: false,
+      quality: {},
+      recent: [],
+      depthHist: [],
+      maxDepth: 0,
+      sensorsAt: null,
+      thumbStartedAt: -Infinity,
+    };
+    state.modules.set(mid, m);
+  }
+  return m;
+}
+
+function onSnapshot(d) {
+  const now = performance.now();
+  stats.snapshots += 1;
+  stats.snapshotAt ??= now;
+  state.dive = d.dive;
+  state.runId = d.run_id;
+  state.staleAfter = d.stale_after_s ?? 5;
+  state.ingestUp = Boolean(d.ingest?.up);
+  state.healthAt = state.ingestUp ? now - (d.ingest.age_s || 0) * 1000 : null;
+  state.lastLiveAt = now;
+  const seen = new Set();
+  for (const [mid, sm] of Object.entries(d.modules || {})) {
+    seen.add(mid);
+    const m = moduleState(mid);
+    Object.assign(m, {
+      distance_m: sm.distance_m,
+      link: sm.link,
+      frames_per_s: sm.frames_per_s,
+      schedule: sm.schedule,
+      sensors: sm.sensors,
+      attitude: sm.attitude,
+      phase: sm.phase,
+      quality: { ...(sm.quality || {}) },
+    });
+    const age = sm.last_packet_age_s ?? (sm.last_seen_unix_s ? d.server_time_unix_s - sm.last_seen_unix_s : null);
+    m.lastPacketAt = age === null ? null : now - age * 1000;
+    m.sensorsAt = sm.sensors ? m.lastPacketAt : null;
+    m.maxDepth = Math.max(m.maxDepth, d.dive?.max_depth_m || 0);
+    const lf = sm.latest_frame;
+    if (lf) {
+      m.setting ??= lf;
+      if (!m.shown || m.shown.id !== lf.id) queueThumbnail(m, { ...lf, thumb: lf.thumbnail_url }, null);
+      if (!m.recent.length && lf.status !== "pending") m.recent = [lf.status === "ok" ? "ok" : lf.reason || "rejected"];
+    }
+  }
+  for (const mid of [...state.modules.keys()]) if (!seen.has(mid)) state.modules.delete(mid);
+  state.attenuation = {};
+  for (const [wl, pts] of Object.entries(d.attenuation || {})) state.attenuation[wl] = [...pts];
+  state.alarms = new Map((d.alarms || []).map((a) => [a.id, a]));
+  if (stats.firstDataAt === null && Object.keys(d.modules || {}).length) stats.firstDataAt = now;
+  attDirty = true;
+  render();
+}
+
+function queueThumbnail(m, frame, tEvent) {
+  if (!frame.thumb) return;
+  m.pending = { frame, tEvent };
+  if (!m.loading) loadThumbnail(m);
+}
+
+/**
+ * Load the newest waiting thumbnail off-screen, then swap it in: no half-drawn image, no flicker.
+ * One at a time per module and at most one every THUMB_EVERY_MS: frames that come faster are
+ * skipped (nobody reads more than two pictures a second), so twenty tablets cost the ship a
+ * bounded number of requests however fast the modules send.
+ */
+function loadThumbnail(m) {
+  const p = m.pending;
+  if (!p || m.loading) return;
+  const wait = m.thumbStartedAt + THUMB_EVERY_MS - performance.now();
+  if (wait > 0) {
+    m.loading = true;
+    setTimeout(() => {
+      m.loading = false;
+      loadThumbnail(m);
+    }, wait);
+    return;
+  }
+  m.pending = null;
+  m.loading = true;
+  m.thumbStartedAt = performance.now();
+  const img = new Image();
+  img.decoding = "async";
+  const done = (ok) => {
+    m.loading = false;
+    if (ok) {
+      m.shown = p.frame;
+      const card = cards.get(m.id);
+      if (card) showThumbnail(card, img, p.frame);
+      stats.firstThumbAt ??= performance.now();
+      if (p.tEvent !== null) stats.thumbLatencyMs.push(performance.now() - p.tEvent);
+      requestRender();
+    }
+    loadThumbnail(m);
+  };
+  img.onload = () => done(true);
+  img.onerror = () => done(false);
+  img.src = p.frame.thumb;
+}
+
+function onEvent(msg) {
+  const now = performance.now();
+  stats.events += 1;
+  state.lastLiveAt = now;
+  const p = msg.payload || {};
+  const m = msg.module ? moduleState(msg.module) : null;
+  switch (msg.kind) {
+    case "health":
+      state.ingestUp = true;
+      state.healthAt = now;
+      for (const [mid, h] of Object.entries(p.modules || {})) {
+        const hm = moduleState(mid);
+        hm.link = h.link;
+        hm.frames_per_s = h.frames_per_s;
+        hm.schedule = h.schedule;
+        // The ingest's own count is the truth; packets seen since (sensors, frames) refine it.
+        if (h.last_packet_age_s !== null && h.last_packet_age_s !== undefined) {
+          hm.lastPacketAt = now - h.last_packet_age_s * 1000;
+        }
+      }
+      if (p.dive && (!state.dive || state.dive.id !== p.dive.id)) state.dive = { ...p.dive };
+      break;
+    case "sensors":
+      m.sensors = p;
+      m.sensorsAt = now;
+      m.lastPacketAt = now;
+      trackDepth(m, p);
+      break;
+    case "attitude":
+      // Derived by the ingest (and repeated while a module is silent): not a packet.
+      m.attitude = p;
+      break;
+    case "link":
+      m.link = p.state;
+      if (p.state === "up") m.lastPacketAt = now;
+      break;
+    case "frame":
+      m.setting = p;
+      m.lastPacketAt = now;
+      break;
+    case "result": {
+      const frame = { ...p, id: p.frame_id };
+      queueThumbnail(m, frame, now);
+      const key = p.status === "ok" ? "ok" : p.reason || p.status;
+      if (p.status !== "pending") {
+        m.quality[key] = (m.quality[key] || 0) + 1;
+        m.recent.push(key);
+        if (m.recent.length > RECENT) m.recent.shift();
+      }
+      break;
+    }
+    case "attenuation": {
+      const wl = String(p.wavelength_nm);
+      (state.attenuation[wl] ||= []).push({ ...p, id: p.point_id });
+      if (state.attenuation[wl].length > 600) state.attenuation[wl].shift();
+      attDirty = true;
+      break;
+    }
+    case "alarm":
+      onAlarm(msg, p);
+      break;
+    default:
+      break;
+  }
+  if (stats.firstDataAt === null && msg.module) stats.firstDataAt = now;
+  requestRender();
+}
+
+function onAlarm(msg, p) {
+  const id = p.alarm_id ?? p.id;
+  const a = state.alarms.get(id) || { id, raised_unix_s: msg.t, acked_unix_s: null, acked_by: null };
+  Object.assign(a, {
+    kind: p.kind ?? a.kind,
+    severity: p.severity ?? a.severity,
+    message: p.message ?? a.message,
+    module: msg.module ?? a.module,
+  });
+  if (p.state === "raised") {
+    if (!a.active) a.raised_unix_s = msg.t;
+    a.active = true;
+    a.cleared_unix_s = null;
+  } else if (p.state === "cleared") {
+    a.active = false;
+    a.cleared_unix_s = msg.t;
+  } else if (p.state === "acked") {
+    Object.assign(a, { acked_unix_s: p.acked_unix_s, acked_by: p.acked_by, active: p.active });
+  }
+  state.alarms.set(id, a);
+}
+
+/** The dive phase from the depth of the last ~30 s (as ingest.derived.dive_phase decides it). */
+function trackDepth(m, s) {
+  if (s.depth_m === null || s.depth_m === undefined || s.t_unix_s === undefined) return;
+  m.depthHist.push([s.t_unix_s, s.depth_m]);
+  m.maxDepth = Math.max(m.maxDepth, s.depth_m);
+  const t1 = s.t_unix_s;
+  while (m.depthHist.length && m.depthHist[0][0] < t1 - PHASE_WINDOW_S) m.depthHist.shift();
+  const h = m.depthHist;
+  if (s.depth_m < 5) {
+    m.phase = "deck";
+    return;
+  }
+  if (h.length < 3 || h[h.length - 1][0] <= h[0][0]) return;
+  const n = h.length;
+  const mt = h.reduce((a, x) => a + x[0], 0) / n;
+  const md = h.reduce((a, x) => a + x[1], 0) / n;
+  let num = 0;
+  let den = 0;
+  for (const [t, d] of h) {
+    num += (t - mt) * (d - md);
+    den += (t - mt) ** 2;
+  }
+  const rate = den ? num / den : 0;
+  if (rate > 0.2) m.phase = "descent";
+  else if (rate < -0.2) m.phase = "ascent";
+  else m.phase = s.depth_m >= m.maxDepth - 50 ? "station" : "stop";
+}
+
+function onMissed(msg) {
+  for (const [k, n] of Object.entries(msg.dropped || {})) stats.missed[k] = (stats.missed[k] || 0) + n;
+}
+
+function onConn(s, info) {
+  state.conn = s;
+  state.connInfo = info;
+  requestRender();
+}
+
+// ------------------------------------------------------------------ rendering
+function requestRender() {
+  if (renderQueued) return;
+  renderQueued = true;
+  requestAnimationFrame(() => {
+    renderQueued = false;
+    render();
+  });
+}
+
+function moduleSeverity(m, now) {
+  let sev = "OK";
+  for (const a of state.alarms.values()) {
+    if (a.active && a.module === m.id && RANK[a.severity] > RANK[sev]) sev = a.severity;
+  }
+  const age = m.lastPacketAt === null ? Infinity : (now - m.lastPacketAt) / 1000;
+  if (age > state.staleAfter && RANK.INVALID > RANK[sev]) sev = "INVALID";
+  return sev;
+}
+
+function render() {
+  const now = performance.now();
+  renderHeader(now);
+  const box = $("#modules");
+  const ids = [...state.modules.keys()].sort();
+  $("#no-modules")?.toggleAttribute("hidden", ids.length > 0);
+  let worst = ids.length ? "OK" : "INVALID";
+  for (const mid of ids) {
+    const m = state.modules.get(mid);
+    let card = cards.get(mid);
+    if (!card) {
+      card = createCard(mid);
+      cards.set(mid, card);
+      box.append(card);
+      if (m.shown) {
+        m.pending ??= { frame: m.shown, tEvent: null };
+        loadThumbnail(m);
+      }
+    }
+    const severity = moduleSeverity(m, now);
+    if (RANK[severity] > RANK[worst]) worst = severity;
+    updateCard(card, m, { now, staleAfter: state.staleAfter, severity });
+    updateQuality(card, m.quality, m.recent);
+  }
+  for (const [mid, card] of cards) {
+    if (!state.modules.has(mid)) {
+      card.remove();
+      cards.delete(mid);
+    }
+  }
+  for (const a of state.alarms.values()) if (a.active && RANK[a.severity] > RANK[worst]) worst = a.severity;
+  const overall = $("#overall");
+  overall.className = `pill big sev-${worst}`;
+  overall.classList.toggle("unacked", [...state.alarms.values()].some((a) => a.active && a.severity === "MAJOR" && !a.acked_by));
+  setText(overall, worst);
+  renderAlarms($("#alarms"), state.alarms, { operator: operator(), onAck: ack });
+  renderAttenuation(now);
+}
+
+function renderHeader(now) {
+  const conn = $("#conn");
+  conn.dataset.state = state.conn;
+  const banner = $("#banner");
+  if (state.conn === "live") {
+    setText(conn, "live");
+  } else {
+    const wait = state.connInfo.retryAt ? Math.max(0, (state.connInfo.retryAt - now) / 1000) : null;
+    setText(conn, state.conn === "connecting" ? "connecting…" : "reconnecting…");
+    if (stats.snapshotAt !== null) {
+      banner.hidden = false;
+      banner.className = "banner";
+      const since = state.lastLiveAt ? `for ${fmtAge((now - state.lastLiveAt) / 1000)}` : "";
+      setText(
+        banner,
+        `Connection to the ship server lost ${since} — reconnecting` +
+          (wait !== null ? ` in ${wait.toFixed(0)} s (attempt ${state.connInfo.attempt})` : "…") +
+          ". Values below are frozen and fade out when stale.",
+      );
+    }
+  }
+  const ingestAge = state.healthAt === null ? null : (now - state.healthAt) / 1000;
+  const ingestUp = ingestAge !== null && ingestAge <= state.staleAfter;
+  if (state.conn === "live") {
+    if (!ingestUp && stats.snapshotAt !== null) {
+      banner.hidden = false;
+      banner.className = "banner major";
+      setText(banner, `The ingest has not reported for ${fmtAge(ingestAge)}: no new data is arriving from the modules.`);
+    } else {
+      banner.hidden = true;
+    }
+  }
+  setText($("#ingest-state"), `ingest ${ingestUp ? "up" : "down"}`);
+  setText($("#dive-name"), state.dive ? `${state.dive.name}` : "no dive yet");
+}
+
+async function ack(alarm, button) {
+  button.disabled = true;
+  try {
+    const a = await api(`/api/alarms/${alarm.id}/ack`, { method: "POST", body: {} });
+    state.alarms.set(a.id, { ...alarm, ...a });
+    render();
+  } catch (err) {
+    toast(err.message);
+    button.disabled = false;
+  }
+}
+
+let attTimer = null;
+
+function renderAttenuation(now) {
+  const lost = state.conn !== "live" && state.lastLiveAt !== null && now - state.lastLiveAt > state.staleAfter * 1000;
+  $("#attenuation-panel").classList.toggle("stale", lost);
+  renderLambdaNow($("#att-now"), state.attenuation);
+  if (!attDirty) return;
+  if (now - attDrawnAt < 1000) {
+    // At most one redraw a second: plotly is the costliest thing on the page.
+    attTimer ??= setTimeout(() => {
+      attTimer = null;
+      requestRender();
+    }, 1000 - (now - attDrawnAt));
+    return;
+  }
+  attDirty = false;
+  attDrawnAt = now;
+  drawLambda($("#att-time"), $("#att-depth"), state.attenuation);
+}
+
+// ------------------------------------------------------------------ start
+initTheme($("#theme"));
+mountOperator($("#operator"));
+window.addEventListener("camcal:auth", () => render());
+window.addEventListener("camcal:theme", () => {
+  attDirty = true;
+  attDrawnAt = 0;
+  render();
+});
+setInterval(render, 500); // ages tick and stale data fades even when nothing arrives
+new LiveSocket({ onSnapshot, onEvent, onMissed, onState: onConn }).start();

@@ -1,0 +1,335 @@
+// plotly.js, loaded on demand from /vendor (never a CDN), styled from the page's theme, and the
+// figures both pages draw: λ_att against time and depth, radial profiles, linearity, time series.
+
+import { WAVELENGTHS, fmt, plotDate, wlColor } from "./format.js";
+
+let loading = null;
+
+/** window.Plotly, loading /vendor/plotly.min.js the first time (it is 4.8 MB: not before it is needed). */
+export function loadPlotly() {
+  if (window.Plotly) return Promise.resolve(window.Plotly);
+  if (!loading) {
+    loading = new Promise((resolve, reject) => {
+      const s = document.createElement("script");
+      s.src = "/vendor/plotly.min.js";
+      s.async = true;
+      s.onload = () => resolve(window.Plotly);
+      s.onerror = () => {
+        loading = null;
+        reject(new Error("plotly.js could not be loaded from /vendor/plotly.min.js; reload the page"));
+      };
+      document.head.append(s);
+    });
+  }
+  return loading;
+}
+
+function cssVar(name) {
+  return getComputedStyle(document.documentElement).getPropertyValue(name).trim();
+}
+
+const FONT = 'system-ui, -apple-system, "Segoe UI", Roboto, "Noto Sans", "DejaVu Sans", sans-serif';
+
+function axis(extra = {}) {
+  const line = cssVar("--line");
+  return { gridcolor: line, zerolinecolor: line, linecolor: line, automargin: true, ...extra };
+}
+
+/** A layout in the theme's colours (opaque, so a downloaded PNG reads as it does on screen). */
+export function layout(extra = {}) {
+  const { xaxis, yaxis, title, ...rest } = extra;
+  return {
+    // The title on the right, the legend on the left: both fit above the plot.
+    title: title ? { x: 0.995, xanchor: "right", font: { size: 14 }, ...title } : undefined,
+    paper_bgcolor: cssVar("--panel"),
+    plot_bgcolor: cssVar("--panel"),
+    font: { color: cssVar("--fg"), family: FONT, size: 13 },
+    margin: { l: 60, r: 16, t: 36, b: 48 },
+    legend: { orientation: "h", x: 0, y: 1.02, yanchor: "bottom", bgcolor: "rgba(0,0,0,0)" },
+    hovermode: "closest",
+    hoverlabel: { font: { family: FONT } },
+    xaxis: axis(xaxis),
+    yaxis: axis(yaxis),
+    ...rest,
+  };
+}
+
+export function plotConfig(filename, extra = {}) {
+  return {
+    displaylogo: false,
+    responsive: true,
+    toImageButtonOptions: { format: "png", filename, scale: 2 },
+    modeBarButtonsToRemove: ["lasso2d", "select2d", "autoScale2d"],
+    ...extra,
+  };
+}
+
+/** Draw (or redraw in place) a figure; resolves once plotly has drawn it. */
+export async function draw(div, traces, lay, filename, config = {}) {
+  const Plotly = await loadPlotly();
+  await Plotly.react(div, traces, layout(lay), plotConfig(filename, config));
+  div.dataset.drawn = "1";
+  return div;
+}
+
+/** Layout parts for a figure with nothing to show yet: no axes, one line of text. */
+export function emptyPlot(text) {
+  return {
+    xaxis: { visible: false },
+    yaxis: { visible: false },
+    annotations: [{ text, showarrow: false, xref: "paper", yref: "paper", x: 0.5, y: 0.5, font: { size: 15 } }],
+  };
+}
+
+export function purge(div) {
+  if (window.Plotly && div) window.Plotly.purge(div);
+}
+
+// ------------------------------------------------------------------ λ_att
+/**
+ * Traces of λ_att per wavelength: thick bars the statistical error, thin bars stat ⊕ sys.
+ * @param {object} series {"405": [{t_unix_s, depth_m, lambda_att_m, stat_err_m, sys_err_m, n_pairs}]}
+ * @param {"time"|"depth"} against
+ */
+export function attenuationTraces(series, against = "time", { namePrefix = "", dash = "solid", opacity = 1 } = {}) {
+  const traces = [];
+  const keys = Object.keys(series || {}).sort();
+  for (const wl of keys) {
+    const pts = (series[wl] || []).filter((p) => p.lambda_att_m !== null && p.lambda_att_m !== undefined);
+    if (!pts.length) continue;
+    const color = wlColor(wl);
+    const lam = pts.map((p) => p.lambda_att_m);
+    const stat = pts.map((p) => p.stat_err_m ?? 0);
+    const total = pts.map((p) => Math.hypot(p.stat_err_m ?? 0, p.sys_err_m ?? 0));
+    const other = against === "time" ? pts.map((p) => plotDate(p.t_unix_s)) : pts.map((p) => p.depth_m);
+    const xy = (vals) => (against === "time" ? { x: other, y: vals } : { x: vals, y: other });
+    const err = (arr, thickness, width) => ({ type: "data", array: arr, visible: true, color, thickness, width });
+    const errKey = against === "time" ? "error_y" : "error_x";
+    const group = `${namePrefix}${wl}`;
+    traces.push({
+      ...xy(lam),
+      type: "scatter",
+      mode: "markers",
+      marker: { size: 1, color, opacity: 0 },
+      [errKey]: err(total, 1, 0),
+      hoverinfo: "skip",
+      showlegend: false,
+      legendgroup: group,
+      opacity: 0.55 * opacity,
+    });
+    traces.push({
+      ...xy(lam),
+      type: "scatter",
+      mode: against === "time" ? "lines+markers" : "markers",
+      name: `${namePrefix}${wl} nm`,
+      legendgroup: group,
+      line: { color, width: 1.5, dash },
+      marker: { color, size: 7 },
+      opacity,
+      [errKey]: err(stat, 2.5, 4),
+      customdata: pts.map((p) => [p.stat_err_m, p.sys_err_m, p.n_pairs, p.depth_m]),
+      hovertemplate:
+        `${wl} nm: %{${against === "time" ? "y" : "x"}:.2f} m` +
+        " ± %{customdata[0]:.2f} stat ± %{customdata[1]:.2f} sys<br>" +
+        "%{customdata[2]} pairs, depth %{customdata[3]:.0f} m<extra></extra>",
+    });
+  }
+  return traces;
+}
+
+/**
+ * Axes of a λ_att figure. Against depth, the depth axis points down with an explicit range from
+ * `series` (at least 40 m: one stop is not a line), so redraws never keep a stale range.
+ */
+export function attenuationLayout(against, extra = {}, series = null) {
+  const lam = { title: { text: "λ_att (m)" } };
+  if (against === "time") return { xaxis: { title: { text: "time (UTC)" }, type: "date" }, yaxis: lam, ...extra };
+  const depth = { title: { text: "depth (m)" }, autorange: "reversed", tickformat: ",.0f" };
+  const ds = Object.values(series || {})
+    .flat()
+    .map((p) => p.depth_m)
+    .filter((d) => d !== null && d !== undefined);
+  if (ds.length) {
+    const lo = Math.min(...ds);
+    const hi = Math.max(...ds);
+    const pad = Math.max(20 - (hi - lo) / 2, (hi - lo) * 0.06);
+    Object.assign(depth, { autorange: false, range: [hi + pad, lo - pad] });
+  }
+  return { xaxis: lam, yaxis: depth, ...extra };
+}
+
+// ------------------------------------------------------------------ radial profile
+/** The radial band profile (log y) with its exponential + constant fit and the background. */
+export function profileFigure(frame) {
+  const p = frame.profile;
+  const f = frame.fit;
+  const traces = [];
+  if (p && p.radius_px?.length) {
+    traces.push({
+      x: p.radius_px,
+      y: p.mean_gray,
+      error_y: { type: "data", array: p.sem_gray, visible: true, thickness: 1, width: 0 },
+      type: "scatter",
+      mode: "markers",
+      marker: { size: 4, color: cssVar("--accent") },
+      name: "mean gray per band",
+    });
+  }
+  const shapes = [];
+  if (f && f.amplitude_gray !== null && f.scale_px) {
+    const rMax = p?.radius_px?.length ? p.radius_px[p.radius_px.length - 1] : 150;
+    const rMin = f.r_min_px ?? 0;
+    const model = (r) => f.amplitude_gray * Math.exp(-r / f.scale_px) + f.background_gray;
+    const xs = [];
+    for (let r = rMin; r <= rMax; r += Math.max(0.5, (rMax - rMin) / 200)) xs.push(r);
+    traces.push({
+      x: xs,
+      y: xs.map(model),
+      type: "scatter",
+      mode: "lines",
+      line: { color: cssVar("--minor"), width: 2.5 },
+      name: `fit: ${fmt(f.amplitude_gray, 1)}·exp(−r/${fmt(f.scale_px, 1)} px) + ${fmt(f.background_gray, 2)}`,
+    });
+    traces.push({
+      x: [0, rMax],
+      y: [f.background_gray, f.background_gray],
+      type: "scatter",
+      mode: "lines",
+      line: { color: cssVar("--ok"), width: 1.5, dash: "dash" },
+      name: `background ${fmt(f.background_gray, 2)} gray`,
+    });
+    shapes.push(vline(rMin, cssVar("--muted"), "dot"));
+  }
+  if (frame.radius_px) shapes.push(vline(frame.radius_px, cssVar("--major"), "dash"));
+  return {
+    traces,
+    layout: {
+      xaxis: { title: { text: "radius (px)" } },
+      yaxis: { title: { text: "mean gray" }, type: "log" },
+      legend: { x: 0.99, xanchor: "right", y: 0.99, yanchor: "top", bgcolor: cssVar("--panel-2"), bordercolor: cssVar("--line"), borderwidth: 1 },
+      shapes,
+      annotations: frame.radius_px
+        ? [{ x: frame.radius_px, y: 1, yref: "paper", text: "LEM disk", showarrow: false, yanchor: "bottom" }]
+        : [],
+    },
+  };
+}
+
+function vline(x, color, dash) {
+  return { type: "line", x0: x, x1: x, y0: 0, y1: 1, yref: "paper", line: { color, width: 1.5, dash } };
+}
+
+// ------------------------------------------------------------------ linearity
+/**
+ * One module's linearity checks for one sweep (exposure or gain), on log-log axes: the points
+ * (open: outside the linear range, left out of the fit), the straight-line fit, the knee.
+ */
+export function linearityFigure(checks, sweep) {
+  const traces = [];
+  const shapes = [];
+  const ticks = new Set();
+  for (const c of checks) {
+    const color = wlColor(c.wavelength_nm);
+    const { x, gray, used } = c.points || { x: [], gray: [], used: [] };
+    x.forEach((v) => ticks.add(v));
+    const pick = (flag) => x.map((_, i) => i).filter((i) => Boolean(used[i]) === flag);
+    const inR = pick(true);
+    const outR = pick(false);
+    const r2 = c.r2 === null ? "–" : c.r2.toFixed(4);
+    const group = String(c.wavelength_nm);
+    traces.push({
+      x: inR.map((i) => x[i]),
+      y: inR.map((i) => gray[i]),
+      type: "scatter",
+      mode: "markers",
+      marker: { color, size: 8 },
+      name: `${c.wavelength_nm} nm · R² ${r2}`,
+      legendgroup: group,
+    });
+    if (outR.length) {
+      traces.push({
+        x: outR.map((i) => x[i]),
+        y: outR.map((i) => gray[i]),
+        type: "scatter",
+        mode: "markers",
+        marker: { color, size: 9, symbol: "circle-open", line: { width: 2 } },
+        name: `${c.wavelength_nm} nm outside linear range`,
+        legendgroup: group,
+        showlegend: false,
+      });
+    }
+    if (c.slope !== null && x.length) {
+      const lo = Math.min(...x);
+      const hi = Math.max(...x);
+      const xs = [];
+      for (let i = 0; i <= 60; i++) xs.push(lo * Math.pow(hi / lo, i / 60));
+      const fit = xs.map((v) => c.slope * v + c.intercept_gray);
+      const keep = xs.map((_, i) => i).filter((i) => fit[i] > 0 && fit[i] <= 300);
+      traces.push({
+        x: keep.map((i) => xs[i]),
+        y: keep.map((i) => fit[i]),
+        type: "scatter",
+        mode: "lines",
+        line: { color, width: 1.5, dash: "dot" },
+        name: `${c.wavelength_nm} nm fit`,
+        legendgroup: group,
+        showlegend: false,
+        hoverinfo: "skip",
+      });
+    }
+    if (c.knee_x) shapes.push({ ...vline(c.knee_x, color, "dash"), line: { color, width: 2, dash: "dash" } });
+  }
+  const tickvals = [...ticks].sort((a, b) => a - b);
+  const ticktext = tickvals.map((v) => (sweep === "exposure" ? `${v}` : `${Math.round(20 * Math.log10(v))} dB`));
+  return {
+    traces,
+    layout: {
+      xaxis: {
+        title: { text: sweep === "exposure" ? "exposure (s)" : "gain (linear factor 10^(dB/20), log scale)" },
+        type: "log",
+        tickvals,
+        ticktext,
+      },
+      yaxis: { title: { text: "centre gray" }, type: "log", tickvals: [5, 10, 20, 50, 100, 200, 255] },
+      shapes: [
+        ...shapes,
+        { type: "line", x0: 0, x1: 1, xref: "paper", y0: 255, y1: 255, line: { color: cssVar("--major"), width: 1 } },
+      ],
+      annotations: [
+        { x: 1, xref: "paper", xanchor: "right", y: Math.log10(255), yanchor: "bottom", text: "255: clipped", showarrow: false, font: { size: 11, color: cssVar("--major") } },
+      ],
+    },
+  };
+}
+
+// ------------------------------------------------------------------ time series
+/**
+ * Stacked panels sharing one time axis.
+ * @param {Array<{title: string, series: Array<{name, t, y, color, dash}>}>} panels
+ */
+export function stackedFigure(panels) {
+  const traces = [];
+  const lay = { grid: { rows: panels.length, columns: 1, pattern: "coupled", ygap: 0.12 }, showlegend: true };
+  panels.forEach((panel, i) => {
+    const ax = i === 0 ? "" : String(i + 1);
+    lay[`yaxis${ax}`] = axis({ title: { text: panel.title } });
+    for (const s of panel.series) {
+      traces.push({
+        x: s.t.map(plotDate),
+        y: s.y,
+        type: "scatter",
+        mode: "lines",
+        name: s.name,
+        legendgroup: s.name,
+        showlegend: i === 0,
+        line: { color: s.color, width: 1.5, dash: s.dash || "solid" },
+        xaxis: "x",
+        yaxis: `y${ax}`,
+      });
+    }
+  });
+  lay.xaxis = { type: "date", title: { text: "time (UTC)" } };
+  return { traces, layout: lay };
+}
+
+export { WAVELENGTHS };

@@ -1,0 +1,93 @@
+"""Browser tests: the real system (``camcal up``) and headless Chromium driven by Playwright.
+
+One short simulated dive is shared by every test of the session (speed 20,
+fast winch): frames and λ_att points arrive within ~30 s. Pages may only
+reach the camcal server: any other request is refused and fails the test
+(no CDN, no web fonts, nothing from the internet). Screenshots go to
+``test-artifacts/`` at the top of the repository.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit
+
+import httpx
+import pytest
+
+from tests.utils.system import CHROMIUM, CHROMIUM_ARGS, REPO, System, camcal_up, wait_until
+
+
+@pytest.fixture(scope="session")
+def system(tmp_path_factory: pytest.TempPathFactory) -> Iterator[System]:
+    with camcal_up(tmp_path_factory.mktemp("browser") / "data") as s:
+        yield s
+
+
+@pytest.fixture(scope="session")
+def artifacts() -> Path:
+    out = REPO / "test-artifacts"
+    out.mkdir(exist_ok=True)
+    return out
+
+
+@pytest.fixture(scope="session")
+def browser() -> Iterator[Any]:
+    if not CHROMIUM.exists():
+        pytest.skip(f"{CHROMIUM} is missing: install Debian's chromium (apt-get install -y chromium)")
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright (Python) is not installed")
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        yield b
+        b.close()
+
+
+@pytest.fixture
+def page(browser: Any, system: System) -> Iterator[Any]:
+    """A fresh page that can reach only the camcal server; page errors fail the test."""
+    context = browser.new_context(viewport={"width": 1280, "height": 900}, accept_downloads=True)
+    context.set_default_timeout(20_000)
+    host = urlsplit(system.base_url).netloc
+    foreign: list[str] = []
+    errors: list[str] = []
+
+    def only_camcal(route: Any) -> None:
+        url = route.request.url
+        if url.startswith(("data:", "blob:")) or urlsplit(url).netloc == host:
+            route.continue_()
+        else:
+            foreign.append(url)
+            route.abort()
+
+    context.route("**/*", only_camcal)
+    pg = context.new_page()
+    pg.on("pageerror", lambda e: errors.append(str(e)))
+    yield pg
+    context.close()
+    assert not foreign, f"the page asked for something outside the camcal server: {foreign}"
+    assert not errors, f"JavaScript errors on the page: {errors}"
+
+
+@pytest.fixture(scope="session")
+def dive_with_data(system: System) -> dict[str, Any]:
+    """The dive once it has analysed frames of both modules, λ_att and linearity fits (waits for them)."""
+
+    def ready() -> dict[str, Any] | None:
+        try:
+            dives = httpx.get(system.url("/api/dives"), timeout=5).json()
+            if not dives:
+                return None
+            dive = dives[0]
+            ok = httpx.get(system.url(f"/api/frames?dive={dive['id']}&status=ok&limit=1"), timeout=5).json()
+            att = httpx.get(system.url(f"/api/attenuation?dive={dive['id']}"), timeout=5).json()
+            lin = httpx.get(system.url(f"/api/linearity?dive={dive['id']}"), timeout=5).json()
+        except httpx.HTTPError:
+            return None
+        modules = {c["module"] for c in lin["checks"]}
+        if ok["total"] >= 30 and any(att["series"].values()) and len(modules) >= 2:
+            return dive
+        return None
+
+    return wait_until(ready, 120, "analysed frames, a λ_att point and linearity fits of both modules")

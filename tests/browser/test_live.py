@@ -1,0 +1,148 @@
+"""The live view in a real browser against the running system: cards, thumbnails, λ_att, losing the link."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.utils.system import System
+
+pytestmark = pytest.mark.browser
+
+BOTH_THUMBS = """() => ['A', 'B'].every(m => {
+  const img = document.querySelector(`#module-${m} .thumb img[data-frame-id]`);
+  return img && img.complete && img.naturalWidth > 0;
+})"""
+LAMBDA_SHOWN = """() => [...document.querySelectorAll('#att-now [data-wl] .huge')]
+  .some(n => /\\d/.test(n.textContent))"""
+
+
+def test_live_view_shows_both_modules_thumbnails_and_lambda_att(
+    page: Any, system: System, artifacts: Path
+) -> None:
+    page.goto(system.url("/"))
+    page.wait_for_selector("#module-A")
+    page.wait_for_selector("#module-B")
+    page.wait_for_selector('#conn[data-state="live"]')
+
+    page.wait_for_function(BOTH_THUMBS, timeout=90_000)
+    # The detected LEM is drawn on a thumbnail: a circle in the frame's own pixel coordinates.
+    page.wait_for_function("() => document.querySelector('.module-card .thumb svg circle')", timeout=60_000)
+    drawn = page.evaluate(
+        """() => { const c = document.querySelector('.module-card .thumb svg circle');
+                   const box = c.ownerSVGElement.getAttribute('viewBox');
+                   return [box, ...['cx', 'cy', 'r'].map(a => c.getAttribute(a))]; }"""
+    )
+    _, _, w, h = (float(v) for v in drawn[0].split())
+    cx, cy, r = (float(v) for v in drawn[1:])
+    assert (w, h) != (0, 0)
+    assert 0 < cx < w and 0 < cy < h and 0 < r < w / 2
+
+    page.wait_for_function(LAMBDA_SHOWN, timeout=90_000)
+    page.wait_for_function("() => document.querySelector('#att-time .scatterlayer .point')", timeout=20_000)
+
+    for m in ("A", "B"):
+        card = page.locator(f"#module-{m}")
+        assert "link up" in card.locator('[data-field="link"]').inner_text()
+        assert re.fullmatch(r"(405|460|525) nm", card.locator('[data-field="wavelength"]').inner_text())
+        assert re.fullmatch(r"\d+", card.locator('[data-field="depth"]').inner_text())
+        assert card.locator('[data-field="severity"]').inner_text() in ("OK", "MINOR", "MAJOR")
+        phase = card.locator('[data-field="phase"]').inner_text()
+        assert phase in ("deck", "descent", "stop", "station", "ascent")
+        assert re.search(r"\d", card.locator('[data-field="tilt"]').inner_text())
+        assert re.search(r"\d", card.locator('[data-field="temperature"]').inner_text())
+        assert card.locator('[data-field="qlegend"] [data-quality]').count() >= 1
+    assert page.locator("#overall").inner_text() in ("OK", "MINOR", "MAJOR")
+    page.screenshot(path=artifacts / "live-desktop.png", full_page=True)
+
+    stats = page.evaluate("window.camcal.stats")
+    assert stats["firstDataAt"] is not None and stats["firstDataAt"] < 10_000
+
+
+def test_live_view_reconnects_and_marks_stale_data(page: Any, system: System, artifacts: Path) -> None:
+    """Cut the WebSocket: the page says it is reconnecting, fades the stale cards, then resyncs."""
+    blocked = {"on": False}
+
+    def route(ws: Any) -> None:
+        if blocked["on"]:
+            ws.close()
+            return
+        server = ws.connect_to_server()
+        blocked.setdefault("sockets", []).append((ws, server))
+
+    page.route_web_socket(re.compile(r".*/ws/live$"), route)
+    page.goto(system.url("/"))
+    page.wait_for_selector('#conn[data-state="live"]')
+    page.wait_for_selector("#module-A:not(.stale)", timeout=30_000)
+    snapshots = page.evaluate("window.camcal.stats.snapshots")
+
+    blocked["on"] = True
+    for ws, _server in blocked["sockets"]:
+        ws.close()
+    page.wait_for_selector('#conn[data-state="reconnecting"]')
+    page.wait_for_selector("#banner:not([hidden])")
+    assert "reconnecting" in page.locator("#banner").inner_text()
+    # Nothing arrives: after stale_after_s (5 s) the cards fade and say INVALID.
+    page.wait_for_selector("#module-A.stale", timeout=15_000)
+    # INVALID, unless a MAJOR alarm of the module outranks it
+    assert page.locator('#module-A [data-field="severity"]').inner_text() in ("INVALID", "MAJOR")
+    assert "INVALID" in page.locator('#module-A [data-field="stale"]').inner_text()
+    page.screenshot(path=artifacts / "live-reconnecting.png", full_page=True)
+
+    blocked["on"] = False
+    page.wait_for_selector('#conn[data-state="live"]', timeout=20_000)
+    page.wait_for_selector("#module-A:not(.stale)", timeout=15_000)
+    resynced = page.evaluate("window.camcal.stats.snapshots")
+    assert resynced > snapshots
+    assert page.locator("#banner").is_hidden()
+
+    # The server says this browser fell behind and lost something that matters: it asks for a
+    # fresh snapshot on the same socket.
+    page_side = blocked["sockets"][-1][0]
+    page_side.send('{"type": "missed", "dropped": {"result": 3}, "resync": true}')
+    page.wait_for_function("n => window.camcal.stats.snapshots > n", arg=resynced)
+    assert page.evaluate("window.camcal.stats.missed")["result"] == 3
+
+
+def test_live_view_on_a_tablet_with_operator_login(page: Any, system: System, artifacts: Path) -> None:
+    page.set_viewport_size({"width": 768, "height": 1024})
+    page.goto(system.url("/"))
+    page.wait_for_selector("#module-B")
+    page.wait_for_function(BOTH_THUMBS, timeout=90_000)
+    a = page.locator("#module-A").bounding_box()
+    b = page.locator("#module-B").bounding_box()
+    assert b["y"] >= a["y"] + a["height"] - 1, "portrait: the module cards stack"
+    assert a["width"] <= 768
+
+    # Read-only until logged in; a wrong token says why; the right one names the operator.
+    assert page.locator("#operator-name").inner_text() == "read-only"
+    for button in page.locator("button.ack").all():
+        assert button.is_disabled()
+    page.click("#login")
+    page.fill("#login-token", "not-the-token")
+    page.click("#login-submit")
+    page.wait_for_selector("#login-error:has-text('not valid')")
+    page.fill("#login-token", system.token)
+    page.click("#login-submit")
+    page.wait_for_selector("#operator-name:has-text('tester')")
+    if page.locator("button.ack").count():
+        alarm = page.locator("li.alarm", has=page.locator("button.ack")).first
+        alarm_id = alarm.get_attribute("data-alarm-id")
+        alarm.locator("button.ack").click()
+        acked = f"li.alarm[data-alarm-id='{alarm_id}'] .meta:has-text('acknowledged by tester')"
+        page.wait_for_selector(acked)
+    page.wait_for_function("() => document.querySelector('#att-depth').dataset.drawn === '1'")
+    page.evaluate("document.getElementById('toast')?.setAttribute('hidden', '')")
+    page.screenshot(path=artifacts / "live-tablet-portrait.png", full_page=True)
+
+    page.set_viewport_size({"width": 1024, "height": 768})
+    page.wait_for_timeout(500)
+    page.screenshot(path=artifacts / "live-tablet-landscape.png")
+    page.click("#theme")
+    page.wait_for_timeout(1500)
+    assert page.evaluate("document.documentElement.dataset.theme") == "day"
+    page.screenshot(path=artifacts / "live-day-theme.png", full_page=True)
+    page.click("#theme")

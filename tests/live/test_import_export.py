@@ -1,0 +1,192 @@
+"""A link lost for good: `camcal import` of the SD card fills the gap; `camcal export` writes the dive."""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from sqlalchemy import func, select
+from typer.testing import CliRunner
+
+from camcal.cli import app
+from camcal.frameset import read_manifest
+from ingest.service import IngestService
+from storage.models import Frame, FrameResult, SensorBatch
+from storage.store import Store
+from tests.live.conftest import ingest_config
+from tests.live.test_ingest import wait_for
+from tests.utils.live import TcpProxy, camcal_cli, make_agent
+
+
+def frame_keys(store: Store, module: str) -> dict[tuple[str, int], Frame]:
+    with store.read() as s:
+        return {(f.boot, f.seq): f for f in s.scalars(select(Frame).where(Frame.module_id == module))}
+
+
+def sensor_keys(store: Store, module: str) -> set[tuple[str, int]]:
+    with store.read() as s:
+        rows = s.execute(select(SensorBatch.boot, SensorBatch.seq).where(SensorBatch.module_id == module))
+        return {(b, q) for b, q in rows}
+
+
+def count(store: Store, model) -> int:
+    with store.read() as s:
+        return int(s.scalar(select(func.count(model.id))))
+
+
+def test_link_lost_for_good_then_the_sd_card_import_fills_the_gap_and_export_writes_the_dive(
+    tmp_path: Path,
+) -> None:
+    data, outbox = tmp_path / "data", tmp_path / "outbox-A"
+    svc = IngestService(ingest_config(data))
+    svc.start()
+    proxy = TcpProxy(int(svc.endpoint.rsplit(":", 1)[1]))
+    # Frequent heartbeats: the ship hears how far the module got well before the stalled
+    # link's ZMTP heartbeat timeout (3 s) breaks the connection.
+    agent, _ = make_agent("A", proxy.endpoint, outbox, link_timeout_s=2.0, ack_timeout_s=5.0, heartbeat_s=0.3)
+    try:
+        agent.start()
+        assert wait_for(lambda: agent.counters["acked"] >= 6, 30)
+        # The fibre fails: first the ship's answers stop coming back, while the module's heartbeats
+        # still tell the ship how far it has got; then nothing gets through any more.
+        proxy.stall()
+        link = svc.links["A"]
+        assert wait_for(lambda: link.last_seq > max(svc.store.known_seqs("A", agent.boot)) + 2, 10)
+        proxy.cut()
+        assert wait_for(lambda: svc.store.open_gaps("A"), 15), "no gap after the link was lost"
+        gap = svc.store.open_gaps("A")[0]
+        assert gap.boot == agent.boot
+        # The module keeps capturing into its outbox until the dive is over.
+        n = agent.counters["frames_captured"]
+        assert wait_for(lambda: agent.counters["frames_captured"] >= n + 4, 20)
+        agent.stop()
+
+        sd = {(r.boot, r.seq): r for r in read_manifest(outbox / "frames")}
+        sensor_lines = [json.loads(x) for x in (outbox / "sensors.jsonl").read_text().splitlines()]
+        sd_sensors = {(o["boot"], o["seq"]) for o in sensor_lines}
+        live = frame_keys(svc.store, "A")
+        missing = set(sd) - set(live)
+        assert set(live) < set(sd) and len(missing) >= 4
+        assert all(gap.first_seq <= q for _, q in missing)
+        assert sensor_keys(svc.store, "A") < sd_sensors
+
+        def mtimes() -> dict[tuple[str, int], int]:
+            return {
+                k: svc.store.files.resolve(f.path).stat().st_mtime_ns
+                for k, f in frame_keys(svc.store, "A").items()
+            }
+
+        before = mtimes()
+        # Back on deck: the SD card is imported while the ingest still runs.
+        res = camcal_cli("import", str(outbox), "--data", str(data), "--workers", "1")
+        assert res.returncode == 0, res.stderr
+        assert f"{len(missing)} frames imported, {len(live)} already present" in res.stdout
+        stored = frame_keys(svc.store, "A")
+        assert set(stored) == set(sd), "the import must add exactly the frames the link lost"
+        for key, f in stored.items():
+            on_sd = (outbox / "frames" / sd[key].file).read_bytes()
+            assert hashlib.sha256(on_sd).hexdigest() == f.sha256
+            assert svc.store.files.resolve(f.path).read_bytes() == on_sd
+            assert (f.source == "import") == (key in missing)
+        assert sensor_keys(svc.store, "A") == sd_sensors
+        assert svc.store.open_gaps("A") == []
+        after = mtimes()
+        assert {k: after[k] for k in before} == before, "frames already stored were written again"
+        n_frames = count(svc.store, Frame)
+        assert wait_for(lambda: count(svc.store, FrameResult) == n_frames, 30), "frames left unanalysed"
+        with svc.store.read() as s:
+            imported_ok = s.scalar(
+                select(func.count(FrameResult.id))
+                .join(Frame, Frame.id == FrameResult.frame_id)
+                .where(Frame.source == "import", FrameResult.status == "ok")
+            )
+        assert imported_ok == len(missing)
+
+        # Importing again changes nothing.
+        n_sensor_batches = count(svc.store, SensorBatch)
+        again = camcal_cli("import", str(outbox), "--data", str(data), "--workers", "1")
+        assert again.returncode == 0, again.stderr
+        assert f"0 frames imported, {len(sd)} already present, 0 sensor batches, 0 analysed" in again.stdout
+        assert count(svc.store, Frame) == n_frames
+        assert count(svc.store, FrameResult) == n_frames
+        assert count(svc.store, SensorBatch) == n_sensor_batches
+        assert mtimes() == after
+
+        # The dive's tables, with every stored frame and its result.
+        out = tmp_path / "export"
+        exp = camcal_cli("export", "--out", str(out), "--data", str(data))
+        assert exp.returncode == 0, exp.stderr
+        table = pq.read_table(out / "frames.parquet")
+        assert table.num_rows == n_frames
+        assert sorted(table.column("sha256").to_pylist()) == sorted(f.sha256 for f in stored.values())
+        assert table.column("status").to_pylist() == ["ok"] * n_frames
+        assert None not in table.column("i_center_gray").to_pylist()
+        with (out / "frames.csv").open(newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        assert len(rows) == n_frames
+        assert {(r["boot"], int(r["seq"])) for r in rows} == set(sd)
+        samples = pq.read_table(out / "sensor_samples.parquet")
+        assert samples.num_rows == sum(len(o["rows"]) for o in sensor_lines)
+    finally:
+        agent.stop()
+        proxy.close()
+        svc.stop()
+
+
+def test_import_of_a_set_with_bad_files_imports_the_rest_and_names_each_bad_one(
+    trex_small_set: Path, tmp_path: Path
+) -> None:
+    folder = tmp_path / "card"
+    shutil.copytree(trex_small_set, folder)
+    rows = read_manifest(folder)
+    bad = {rows[1].file, rows[4].file, rows[7].file, rows[10].file}
+    (folder / rows[1].file).unlink()  # missing
+    data = (folder / rows[4].file).read_bytes()
+    (folder / rows[4].file).write_bytes(data[: len(data) // 2])  # truncated PNG
+    import cv2
+
+    deep = (np.arange(64 * 48, dtype=np.uint16).reshape(48, 64) * 20).astype(np.uint16)
+    (folder / rows[7].file).write_bytes(cv2.imencode(".png", deep)[1].tobytes())  # 16-bit
+    (folder / rows[10].file).write_text("not an image at all\n")
+
+    store_dir = tmp_path / "data"
+    res = camcal_cli("import", str(folder), "--data", str(store_dir), "--workers", "1")
+    assert res.returncode == 0, res.stderr
+    good = len(rows) - len(bad)
+    assert f"{good} frames imported, 0 already present" in res.stdout
+    assert f"{good} analysed" in res.stdout
+    assert "4 not imported" in res.stdout
+    for name in bad:
+        assert name in res.stdout, f"{name} not reported"
+    assert "file not found" in res.stdout and "uint16" in res.stdout
+    store = Store.open(store_dir, run_migrations=False)
+    try:
+        with store.read() as s:
+            stored = s.scalar(select(func.count(Frame.id)))
+            results = s.scalar(select(func.count(FrameResult.id)))
+        assert stored == results == good
+    finally:
+        store.close()
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--format", "xlsx"], "unknown export format(s) ['xlsx']; choose from csv, parquet"),
+        (["--dive", "nope"], "no dive named 'nope'"),
+    ],
+)
+def test_export_errors_are_one_line_and_exit_2(tmp_path: Path, args: list[str], message: str) -> None:
+    data = tmp_path / "data"
+    store = Store.open(data)
+    store.create_dive("d1")
+    store.close()
+    res = CliRunner().invoke(app, ["export", *args, "--data", str(data), "--out", str(tmp_path / "out")])
+    assert res.exit_code == 2
+    assert res.stderr.strip().splitlines() == [f"error: {message}"]

@@ -1,0 +1,144 @@
+"""Configuration, the compose file and the Dockerfile: documented, valid, and true to the CLI."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from camcal.cli import app
+from camcal.settings import Settings, field_names, load_settings
+
+ROOT = Path(__file__).resolve().parents[1]
+runner = CliRunner()
+
+
+def test_every_setting_is_documented() -> None:
+    doc = (ROOT / "docs" / "configuration.md").read_text()
+    documented = set(re.findall(r"^\| `([a-z_.]+)` \|", doc, flags=re.M))
+    names = set(field_names(Settings))
+    missing = names - documented
+    assert not missing, f"settings missing from docs/configuration.md: {sorted(missing)}"
+    assert not documented - names, f"documented but not settings: {sorted(documented - names)}"
+
+
+def test_environment_and_toml_feed_the_settings(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    toml = tmp_path / "camcal.toml"
+    toml.write_text('data_dir = "/from/toml"\nhttp_port = 9000\n[alarms]\ntilt_major_deg = 9\n')
+    monkeypatch.setenv("CAMCAL_CONFIG", str(toml))
+    monkeypatch.setenv("CAMCAL_HTTP_PORT", "9100")
+    monkeypatch.setenv("CAMCAL_ALARMS__TILT_MINOR_DEG", "4")
+    monkeypatch.setenv("CAMCAL_OPERATOR_TOKENS", '{"alice": "secret-token-123"}')
+    s = load_settings()
+    assert str(s.data_dir) == "/from/toml" and s.http_port == 9100
+    assert s.alarms.tilt_major_deg == 9 and s.alarms.tilt_minor_deg == 4
+    assert s.tokens() == {"alice": "secret-token-123"}
+    assert load_settings(http_port=9200).http_port == 9200
+
+
+def test_config_show_masks_secrets(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("CAMCAL_OPERATOR_TOKENS", '{"alice": "secret-token-123"}')
+    monkeypatch.setenv("CAMCAL_DATABASE_URL", "postgresql+psycopg://camcal:hunter22@db:5432/camcal")
+    res = runner.invoke(app, ["config", "show"])
+    assert res.exit_code == 0, res.output
+    assert "secret-token-123" not in res.output and "hunter22" not in res.output
+    assert '"alice": "********"' in res.output and "camcal:********@db:5432" in res.output
+
+
+def test_a_bad_setting_is_one_line_naming_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("CAMCAL_HTTP_PORT", "99999")
+    proc = subprocess.run(
+        [sys.executable, "-c", "from camcal.cli import main; main()", "config", "show"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 2 and "http_port" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def compose() -> dict:
+    return yaml.safe_load((ROOT / "docker-compose.yml").read_text())
+
+
+def test_compose_validates_against_the_compose_specification() -> None:
+    exe = shutil.which("check-jsonschema") or str(Path(sys.executable).with_name("check-jsonschema"))
+    proc = subprocess.run(
+        [exe, "--builtin-schema", "vendor.compose-spec", str(ROOT / "docker-compose.yml")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def _commands() -> list[tuple[str, list[str]]]:
+    out = []
+    for name, svc in compose()["services"].items():
+        if svc.get("image", "").startswith("camcal") or "build" in svc:
+            out.append((name, svc["command"]))
+            hc = svc.get("healthcheck", {}).get("test", [])
+            if hc[:2] == ["CMD", "camcal"]:
+                out.append((f"{name} healthcheck", hc[2:]))
+    return out
+
+
+@pytest.mark.parametrize(("service", "command"), _commands())
+def test_compose_runs_real_camcal_commands_and_options(service: str, command: list[str]) -> None:
+    words = [w for w in command if not w.startswith("-")]
+    # the subcommand path: leading words until the first option
+    path = []
+    for w in command:
+        if w.startswith("-"):
+            break
+        path.append(w)
+    res = runner.invoke(app, [*path, "--help"])
+    assert res.exit_code == 0, f"{service}: `camcal {' '.join(path)}` does not exist"
+    helptext = re.sub(r"\s+", " ", res.output)
+    for opt in (w for w in command if w.startswith("--")):
+        assert opt in helptext, f"{service}: option {opt} is not in `camcal {' '.join(path)} --help`"
+    assert words
+
+
+def test_compose_environment_is_read_by_the_settings() -> None:
+    fields = set(field_names(Settings))
+    for name, svc in compose()["services"].items():
+        for var in svc.get("environment") or {}:
+            if var.startswith("CAMCAL_"):
+                key = var[len("CAMCAL_") :].lower().replace("__", ".")
+                assert key in fields, f"{name}: {var} is not a setting"
+
+
+def test_dockerfile_copies_every_package_and_runs_camcal() -> None:
+    text = (ROOT / "Dockerfile").read_text()
+    copied = set(re.findall(r"^COPY (\w+) \./\w+$", text, flags=re.M))
+    import tomllib
+
+    packages = {
+        p.rstrip("*")
+        for p in tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"][
+            "find"
+        ]["include"]
+    }
+    assert packages <= copied, f"not copied into the image: {packages - copied}"
+    assert 'ENTRYPOINT ["camcal"]' in text
+
+
+def test_doctor_reports_what_to_fix(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("CAMCAL_DATA_DIR", str(tmp_path / "nowhere"))
+    monkeypatch.setenv("CAMCAL_HTTP_PORT", "1")
+    monkeypatch.setenv("COLUMNS", "300")  # one table row per line
+    res = runner.invoke(app, ["doctor", "--wait", "0.2"])
+    assert res.exit_code == 1
+    out = re.sub(r"\s+", " ", res.output)
+    assert "does not exist" in out and "start `camcal ingest`" in out and "start `camcal serve`" in out
+    (tmp_path / "nowhere").mkdir()
+    res = runner.invoke(app, ["doctor", "--check", "data"])
+    assert res.exit_code == 0 and "writable" in res.output
+    assert json.loads(json.dumps(Settings().masked()))  # serialisable

@@ -8,6 +8,7 @@ the LRM outbox, ``camcal analyze``, ``camcal import`` and replay all use it.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import os
@@ -262,18 +263,26 @@ def read_manifest(folder: Path) -> list[ManifestRow]:
     if not path.is_file():
         raise FrameSetError(f"{path}: manifest missing (a frame set needs {MANIFEST})")
     try:
-        with path.open(newline="", encoding="utf-8-sig") as fh:
-            reader = csv.DictReader(fh)
-            header = [h.strip() for h in (reader.fieldnames or [])]
-            missing = [c for c in REQUIRED_COLUMNS if c not in header]
-            if missing:
-                raise FrameSetError(
-                    f"{path}: required column{'s' if len(missing) > 1 else ''} "
-                    f"{', '.join(missing)} missing (header: {', '.join(header) or 'empty'})"
-                )
-            return [_parse_row(i, raw) for i, raw in enumerate(reader)]
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        text = path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as exc:
         raise FrameSetError(f"{path}: cannot read the manifest ({exc})") from exc
+    return parse_manifest(text, str(path))
+
+
+def parse_manifest(text: str, where: str = MANIFEST) -> list[ManifestRow]:
+    """The rows of a manifest's text (read from a folder, an object store...); see `read_manifest`."""
+    try:
+        reader = csv.DictReader(io.StringIO(text.removeprefix("\ufeff"), newline=""))
+        header = [h.strip() for h in (reader.fieldnames or [])]
+        missing = [c for c in REQUIRED_COLUMNS if c not in header]
+        if missing:
+            raise FrameSetError(
+                f"{where}: required column{'s' if len(missing) > 1 else ''} "
+                f"{', '.join(missing)} missing (header: {', '.join(header) or 'empty'})"
+            )
+        return [_parse_row(i, raw) for i, raw in enumerate(reader)]
+    except csv.Error as exc:
+        raise FrameSetError(f"{where}: cannot read the manifest ({exc})") from exc
 
 
 # -------------------------------------------------------------------- images

@@ -1,4 +1,8 @@
-"""Importing an SD-card frame set into a dive: idempotent, and it fills the gaps a broken link left."""
+"""Importing an SD-card frame set into a dive: idempotent, and it fills the gaps a broken link left.
+
+The folder is read through fsspec: a local folder and an object-store prefix
+(``s3://bucket/sets/dive-7``) import the same way.
+"""
 
 from __future__ import annotations
 
@@ -11,9 +15,10 @@ from datetime import datetime
 from pathlib import Path
 
 from analysis import FrameConfig
-from camcal.frameset import FrameReadError, decode_frame, read_manifest, read_setup
+from camcal.frameset import FrameReadError, ManifestRow, Setup, decode_frame, parse_manifest, parse_setup
 from camcal.parallel import process_pool
 from ingest.worker import analyse_stored_frame
+from storage.files import RemoteFolder, UnsafePath
 from storage.store import FrameRow, SensorBatchRow, Store
 
 
@@ -21,7 +26,7 @@ from storage.store import FrameRow, SensorBatchRow, Store
 class ImportReport:
     """What an import did."""
 
-    folder: Path
+    folder: Path | str
     dive_id: int
     imported: int = 0
     already_present: int = 0
@@ -29,28 +34,61 @@ class ImportReport:
     analysed: int = 0
     problems: list[tuple[str, str]] = field(default_factory=list)
     gaps_filled: int = 0
+    #: Every frame of the folder now in the store (imported or already there): (module, boot, seq) -> URL
+    #: of its file in the folder.
+    sources: dict[tuple[str, str, int], str] = field(default_factory=dict)
 
 
-def _frames_folder(folder: Path) -> Path:
+def _frames_folder(folder: RemoteFolder) -> RemoteFolder:
     """An outbox root holds its frame set in ``frames/``; a plain frame set is the folder itself."""
-    return folder / "frames" if (folder / "frames" / "manifest.csv").exists() else folder
+    return folder.child("frames") if folder.exists("frames/manifest.csv") else folder
 
 
-def _fallback_boot(folder: Path) -> str:
+def _fallback_boot(manifest: bytes) -> str:
     """A stable boot id for a frame set without one: importing it twice gives the same keys."""
-    digest = hashlib.sha256((folder / "manifest.csv").read_bytes()).hexdigest()[:12]
+    digest = hashlib.sha256(manifest).hexdigest()[:12]
     return f"import-{digest}"
+
+
+def read_frame_set(folder: RemoteFolder) -> tuple[RemoteFolder, bytes, list[ManifestRow], Setup]:
+    """The frame-set folder (``frames/`` of an outbox), its manifest bytes and rows, and its setup.
+
+    Raises `FrameSetError` for a missing or unusable manifest or setup.
+    """
+    from camcal.frameset import MANIFEST, SETUP, FrameSetError
+
+    frames_dir = _frames_folder(folder)
+    try:
+        manifest = frames_dir.read_bytes(MANIFEST)
+    except FileNotFoundError:
+        raise FrameSetError(f"{frames_dir.url}: no {MANIFEST} (not a frame set?)") from None
+    except OSError as exc:
+        raise FrameSetError(f"{frames_dir.url}: cannot read the manifest ({exc})") from exc
+    try:
+        rows = parse_manifest(manifest.decode("utf-8-sig"), f"{frames_dir.url}/{MANIFEST}")
+    except UnicodeDecodeError as exc:
+        raise FrameSetError(f"{frames_dir.url}/{MANIFEST}: not UTF-8 text ({exc})") from exc
+    setup = Setup()
+    if frames_dir.exists(SETUP):
+        where = f"{frames_dir.url}/{SETUP}"
+        try:
+            data = json.loads(frames_dir.read_bytes(SETUP))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise FrameSetError(f"{where}: not valid JSON ({exc})") from exc
+        setup = parse_setup(data, where)
+    return frames_dir, manifest, rows, setup
 
 
 def import_frame_set(
     store: Store,
-    folder: Path,
+    folder: Path | str,
     *,
     dive_id: int,
-    run_id: int,
+    run_id: int | None = None,
     analyse: bool = True,
     workers: int = 1,
     progress: Callable[[int, int], None] | None = None,
+    storage_options: dict[str, object] | None = None,
 ) -> ImportReport:
     """Store every readable frame of ``folder`` not yet in the store, then analyse the new ones.
 
@@ -59,12 +97,11 @@ def import_frame_set(
     lost is added (and its gap closed). Unreadable files are reported and
     skipped; sensor batches of an outbox (``sensors.jsonl``) come along.
     """
-    folder = Path(folder)
-    frames_dir = _frames_folder(folder)
-    rows = read_manifest(frames_dir)
-    read_setup(frames_dir)  # a broken setup.json should stop the import early
+    root = RemoteFolder(folder, storage_options)
+    # a broken manifest or setup.json stops the import early
+    frames_dir, manifest, rows, _setup = read_frame_set(root)
     report = ImportReport(folder, dive_id)
-    fallback = _fallback_boot(frames_dir)
+    fallback = _fallback_boot(manifest)
     batch: list[FrameRow] = []
     new: list[tuple[int, str]] = []
     touched: set[tuple[str, str]] = set()
@@ -92,14 +129,15 @@ def import_frame_set(
             stored[(row.camera, boot)] = store.known_seqs(row.camera, boot)
         if seq in stored[(row.camera, boot)]:  # arrived over the link, or imported before
             report.already_present += 1
+            report.sources[(row.camera, boot, seq)] = frames_dir.file_url(row.file)
             continue
         try:
-            data = (frames_dir / row.file).read_bytes()
+            data = frames_dir.read_bytes(row.file)
             frame = decode_frame(data, row.file)
         except FileNotFoundError:
             report.problems.append((row.file, "file not found"))
             continue
-        except (OSError, FrameReadError) as exc:
+        except (OSError, FrameReadError, UnsafePath) as exc:
             report.problems.append((row.file, getattr(exc, "detail", str(exc))))
             continue
         encoding = "png" if data.startswith(b"\x89PNG") else "tiff"
@@ -127,16 +165,16 @@ def import_frame_set(
             )
         )
         touched.add((row.camera, boot))
+        report.sources[(row.camera, boot, seq)] = frames_dir.file_url(row.file)
         if len(batch) >= 64:
             flush()
     flush()
     if progress:
         progress(len(rows), len(rows))
-    sensors = folder / "sensors.jsonl"
-    if sensors.exists():
+    if root.exists("sensors.jsonl"):
         module = rows[0].camera if rows else None
         batches = []
-        for line in sensors.read_text(encoding="utf-8").splitlines():
+        for line in root.read_bytes("sensors.jsonl").decode("utf-8", "replace").splitlines():
             try:
                 obj = json.loads(line)
                 samples = [dict(zip(obj["columns"], r, strict=True)) for r in obj["rows"]]
@@ -151,7 +189,7 @@ def import_frame_set(
             report.sensor_batches = len(out.new_sensor_batches)
     for module, boot in touched:
         report.gaps_filled += len(store.fill_gaps(module, boot, store.known_seqs(module, boot)))
-    if analyse and new:
+    if analyse and new and run_id is not None:
         report.analysed = analyse_frames(store, run_id, new, workers=workers)
     return report
 

@@ -1,17 +1,28 @@
-"""Re-analysing a stored dive with other calibration inputs, beside the original results."""
+"""Re-analysing stored frames with other calibration inputs, beside the original results.
+
+A re-analysis is a new analysis run of a dive: per-frame results, the
+rolling λ_att series and the linearity fits, computed as the live ingest
+computes them. The per-frame work is `ingest.worker.analyse_batch` mapped
+over batches of frames by a runner (`ingest.runners`: in this process, a
+local process pool, or Dask), with the frames read through fsspec; the
+results are stored by this process (the one writer) as batches complete.
+"""
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
-from dataclasses import dataclass
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
 
 from analysis import FrameConfig
 from camcal import __version__
 from camcal.frameset import Setup
 from ingest.derived import ResultRow, geometry_and_ratios, linearity_rows, mean_gray_by_setting
-from ingest.importer import analyse_frames
 from ingest.rolling import RollingAttenuation, Sample
+from ingest.runners import BatchRunner, LocalRunner
+from ingest.worker import analyse_batch
 from storage.store import Store
 
 log = logging.getLogger("camcal.reanalysis")
@@ -19,9 +30,25 @@ log = logging.getLogger("camcal.reanalysis")
 
 @dataclass(frozen=True)
 class ReanalysisOptions:
+    """How a re-analysis runs.
+
+    ``reuse_live``: when the linear range is the live run's, each frame's
+    I_center is unchanged, so its live result is copied instead of analysed
+    again. ``frames_url``: where the data folder's frame files are read from
+    if not the data folder itself (a mirror in object storage, e.g.
+    ``s3://bucket/camcal-data``), with fsspec ``storage_options``.
+    ``t_from``/``t_to``: only frames captured in that span (UTC seconds).
+    """
+
     window_s: float = 300.0
     interval_s: float = 10.0
     workers: int = 1
+    batch_size: int = 16
+    reuse_live: bool = True
+    frames_url: str | None = None
+    storage_options: Mapping[str, Any] = field(default_factory=dict)
+    t_from: float | None = None
+    t_to: float | None = None
 
 
 def start_run(
@@ -46,13 +73,19 @@ def reanalyse(
     setup: Setup,
     options: ReanalysisOptions | None = None,
     progress: Callable[[str, float], None] | None = None,
+    runner: BatchRunner | None = None,
+    sources: Mapping[int, str] | None = None,
 ) -> int:
     """Fill run ``run_id`` of a dive: frame results, the λ_att series and linearity.
 
-    When the linear range is the live run's, each frame's I_center is
-    unchanged and its result is copied; otherwise every frame is analysed
-    again. Distances and emission ratios only enter λ_att, which is always
-    recomputed. The live run is never touched. Returns the number of frames.
+    Frames are analysed again on ``runner`` (default: a local pool of
+    ``options.workers`` processes) unless their live results can be reused
+    (see `ReanalysisOptions`). With ``sources`` (frame id -> URL), exactly
+    those frames are analysed, each read from its URL (e.g. the frame-set
+    folder it was imported from). Distances and emission ratios only enter
+    λ_att, which is always recomputed. The live run is never touched. The
+    run ends ``done`` (or ``failed``, re-raising). Returns the number of
+    frame results.
     """
     options = options or ReanalysisOptions()
     live = store.analysis_run(dive_id, "live", create=False)
@@ -62,84 +95,128 @@ def reanalyse(
         )
         if progress:
             progress("frames", 0.0)
-        if same_range and live is not None:
-            n = store.copy_results(live.id, run_id)
+        if sources is None and same_range and live is not None and options.reuse_live:
+            n = store.copy_results(live.id, run_id, options.t_from, options.t_to)
         else:
-            frames = store.dive_frames(dive_id)
+            if sources is not None:
+                tasks = sorted(sources.items())
+            else:
+                tasks = [
+                    (fid, store.files.url(path, options.frames_url))
+                    for fid, path in store.dive_frames(dive_id, options.t_from, options.t_to)
+                ]
             lo, hi = setup.linear_range
-            n = analyse_frames(
-                store, run_id, frames, workers=options.workers, config=FrameConfig(linear_range_gray=(lo, hi))
+            n = analyse_into_run(
+                store,
+                run_id,
+                tasks,
+                FrameConfig(linear_range_gray=(lo, hi)),
+                options,
+                runner or LocalRunner(options.workers),
+                progress=(lambda f: progress("frames", 0.7 * f)) if progress else None,
             )
         if progress:
             progress("attenuation", 0.7)
-        rows = store.result_rows(run_id, dive_id)
-        gr = geometry_and_ratios(setup)
-        points = []
-        if gr is not None:
-            rolling = RollingAttenuation(gr[0], gr[1], options.window_s, options.interval_s)
-            for r in rows:
-                if r["status"] != "ok" or r["i_center_gray"] is None:
-                    continue
-                out = rolling.add(
-                    r["module"],
-                    r["wavelength_nm"],
-                    r["exposure_s"],
-                    r["gain_db"],
-                    Sample(r["captured_unix_s"], r["i_center_gray"], r["i_center_err_gray"], r["depth_m"]),
-                )
-                if out is not None:
-                    res, t, depth = out
-                    points.append(
-                        {
-                            "run_id": run_id,
-                            "dive_id": dive_id,
-                            "wavelength_nm": res.wavelength_nm,
-                            "t_unix_s": t,
-                            "depth_m": depth,
-                            "lambda_att_m": res.lambda_att_m,
-                            "stat_err_m": res.stat_err_m,
-                            "sys_err_m": res.sys_err_m,
-                            "n_pairs": res.n_pairs,
-                            "chi2_ndof": res.chi2_ndof,
-                            "window_s": options.window_s,
-                            "details": {"note": res.note},
-                        }
-                    )
-        store.add_attenuation_points(points)
-        result_rows = [
-            ResultRow(
-                r["module"],
-                r["wavelength_nm"],
-                r["exposure_s"],
-                r["gain_db"],
-                r["captured_unix_s"],
-                r["depth_m"],
-                r["status"],
-                r["center_gray"],
-                r["i_center_gray"],
-                r["i_center_err_gray"],
-            )
-            for r in rows
-        ]
-        lr = tuple(setup.linear_range)
-        for (module, wl), pts in mean_gray_by_setting(result_rows).items():
-            for row in linearity_rows(pts, lr):  # type: ignore[arg-type]
-                import time
-
-                store.upsert_linearity(
-                    {
-                        **row,
-                        "run_id": run_id,
-                        "module_id": module,
-                        "wavelength_nm": wl,
-                        "updated_unix_s": time.time(),
-                    }
-                )
+        derive_run(store, dive_id, run_id, setup, options)
         store.finish_run(run_id, "done", n)
         if progress:
             progress("done", 1.0)
         return n
-    except Exception:
+    except BaseException:
         log.exception("re-analysis %s of dive %s failed", run_id, dive_id)
         store.finish_run(run_id, "failed")
         raise
+
+
+def analyse_into_run(
+    store: Store,
+    run_id: int,
+    tasks: list[tuple[int, str]],
+    config: FrameConfig,
+    options: ReanalysisOptions,
+    runner: BatchRunner,
+    progress: Callable[[float], None] | None = None,
+) -> int:
+    """Analyse frames ``(frame_id, URL or path)`` in batches on ``runner``; store each batch's results
+    as it completes. Returns the number of results stored."""
+    size = max(1, options.batch_size)
+    batches = [tasks[i : i + size] for i in range(0, len(tasks), size)]
+    stored = done = 0
+    storage_options = dict(options.storage_options)
+    for out in runner.map(analyse_batch, batches, config=config, storage_options=storage_options):
+        t = time.time()
+        rows = []
+        for fid, row in out:
+            for k in ("analysis_s", "width_px", "height_px"):
+                row.pop(k, None)
+            rows.append({**row, "frame_id": fid, "analysed_unix_s": t})
+        stored += store.save_results(run_id, rows)
+        done += len(rows)
+        if progress:
+            progress(done / max(1, len(tasks)))
+    return stored
+
+
+def derive_run(store: Store, dive_id: int, run_id: int, setup: Setup, options: ReanalysisOptions) -> None:
+    """The rolling λ_att series and the linearity fits of a run, from its stored frame results."""
+    rows = store.result_rows(run_id, dive_id)
+    gr = geometry_and_ratios(setup)
+    points = []
+    if gr is not None:
+        rolling = RollingAttenuation(gr[0], gr[1], options.window_s, options.interval_s)
+        for r in rows:
+            if r["status"] != "ok" or r["i_center_gray"] is None:
+                continue
+            out = rolling.add(
+                r["module"],
+                r["wavelength_nm"],
+                r["exposure_s"],
+                r["gain_db"],
+                Sample(r["captured_unix_s"], r["i_center_gray"], r["i_center_err_gray"], r["depth_m"]),
+            )
+            if out is not None:
+                res, t, depth = out
+                points.append(
+                    {
+                        "run_id": run_id,
+                        "dive_id": dive_id,
+                        "wavelength_nm": res.wavelength_nm,
+                        "t_unix_s": t,
+                        "depth_m": depth,
+                        "lambda_att_m": res.lambda_att_m,
+                        "stat_err_m": res.stat_err_m,
+                        "sys_err_m": res.sys_err_m,
+                        "n_pairs": res.n_pairs,
+                        "chi2_ndof": res.chi2_ndof,
+                        "window_s": options.window_s,
+                        "details": {"note": res.note},
+                    }
+                )
+    store.add_attenuation_points(points)
+    result_rows = [
+        ResultRow(
+            r["module"],
+            r["wavelength_nm"],
+            r["exposure_s"],
+            r["gain_db"],
+            r["captured_unix_s"],
+            r["depth_m"],
+            r["status"],
+            r["center_gray"],
+            r["i_center_gray"],
+            r["i_center_err_gray"],
+        )
+        for r in rows
+    ]
+    lr = tuple(setup.linear_range)
+    for (module, wl), pts in mean_gray_by_setting(result_rows).items():
+        for row in linearity_rows(pts, lr):  # type: ignore[arg-type]
+            store.upsert_linearity(
+                {
+                    **row,
+                    "run_id": run_id,
+                    "module_id": module,
+                    "wavelength_nm": wl,
+                    "updated_unix_s": time.time(),
+                }
+            )

@@ -13,11 +13,20 @@ Three kinds of worker, each owning what it touches:
   alarms, and publishes every new result as an event;
 * a **process pool** (one process per core) decodes and analyses frames off
   the receive loop.
+
+Several ingest processes may share one database (PostgreSQL) and one data
+folder, each serving its own set of modules (``modules``; see
+``docs/scaling.md``). A process refuses modules it does not serve: their
+``hello`` gets no ``welcome`` and their data no ``ack``, so a wrongly wired
+module keeps everything in its outbox. Recovery after a crash, temporary
+files, gaps and alarms are scoped to the served modules; the dive (by name)
+and its live run are shared.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import logging
 import os
 import queue
@@ -77,11 +86,14 @@ class IngestConfig:
     calibration: str | None = None
     thumbnails: bool = True
     alarm_limits: AlarmLimits = field(default_factory=AlarmLimits)
-    modules: tuple[str, ...] = ()
+    modules: tuple[str, ...] = ()  # the modules this process serves; empty: any module
 
     @property
     def n_workers(self) -> int:
         return self.workers or os.cpu_count() or 1
+
+    def serves(self, module: str) -> bool:
+        return not self.modules or module in self.modules
 
 
 @dataclass
@@ -133,6 +145,7 @@ class IngestService:
         self._links_lock = threading.Lock()
         self.counters: Counter[str] = Counter()
         self.malformed: Counter[str] = Counter()
+        self.refused: Counter[str] = Counter()
         self.window = config.window
         self.endpoint = ""
         self.events_endpoint = ""
@@ -156,7 +169,7 @@ class IngestService:
                     f"no calibration {self.config.calibration!r} in the store (see `camcal calibration list`)"
                 )
             self.config = dataclasses.replace(self.config, setup=setup_of(calibration))
-        self.store.files.remove_temporaries()
+        self.store.files.remove_temporaries(self.config.modules)
         self._router = wire.ship_socket(
             self.ctx,
             self.config.bind,
@@ -272,6 +285,14 @@ class IngestService:
                 log.warning("dropped malformed message from %r: %s", identity[:40], exc)
             return
         module = msg.module
+        if not self.config.serves(module):
+            self.refused[module] += 1
+            self.counters["refused"] += 1
+            if self.refused[module] == 1:
+                log.warning(
+                    "refusing module %s: this ingest serves %s", module, ", ".join(self.config.modules)
+                )
+            return
         with self._links_lock:
             link = self.links.get(module)
             if link is None or link.identity != identity:
@@ -429,7 +450,7 @@ class IngestService:
 
     def _recover_unanalysed(self) -> None:
         """Frames committed before a crash but never analysed go back in the queue."""
-        for f in self.store.frames_without_result(self.dive.id, self.run.id):
+        for f in self.store.frames_without_result(self.dive.id, self.run.id, modules=self.config.modules):
             self.queue_analysis(f.id, f.path, _frame_meta_from_row(f))
 
     # -- status ----------------------------------------------------------
@@ -460,6 +481,8 @@ class IngestService:
             "window": self.window,
             "counters": dict(self.counters),
             "malformed": dict(self.malformed),
+            "served_modules": list(self.config.modules),
+            "refused": dict(self.refused),
             "dive": {"id": self.dive.id, "name": self.dive.name},
             "disk_free_gb": self.disk_free_gb,
             "latency_p50_s": _pct(self.latency_s, 50),
@@ -501,7 +524,9 @@ class _StoreState:
                 gr[0], gr[1], svc.config.rolling_window_s, svc.config.rolling_interval_s
             )
         self.alarms = AlarmEvaluator(svc.config.alarm_limits)
-        self.active_alarms = {a.key for a in self.store.active_alarms()}
+        self.active_alarms = {
+            a.key for a in self.store.active_alarms() if a.module_id is None or svc.config.serves(a.module_id)
+        }
         self.sensors: dict[str, deque[tuple[float, float, float, float, float, float, float]]] = defaultdict(
             lambda: deque(maxlen=20000)
         )
@@ -512,7 +537,10 @@ class _StoreState:
         self.recent_committed: deque[tuple[str, str, int]] = deque(maxlen=4096)
         self.recent_set: set[tuple[str, str, int]] = set()
         self.last_sensor_event: dict[str, float] = {}
-        self.gappy: set[tuple[str, str]] = {(g.module_id, g.boot) for g in self.store.open_gaps()}
+        self.attitude_t: dict[str, float] = {}
+        self.gappy: set[tuple[str, str]] = {
+            (g.module_id, g.boot) for g in self.store.open_gaps() if svc.config.serves(g.module_id)
+        }
         self.last_housekeeping = -1e18
         self.last_purge = -1e18
 
@@ -877,7 +905,7 @@ class _StoreState:
         days = svc.config.retention_days
         if days and time.monotonic() - self.last_purge >= 3600.0:
             self.last_purge = time.monotonic()
-            n, freed = self.store.purge_frame_files(now - days * 86400.0)
+            n, freed = self.store.purge_frame_files(now - days * 86400.0, svc.config.modules)
             if n:
                 log.info(
                     "retention: deleted %d frame files older than %g days (%.1f MB)", n, days, freed / 1e6
@@ -955,16 +983,16 @@ class _StoreState:
         mono = time.monotonic()
         att_rows = []
         for module, buf in self.sensors.items():
-            if len(buf) < 5:
-                continue
-            arr = np.array(buf)
-            recent = arr[arr[:, 0] >= arr[-1, 0] - 120.0]
+            if len(buf) < 5 or self.attitude_t.get(module) == buf[-1][0]:
+                continue  # too few samples, or none new since the last tick
+            self.attitude_t[module] = buf[-1][0]
+            recent = _tail(buf, ATTITUDE_WINDOW_S)
             est = attitude_from_samples(recent[:, 0], recent[:, 1:4], recent[:, 4:7])
             self.alarms.observe_tilt(module, est.tilt_deg)
             row = {
                 "module_id": module,
                 "dive_id": svc.dive.id,
-                "t_unix_s": float(arr[-1, 0]),
+                "t_unix_s": float(recent[-1, 0]),
                 "tilt_deg": est.tilt_deg,
                 "tilt_x_deg": est.tilt_x_deg,
                 "tilt_y_deg": est.tilt_y_deg,
@@ -980,9 +1008,12 @@ class _StoreState:
         for link in list(svc.links.values()):
             age_up = link.up and mono - link.last_seen_mono <= svc.config.link_timeout_s
             self.alarms.observe_link(link.module, age_up, link.last_seen_unix_s or None)
-        for module in {g.module_id for g in self.store.open_gaps()} | set(svc.links):
-            gaps = [(g.first_seq, g.last_seq, g.detected_unix_s) for g in self.store.open_gaps(module)]
-            self.alarms.observe_gaps(module, gaps)
+        gaps: dict[str, list[tuple[int, int, float]]] = defaultdict(list)
+        for g in self.store.open_gaps():  # one query for every module, not one per module
+            if svc.config.serves(g.module_id):
+                gaps[g.module_id].append((g.first_seq, g.last_seq, g.detected_unix_s))
+        for module in set(gaps) | set(svc.links):
+            self.alarms.observe_gaps(module, gaps.get(module, []))
         if mono - self.last_housekeeping >= 30.0:
             self.last_housekeeping = mono
             self._housekeeping(now)
@@ -1050,6 +1081,25 @@ class _StoreState:
         backlog = svc._q.qsize() + len(svc._analysis_backlog)
         base = svc.config.window
         svc.window = base if backlog < 4 * base else max(1, base // 4)
+
+
+#: Seconds of sensor samples the attitude (tilt, rotation, heave period) is estimated from.
+ATTITUDE_WINDOW_S = 120.0
+
+
+def _tail(buf: deque[tuple[float, ...]], window_s: float) -> np.ndarray:
+    """The samples of the last ``window_s`` seconds (rows in time order), without copying the rest.
+
+    Once a second per module: converting the whole buffer (20 000 samples)
+    would cost ~13 ms a module, which 100 modules on one ingest cannot afford.
+    """
+    t_from = buf[-1][0] - window_s
+    n = 0
+    for row in reversed(buf):
+        if row[0] < t_from:
+            break
+        n += 1
+    return np.array(list(itertools.islice(reversed(buf), n))[::-1])
 
 
 def _sample_columns(row: dict[str, Any]) -> dict[str, Any]:

@@ -1,9 +1,14 @@
-"""What runs in the analysis processes: decode a stored frame, analyse it, make its thumbnail."""
+"""What runs in the analysis processes: decode a stored frame, analyse it, make its thumbnail.
+
+`analyse_batch` is what a re-analysis maps over its workers (a process pool
+or a Dask cluster): a batch of frames, each read through fsspec.
+"""
 
 from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -11,7 +16,7 @@ import cv2
 import numpy as np
 
 from analysis import FrameAnalysis, FrameConfig, analyze_frame, rejected
-from camcal.frameset import FrameReadError, read_frame, write_atomic
+from camcal.frameset import FrameReadError, decode_frame, read_frame, write_atomic
 
 THUMB_WIDTH_PX = 512
 
@@ -100,3 +105,33 @@ def analyse_stored_frame(path: str, config: FrameConfig, thumb_path: str | None)
         write_atomic(out, thumbnail_jpeg(frame), fsync=False)
     row["analysis_s"] = time.perf_counter() - t0
     return row
+
+
+def analyse_batch(
+    tasks: Sequence[tuple[int, str]], config: FrameConfig, storage_options: dict[str, Any] | None = None
+) -> list[tuple[int, dict[str, Any]]]:
+    """Analyse frames ``(frame_id, url)``: each read through fsspec (a local path or any URL such as
+    ``s3://bucket/key``), decoded and analysed. Returns ``(frame_id, result columns)`` in order.
+
+    Never raises for a bad frame: a missing or unreadable one is a rejected result.
+    """
+    from storage.files import read_url
+
+    out = []
+    for frame_id, url in tasks:
+        t0 = time.perf_counter()
+        name = url.rsplit("/", 1)[-1]
+        try:
+            frame = decode_frame(read_url(url, storage_options), name)
+        except FileNotFoundError:
+            row = result_row(rejected("unreadable", f"{name}: file not found"))
+        except OSError as exc:
+            row = result_row(rejected("unreadable", f"{name}: {exc}"))
+        except FrameReadError as exc:
+            row = result_row(rejected(exc.reason, exc.detail))
+        else:
+            row = result_row(analyze_frame(frame, config))
+            row["width_px"], row["height_px"] = frame.shape[1], frame.shape[0]
+        row["analysis_s"] = time.perf_counter() - t0
+        out.append((frame_id, row))
+    return out

@@ -1,4 +1,10 @@
-"""Engines and migrations: SQLite in WAL mode by default, any SQLAlchemy URL allowed."""
+"""Engines and migrations: SQLite in WAL mode by default, PostgreSQL for a shared store.
+
+Any SQLAlchemy URL is accepted; ``postgresql://`` (and ``postgres://``) URLs
+use the psycopg 3 driver. Several processes may migrate one PostgreSQL
+database at once: they queue on an advisory lock, so the first one upgrades
+and the others find it done.
+"""
 
 from __future__ import annotations
 
@@ -10,10 +16,13 @@ from alembic import command
 from alembic.config import Config
 from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
-from sqlalchemy import Engine, create_engine, event
+from sqlalchemy import Engine, create_engine, event, text
+from sqlalchemy.engine import make_url
 
 MIGRATIONS = Path(__file__).with_name("migrations")
 DB_FILE = "camcal.db"
+#: Key of the PostgreSQL advisory lock held while migrating (any constant unique to camcal).
+MIGRATION_LOCK_KEY = 0x63616D63616C  # "camcal"
 
 
 @dataclass(frozen=True)
@@ -67,7 +76,17 @@ def make_engine(url: str, *, sqlite_synchronous: str = "FULL", echo: bool = Fals
             cur.close()
 
         return engine
-    return create_engine(url, echo=echo, pool_pre_ping=True)
+    return create_engine(normalise_url(url), echo=echo, pool_pre_ping=True)
+
+
+def normalise_url(url: str) -> str:
+    """``postgresql://`` and ``postgres://`` URLs get the psycopg 3 driver (psycopg2 is not used)."""
+    parsed = make_url(
+        url.replace("postgres://", "postgresql://", 1) if url.startswith("postgres://") else url
+    )
+    if parsed.drivername == "postgresql":
+        parsed = parsed.set(drivername="postgresql+psycopg")
+    return parsed.render_as_string(hide_password=False)
 
 
 def alembic_config(url: str | None = None) -> Config:
@@ -82,6 +101,9 @@ def migrate(engine: Engine, revision: str = "head") -> None:
     """Bring the database to ``revision`` (the newest by default)."""
     cfg = alembic_config()
     with engine.begin() as conn:
+        if conn.dialect.name == "postgresql":
+            # DDL is transactional in PostgreSQL: a second process waits here, then sees the head.
+            conn.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": MIGRATION_LOCK_KEY})
         cfg.attributes["connection"] = conn
         command.upgrade(cfg, revision)
 

@@ -1,9 +1,17 @@
-"""Frame files under the data folder: written atomically, read safely."""
+"""Frame files under the data folder (written atomically, read safely), and reading through fsspec.
+
+The store's frames live in the data folder; a copy of them (or any frame
+set) may live in object storage. `read_url` and `RemoteFolder` read a local
+path and an ``s3://`` (or any fsspec) URL the same way, so re-analysis
+workers need no shared file system.
+"""
 
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from camcal.frameset import fsync_dir, write_atomic
 
@@ -50,15 +58,68 @@ class FrameFiles:
     def read(self, relative: str) -> bytes:
         return self.resolve(relative).read_bytes()
 
-    def remove_temporaries(self) -> int:
-        """Delete half-written temporary files a killed process left behind."""
+    def url(self, relative: str, base_url: str | None = None) -> str:
+        """Where a stored file is for fsspec: under ``base_url`` (a mirror of the data folder in
+        object storage, e.g. ``s3://bucket/camcal-data``) if given, else its local path."""
+        path = self.resolve(relative)  # refuses unsafe paths either way
+        if base_url is None:
+            return str(path)
+        return f"{base_url.rstrip('/')}/{path.relative_to(self.root.resolve()).as_posix()}"
+
+    def remove_temporaries(self, modules: Sequence[str] = ()) -> int:
+        """Delete half-written temporary files a killed process left behind.
+
+        With ``modules``, only under those modules' folders: ingest processes
+        that share a data folder each clean up after themselves, never under
+        a module another process is writing.
+        """
         count = 0
         frames = self.root / "frames"
         if not frames.exists():
             return 0
-        for dirpath, _dirs, files in os.walk(frames):
-            for name in files:
-                if name.startswith(".") and ".tmp-" in name:
-                    os.unlink(os.path.join(dirpath, name))
-                    count += 1
+        tops = [d / m for d in frames.iterdir() if d.is_dir() for m in modules] if modules else [frames]
+        for top in tops:
+            for dirpath, _dirs, files in os.walk(top):
+                for name in files:
+                    if name.startswith(".") and ".tmp-" in name:
+                        os.unlink(os.path.join(dirpath, name))
+                        count += 1
         return count
+
+
+def read_url(url: str, storage_options: dict[str, Any] | None = None) -> bytes:
+    """The bytes at a local path or an fsspec URL (``s3://bucket/key``, ``file://``, ``memory://``)."""
+    import fsspec
+
+    with fsspec.open(url, "rb", **(storage_options or {})) as fh:
+        return fh.read()  # type: ignore[no-any-return]
+
+
+class RemoteFolder:
+    """A folder read through fsspec: a local path or a URL prefix such as ``s3://bucket/sets/dive-7``."""
+
+    def __init__(self, url: str | Path, storage_options: dict[str, Any] | None = None) -> None:
+        import fsspec
+
+        self.url = str(url).rstrip("/") or "/"
+        self.storage_options = dict(storage_options or {})
+        self.fs, self.root = fsspec.core.url_to_fs(self.url, **self.storage_options)
+
+    def _path(self, name: str) -> str:
+        if name.startswith(("/", "\\")) or ".." in Path(name).parts:
+            raise UnsafePath(f"not a relative path inside {self.url}: {name!r}")
+        return f"{self.root.rstrip('/')}/{name}"
+
+    def child(self, name: str) -> RemoteFolder:
+        return RemoteFolder(f"{self.url}/{name}", self.storage_options)
+
+    def exists(self, name: str) -> bool:
+        return bool(self.fs.exists(self._path(name)))
+
+    def read_bytes(self, name: str) -> bytes:
+        """The bytes of ``name`` in the folder; `FileNotFoundError` if there is no such file."""
+        return bytes(self.fs.cat_file(self._path(name)))
+
+    def file_url(self, name: str) -> str:
+        """A URL (or local path) of ``name`` that `read_url` understands."""
+        return self.fs.unstrip_protocol(self._path(name)) if "://" in self.url else self._path(name)

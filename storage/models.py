@@ -20,6 +20,7 @@ from sqlalchemy import (
     String,
     Text,
     UniqueConstraint,
+    text,
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
@@ -90,9 +91,22 @@ class Frame(Base):
 
 
 class AnalysisRun(Base):
-    """One analysis of a dive's frames with one set of calibration inputs."""
+    """One analysis of a dive's frames with one set of calibration inputs.
+
+    A dive has at most one ``live`` run (a partial unique index), shared by
+    every ingest process recording into it.
+    """
 
     __tablename__ = "analysis_runs"
+    __table_args__ = (
+        Index(
+            "uq_analysis_runs_live",
+            "dive_id",
+            unique=True,
+            sqlite_where=text("kind = 'live'"),
+            postgresql_where=text("kind = 'live'"),
+        ),
+    )
     id: Mapped[int] = mapped_column(BigId, primary_key=True, autoincrement=True)
     dive_id: Mapped[int] = mapped_column(ForeignKey("dives.id"))
     kind: Mapped[str] = mapped_column(String(16))  # live | reanalysis

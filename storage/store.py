@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import Engine, Table, func, literal, select, update
+from sqlalchemy import Engine, func, literal, select, text, tuple_, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -43,6 +43,9 @@ from storage.models import (
 def now_unix_s() -> float:
     return time.time()
 
+
+#: Key of the advisory lock that serialises choosing (or creating) the open dive.
+DIVE_LOCK_KEY = 0x63616D64697665  # "camdive"
 
 #: Order of a command's states: a late, older status never moves it back.
 COMMAND_STATES = {"pending": 0, "sent": 1, "accepted": 2, "in_progress": 3, "done": 4, "rejected": 4}
@@ -164,7 +167,7 @@ class Store:
         return self._sessions()
 
     # ------------------------------------------------------------ helpers
-    def _insert(self, table: Table) -> Any:
+    def _insert(self, table: Any) -> Any:
         name = self.engine.dialect.name
         if name == "sqlite":
             return sqlite.insert(table)
@@ -173,18 +176,48 @@ class Store:
         raise NotImplementedError(f"conflict-free inserts are written for SQLite and PostgreSQL, not {name}")
 
     # ------------------------------------------------------------ dives
+    def _serialise(self, s: Session, key: int) -> None:
+        """Hold a lock until ``s`` commits, so get-or-create steps of several processes queue.
+
+        PostgreSQL: a transaction-level advisory lock on ``key``. SQLite: a
+        write statement that changes nothing takes the database's write lock.
+        """
+        if self.engine.dialect.name == "postgresql":
+            s.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": key})
+        else:
+            s.execute(update(Dive).where(literal(False)).values(name=Dive.name))
+
+    def open_dive(self, name: str, setup: dict[str, Any] | None = None) -> Dive:
+        """The dive called ``name``, created if there is none (safe when several processes ask at once)."""
+        with self.session() as s:
+            s.execute(
+                self._insert(Dive.__table__)
+                .values(name=name, started_unix_s=now_unix_s(), notes="", setup=setup or {})
+                .on_conflict_do_nothing(index_elements=["name"])
+            )
+            return s.scalars(select(Dive).where(Dive.name == name)).one()
+
     def current_dive(
         self, *, create: bool = True, name: str | None = None, setup: dict[str, Any] | None = None
     ) -> Dive | None:
-        """The open dive (not ended), the most recent first; created if there is none."""
+        """The dive called ``name`` if one is given, else the open dive (not ended), the most recent first.
+
+        Created if missing and ``create``. Safe under concurrency: processes
+        asking at once for a named dive all get the same row (the name is
+        unique), and the choice of the open dive is serialised by a lock.
+        """
+        if name is not None:
+            return self.open_dive(name, setup) if create else self.dive_by_name(name)
         with self.session() as s:
+            if create:
+                self._serialise(s, DIVE_LOCK_KEY)
             dive = s.scalars(
                 select(Dive).where(Dive.ended_unix_s.is_(None)).order_by(Dive.id.desc()).limit(1)
             ).first()
             if dive is None and create:
                 t = now_unix_s()
                 dive = Dive(
-                    name=name or time.strftime("dive-%Y%m%d-%H%M%S", time.gmtime(t)),
+                    name=time.strftime("dive-%Y%m%d-%H%M%S", time.gmtime(t)),
                     started_unix_s=t,
                     notes="",
                     setup=setup or {},
@@ -215,20 +248,22 @@ class Store:
         """Create or update a module row (last seen, boot, schedule, distance...)."""
         t = seen_unix_s or now_unix_s()
         with self.session() as s:
-            mod = s.get(Module, module_id)
-            if mod is None:
-                mod = Module(id=module_id, first_seen_unix_s=t, last_seen_unix_s=t)
-                s.add(mod)
+            self._ensure_modules(s, [module_id], t)
+            mod = s.get_one(Module, module_id)
             mod.last_seen_unix_s = max(mod.last_seen_unix_s, t)
             for k, v in values.items():
                 if v is not None:
                     setattr(mod, k, v)
 
     def _ensure_modules(self, s: Session, module_ids: Iterable[str], t: float) -> None:
-        for mid in set(module_ids):
-            if s.get(Module, mid) is None:
-                s.add(Module(id=mid, first_seen_unix_s=t, last_seen_unix_s=t))
-        s.flush()
+        """Module rows for ``module_ids`` (one statement; a row another process just added is kept)."""
+        ids = sorted(set(module_ids))
+        if ids:
+            s.execute(
+                self._insert(Module.__table__)
+                .values([{"id": m, "first_seen_unix_s": t, "last_seen_unix_s": t} for m in ids])
+                .on_conflict_do_nothing(index_elements=["id"])
+            )
 
     # ------------------------------------------------------------ ingest
     def commit_batch(
@@ -343,24 +378,30 @@ class Store:
         software_version: str = "",
         create: bool = True,
     ) -> AnalysisRun | None:
-        """The dive's live run (one per dive), or a new run of another kind."""
+        """The dive's live run (one per dive, shared by every ingest), or a new run of another kind."""
+        values = {
+            "dive_id": dive_id,
+            "kind": kind,
+            "label": label,
+            "calibration": calibration or {},
+            "calibration_id": calibration_id,
+            "software_version": software_version,
+            "created_unix_s": now_unix_s(),
+            "status": "running",
+            "n_frames": 0,
+        }
         with self.session() as s:
             if kind == "live":
-                run = s.scalars(
+                if create:  # the partial unique index turns a concurrent second insert into a no-op
+                    s.execute(
+                        self._insert(AnalysisRun.__table__)
+                        .values(**values)
+                        .on_conflict_do_nothing(index_elements=["dive_id"], index_where=text("kind = 'live'"))
+                    )
+                return s.scalars(
                     select(AnalysisRun).where(AnalysisRun.dive_id == dive_id, AnalysisRun.kind == "live")
                 ).first()
-                if run is not None or not create:
-                    return run
-            run = AnalysisRun(
-                dive_id=dive_id,
-                kind=kind,
-                label=label,
-                calibration=calibration or {},
-                calibration_id=calibration_id,
-                software_version=software_version,
-                created_unix_s=now_unix_s(),
-                status="running",
-            )
+            run = AnalysisRun(**values)
             s.add(run)
             s.flush()
             return run
@@ -382,31 +423,48 @@ class Store:
                 self._insert(FrameResult.__table__)
                 .values(rows)
                 .on_conflict_do_nothing(index_elements=["frame_id", "run_id"])
+                .returning(FrameResult.id)
             )
-            return s.execute(stmt).rowcount or 0
+            return len(s.execute(stmt).all())  # rowcount is -1 for this statement on psycopg
 
-    def frames_without_result(self, dive_id: int, run_id: int, limit: int = 100_000) -> list[Frame]:
-        """Stored frames of a dive that the run has not analysed (e.g. after a crash)."""
+    def frames_without_result(
+        self, dive_id: int, run_id: int, limit: int = 100_000, modules: Sequence[str] = ()
+    ) -> list[Frame]:
+        """Stored frames of a dive that the run has not analysed (e.g. after a crash), of ``modules``
+        if given (an ingest recovers only the frames of the modules it serves)."""
         with self.read() as s:
             done = select(FrameResult.frame_id).where(FrameResult.run_id == run_id)
-            return list(
-                s.scalars(
-                    select(Frame)
-                    .where(Frame.dive_id == dive_id, Frame.id.not_in(done))
-                    .order_by(Frame.id)
-                    .limit(limit)
-                )
-            )
+            q = select(Frame).where(Frame.dive_id == dive_id, Frame.id.not_in(done))
+            if modules:
+                q = q.where(Frame.module_id.in_(list(modules)))
+            return list(s.scalars(q.order_by(Frame.id).limit(limit)))
 
-    def copy_results(self, src_run_id: int, dst_run_id: int) -> int:
-        """Copy every frame result of one run into another (a re-analysis that keeps I_center)."""
+    def copy_results(
+        self, src_run_id: int, dst_run_id: int, t_from: float | None = None, t_to: float | None = None
+    ) -> int:
+        """Copy the frame results of one run into another (a re-analysis that keeps I_center),
+        of frames captured in [t_from, t_to] if given."""
         cols = [c.name for c in FrameResult.__table__.columns if c.name not in ("id", "run_id")]
         with self.session() as s:
             src = select(*[FrameResult.__table__.c[c] for c in cols], literal(dst_run_id)).where(
                 FrameResult.run_id == src_run_id
             )
-            res = s.execute(FrameResult.__table__.insert().from_select([*cols, "run_id"], src))
-            return res.rowcount or 0
+            if t_from is not None or t_to is not None:
+                src = src.where(FrameResult.frame_id.in_(self._frames_in(None, t_from, t_to)))
+            table = FrameResult.__table__
+            stmt = table.insert().from_select([*cols, "run_id"], src).returning(table.c.id)
+            return len(s.execute(stmt).all())
+
+    @staticmethod
+    def _frames_in(dive_id: int | None, t_from: float | None, t_to: float | None) -> Any:
+        q = select(Frame.id)
+        if dive_id is not None:
+            q = q.where(Frame.dive_id == dive_id)
+        if t_from is not None:
+            q = q.where(Frame.captured_unix_s >= t_from)
+        if t_to is not None:
+            q = q.where(Frame.captured_unix_s <= t_to)
+        return q
 
     def result_rows(self, run_id: int, dive_id: int) -> list[dict[str, Any]]:
         """Frames of a dive joined with their result in a run, in capture order."""
@@ -446,15 +504,34 @@ class Store:
         )
         return [dict(zip(keys, r, strict=True)) for r in rows]
 
-    def dive_frames(self, dive_id: int) -> list[tuple[int, str]]:
-        """(frame id, relative path) of every frame of a dive."""
+    def dive_frames(
+        self, dive_id: int, t_from: float | None = None, t_to: float | None = None
+    ) -> list[tuple[int, str]]:
+        """(frame id, relative path) of every frame of a dive (captured in [t_from, t_to] if given)."""
         with self.read() as s:
-            return [
-                (int(i), p)
-                for i, p in s.execute(
-                    select(Frame.id, Frame.path).where(Frame.dive_id == dive_id).order_by(Frame.id)
+            q = select(Frame.id, Frame.path).where(Frame.id.in_(self._frames_in(dive_id, t_from, t_to)))
+            return [(int(i), p) for i, p in s.execute(q.order_by(Frame.id))]
+
+    def locate_frames(
+        self, keys: Iterable[tuple[str, str, int]]
+    ) -> dict[tuple[str, str, int], tuple[int, int]]:
+        """(frame id, dive id) of stored frames by (module, boot, seq); keys not stored are left out."""
+        keys = list(dict.fromkeys(keys))
+        out: dict[tuple[str, str, int], tuple[int, int]] = {}
+        with self.read() as s:
+            for i in range(0, len(keys), 500):
+                q = select(Frame.id, Frame.dive_id, Frame.module_id, Frame.boot, Frame.seq).where(
+                    tuple_(Frame.module_id, Frame.boot, Frame.seq).in_(keys[i : i + 500])
                 )
-            ]
+                for fid, did, m, b, seq in s.execute(q):
+                    out[(m, b, int(seq))] = (int(fid), int(did))
+        return out
+
+    def dives_with_frames(self, t_from: float | None = None, t_to: float | None = None) -> list[Dive]:
+        """The dives holding frames captured in [t_from, t_to], oldest first."""
+        with self.read() as s:
+            ids = select(Frame.dive_id).where(Frame.id.in_(self._frames_in(None, t_from, t_to))).distinct()
+            return list(s.scalars(select(Dive).where(Dive.id.in_(ids)).order_by(Dive.id)))
 
     def add_attenuation_points(self, points: Sequence[dict[str, Any]]) -> list[int]:
         if not points:
@@ -471,14 +548,14 @@ class Store:
                 s.execute(AttitudeSample.__table__.insert(), list(samples))
 
     def upsert_linearity(self, row: dict[str, Any]) -> None:
-        keys = {k: row[k] for k in ("run_id", "module_id", "wavelength_nm", "sweep")}
+        """Insert or replace the linearity fit of (run, module, wavelength, sweep)."""
+        keys = ("run_id", "module_id", "wavelength_nm", "sweep")
+        stmt = self._insert(LinearityCheck.__table__).values(**row)
+        stmt = stmt.on_conflict_do_update(
+            index_elements=list(keys), set_={k: stmt.excluded[k] for k in row if k not in keys}
+        )
         with self.session() as s:
-            obj = s.scalars(select(LinearityCheck).filter_by(**keys)).first()
-            if obj is None:
-                s.add(LinearityCheck(**row))
-            else:
-                for k, v in row.items():
-                    setattr(obj, k, v)
+            s.execute(stmt)
 
     def add_chisq_fit(
         self,
@@ -790,17 +867,19 @@ class Store:
             )
 
     # ------------------------------------------------------------ retention
-    def purge_frame_files(self, older_than_unix_s: float) -> tuple[int, int]:
-        """Delete frame files captured before a time; rows, results and thumbnails stay.
+    def purge_frame_files(self, older_than_unix_s: float, modules: Sequence[str] = ()) -> tuple[int, int]:
+        """Delete frame files captured before a time (of ``modules`` if given: an ingest that shares
+        the data folder purges its own); rows, results and thumbnails stay.
 
         Returns (files deleted, bytes freed). The image route then says the
         file went to retention.
         """
         n = freed = 0
         with self.read() as s:
-            rows = s.execute(
-                select(Frame.path, Frame.size_bytes).where(Frame.captured_unix_s < older_than_unix_s)
-            )
+            q = select(Frame.path, Frame.size_bytes).where(Frame.captured_unix_s < older_than_unix_s)
+            if modules:
+                q = q.where(Frame.module_id.in_(list(modules)))
+            rows = s.execute(q)
             for path, size in rows:
                 try:
                     p = self.files.resolve(path)

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
+from tests.utils.pg import SKIP_REASON, fresh_database, migrated_template, pg_admin_url
 from tests.utils.sim import small_frame_set
 
 
@@ -28,3 +30,54 @@ def dive_data(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str,
     root = tmp_path_factory.mktemp("dive")
     info = run_simulated_dive(root / "data")
     return root / "data", info
+
+
+def pg_template() -> Iterator[tuple[str, str] | None]:
+    """(server URL, name of a migrated template database), or None without ``CAMCAL_TEST_PG_URL``."""
+    admin = pg_admin_url()
+    if admin is None:
+        yield None
+        return
+    with migrated_template(admin) as name:
+        yield admin, name
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def db_url(request: pytest.FixtureRequest, pg_template: tuple[str, str] | None) -> Iterator[str | None]:
+    """The store's database: ``None`` (SQLite in the data folder) or a fresh PostgreSQL database."""
+    if request.param == "sqlite":
+        yield None
+        return
+    if pg_template is None:
+        pytest.skip(SKIP_REASON)
+    with fresh_database(*pg_template) as url:
+        yield url
+
+
+@pytest.fixture
+def pg_url(pg_template: tuple[str, str] | None) -> Iterator[str]:
+    """A fresh, migrated PostgreSQL database (skips without ``CAMCAL_TEST_PG_URL``)."""
+    if pg_template is None:
+        pytest.skip(SKIP_REASON)
+    with fresh_database(*pg_template) as url:
+        yield url
+
+
+@pytest.fixture
+def pg_empty_url() -> Iterator[str]:
+    """A fresh, empty PostgreSQL database (skips without ``CAMCAL_TEST_PG_URL``)."""
+    admin = pg_admin_url()
+    if admin is None:
+        pytest.skip(SKIP_REASON)
+    with fresh_database(admin) as url:
+        yield url
+
+
+@pytest.fixture(scope="session")
+def dask_runner() -> Iterator[object]:
+    """A two-worker Dask `LocalCluster` (processes) shared by the re-analysis tests."""
+    from ingest.runners import DaskRunner
+
+    runner = DaskRunner(workers=2)
+    yield runner
+    runner.close()

@@ -15,6 +15,7 @@ from camcal.cli import (
     fit,
     ingest,
     lrm,
+    reanalyze,
     report,
     serve,
     simulate,
@@ -47,6 +48,7 @@ calibrate.register(app)
 calibration.register(app)
 config.register(app)
 doctor.register(app)
+reanalyze.register(app)
 
 
 def main() -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import signal
 import threading
 from pathlib import Path
@@ -45,6 +46,17 @@ def alarm_limits(settings: Settings):
     return AlarmLimits(**settings.alarms.model_dump())
 
 
+def parse_modules(text: str | None) -> tuple[str, ...]:
+    """``"A,B"`` -> ``("A", "B")``; each a valid module id."""
+    if not text:
+        return ()
+    out = tuple(dict.fromkeys(m.strip() for m in text.split(",") if m.strip()))
+    bad = [m for m in out if not re.fullmatch(r"[A-Za-z0-9_.-]{1,64}", m)]
+    if bad or not out:
+        raise fail(f"--modules: expected module ids such as A,B (letters, digits, _ . -), got {text!r}")
+    return out
+
+
 def ingest(
     data: Annotated[Path | None, typer.Option(help="Data folder [CAMCAL_DATA_DIR].")] = None,
     bind: Annotated[
@@ -60,6 +72,13 @@ def ingest(
     dive: Annotated[
         str | None, typer.Option(help="Name of the dive to record into (default: the open one).")
     ] = None,
+    modules: Annotated[
+        str | None,
+        typer.Option(
+            help="Modules this process serves, comma-separated (default: any). Required when several "
+            "ingests share one database: each module is served by exactly one; others are refused."
+        ),
+    ] = None,
     workers: Annotated[
         int | None, typer.Option(help="Analysis processes (0: all cores) [CAMCAL_WORKERS].")
     ] = None,
@@ -73,6 +92,7 @@ def ingest(
     """Receive frames and sensor packets from the modules, store, analyse and publish them."""
     from ingest.service import IngestConfig, IngestService
 
+    served = parse_modules(modules)
     s = settings_or_fail(
         config,
         data_dir=data,
@@ -99,6 +119,7 @@ def ingest(
         rolling_window_s=s.rolling_window_s,
         alarm_limits=alarm_limits(s),
         retention_days=s.retention_days,
+        modules=served,
     )
     try:
         svc = IngestService(cfg)
@@ -107,7 +128,7 @@ def ingest(
         raise fail(f"cannot start the ingest: {exc}") from None
     console.print(
         f"ingest: modules connect to {svc.endpoint}; events on {svc.events_endpoint}; "
-        f"dive {svc.dive.name}; data in {s.data_dir}"
+        f"dive {svc.dive.name}; data in {s.data_dir}" + (f"; serving {', '.join(served)}" if served else "")
     )
     done = threading.Event()
 

@@ -1,4 +1,4 @@
-"""Fixtures for the live path: a real ingest service on 127.0.0.1 with a SQLite store."""
+"""Fixtures for the live path: a real ingest service on 127.0.0.1, on SQLite and on PostgreSQL."""
 
 from __future__ import annotations
 
@@ -28,8 +28,9 @@ def ingest_config(data: Path, **over) -> IngestConfig:
 
 
 @pytest.fixture
-def service(tmp_path: Path) -> Iterator[IngestService]:
-    svc = IngestService(ingest_config(tmp_path / "data"))
+def service(tmp_path: Path, db_url: str | None) -> Iterator[IngestService]:
+    """An ingest on SQLite (in its data folder) or on a fresh PostgreSQL database (``db_url``)."""
+    svc = IngestService(ingest_config(tmp_path / "data", db_url=db_url))
     svc.start()
     yield svc
     svc.stop()

@@ -9,14 +9,14 @@ from alembic.autogenerate import compare_metadata
 from alembic.runtime.migration import MigrationContext
 
 from storage.db import current_revision, head_revision
-from storage.files import UnsafePath
+from storage.files import FrameFiles, UnsafePath
 from storage.models import Base
 from storage.store import FrameRow, SensorBatchRow, Store
 
 
 @pytest.fixture
-def store(tmp_path: Path) -> Store:
-    s = Store.open(tmp_path / "data", sqlite_synchronous="NORMAL")
+def store(tmp_path: Path, db_url: str | None) -> Store:
+    s = Store.open(tmp_path / "data", db_url, sqlite_synchronous="NORMAL")
     yield s
     s.close()
 
@@ -100,15 +100,16 @@ def test_alarm_raise_update_clear_and_ack_is_audited(store: Store) -> None:
 
 
 @pytest.mark.parametrize("bad", ["../x.png", "/etc/passwd", "frames/../../x", "", "a\x00b"])
-def test_file_paths_cannot_leave_the_data_folder(store: Store, bad: str) -> None:
+def test_file_paths_cannot_leave_the_data_folder(tmp_path: Path, bad: str) -> None:
     with pytest.raises(UnsafePath):
-        store.files.resolve(bad)
+        FrameFiles(tmp_path).resolve(bad)
 
 
-def test_file_write_is_atomic_and_temporaries_are_cleaned(store: Store) -> None:
-    rel = store.files.relative_path(1, "A", "b1", 3)
-    store.files.write(rel, b"data")
-    assert store.files.read(rel) == b"data"
-    stale = store.files.resolve(rel).with_name(".00000004.png.tmp-123")
+def test_file_write_is_atomic_and_temporaries_are_cleaned(tmp_path: Path) -> None:
+    files = FrameFiles(tmp_path)
+    rel = files.relative_path(1, "A", "b1", 3)
+    files.write(rel, b"data")
+    assert files.read(rel) == b"data"
+    stale = files.resolve(rel).with_name(".00000004.png.tmp-123")
     stale.write_bytes(b"half")
-    assert store.files.remove_temporaries() == 1 and not stale.exists()
+    assert files.remove_temporaries() == 1 and not stale.exists()

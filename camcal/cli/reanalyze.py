@@ -1,0 +1,350 @@
+"""``camcal reanalyze``: analyse stored frames again with another calibration, on Dask."""
+
+from __future__ import annotations
+
+import json
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.table import Table
+
+from camcal.cli.analyze import parse_ratios
+from camcal.cli.common import console, fail, parse_floats, parse_mapping
+from camcal.frameset import FrameSetError, Setup, parse_setup, write_atomic
+
+
+def register(app: typer.Typer) -> None:
+    app.command("reanalyze")(reanalyze)
+
+
+def parse_time(text: str | None, option: str) -> float | None:
+    """ISO 8601 (``2026-11-20T10:00:00Z``; no zone means UTC) -> UNIX seconds."""
+    if text is None:
+        return None
+    try:
+        t = datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
+    except ValueError:
+        raise fail(
+            f"{option}: expected an ISO 8601 UTC time such as 2026-11-20T10:00:00Z, got {text!r}"
+        ) from None
+    return (t if t.tzinfo else t.replace(tzinfo=UTC)).timestamp()
+
+
+def parse_storage_options(items: list[str] | None) -> dict[str, Any]:
+    """``["endpoint_url=http://127.0.0.1:9000", "anon=false"]`` -> fsspec keyword arguments."""
+    out: dict[str, Any] = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise fail(f"--storage-option: expected KEY=VALUE, got {item!r}")
+        try:
+            out[key.strip()] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key.strip()] = value
+    return out
+
+
+def load_setup_file(path: Path) -> Setup:
+    try:
+        return parse_setup(json.loads(path.read_text(encoding="utf-8")), str(path))
+    except OSError as exc:
+        raise fail(f"--setup: cannot read {path}: {exc.strerror or exc}") from None
+    except json.JSONDecodeError as exc:
+        raise fail(f"--setup: {path} is not valid JSON ({exc})") from None
+    except FrameSetError as exc:
+        raise fail(f"--setup: {exc}") from None
+
+
+def reanalyze(
+    folders: Annotated[
+        list[str] | None,
+        typer.Argument(
+            help="Frame-set folders or URLs (s3://bucket/prefix) to import into the store and re-analyse."
+        ),
+    ] = None,
+    dive: Annotated[
+        str | None,
+        typer.Option(
+            help="The stored dive to re-analyse (by name); with folders, the dive to import them into "
+            "(default: the folder's name)."
+        ),
+    ] = None,
+    t_from: Annotated[
+        str | None, typer.Option("--from", help="Only frames captured from this UTC time (ISO 8601).")
+    ] = None,
+    t_to: Annotated[
+        str | None, typer.Option("--to", help="Only frames captured up to this UTC time (ISO 8601).")
+    ] = None,
+    setup: Annotated[
+        Path | None,
+        typer.Option(
+            help="setup.json with the calibration (default: the one the frames were analysed with)."
+        ),
+    ] = None,
+    distance: Annotated[
+        list[str] | None, typer.Option(help="Override a camera distance: CAM=METRES.")
+    ] = None,
+    distance_err: Annotated[
+        list[str] | None, typer.Option(help="Override a distance error: CAM=METRES.")
+    ] = None,
+    ratio: Annotated[
+        list[str] | None, typer.Option(help="Override I0'/I0: NM=VALUE[:ERR], e.g. 460=1.27:0.04.")
+    ] = None,
+    linear_range: Annotated[
+        str | None, typer.Option(help="Override the linear range: LOW,HIGH gray.")
+    ] = None,
+    data: Annotated[Path, typer.Option(help="Data folder of the store.")] = Path("camcal-data"),
+    db_url: Annotated[
+        str | None, typer.Option(help="SQLAlchemy URL (default: SQLite in the data folder).")
+    ] = None,
+    frames_url: Annotated[
+        str | None,
+        typer.Option(
+            help="Read the store's frame files from this copy of the data folder (s3://bucket/camcal-data) "
+            "instead of the data folder."
+        ),
+    ] = None,
+    storage_option: Annotated[
+        list[str] | None,
+        typer.Option(help="fsspec option for URLs, KEY=VALUE (e.g. endpoint_url=http://host:9000)."),
+    ] = None,
+    workers: Annotated[int, typer.Option(help="Worker processes of the local Dask cluster.")] = 2,
+    scheduler: Annotated[
+        str | None,
+        typer.Option(help="A running Dask scheduler (tcp://host:8786) instead of a local cluster."),
+    ] = None,
+    batch_size: Annotated[int, typer.Option(help="Frames per Dask task.")] = 16,
+    reuse_live: Annotated[
+        bool,
+        typer.Option(
+            help="Copy the live results when the linear range is unchanged (λ_att is recomputed either way)."
+        ),
+    ] = True,
+    window_s: Annotated[float, typer.Option(help="Window of the rolling λ_att series [s].")] = 300.0,
+    interval_s: Annotated[float, typer.Option(help="Interval between rolling λ_att points [s].")] = 10.0,
+    label: Annotated[str | None, typer.Option(help="A label for the new analysis run.")] = None,
+    json_out: Annotated[Path | None, typer.Option("--json", help="Write a summary as JSON here.")] = None,
+) -> None:
+    """Re-analyse a stored dive, a time span, or frame-set folders with another calibration, on Dask.
+
+    The results go into the store as a new analysis run beside the originals
+    (the live run is never changed): per-frame I_center, the rolling λ_att
+    series and the linearity fits. Frames are read through fsspec, so a
+    folder and an S3-compatible bucket work the same.
+    """
+    from camcal.cli.data import open_store
+    from camcal.pipeline import Overrides
+    from ingest.reanalysis import ReanalysisOptions
+
+    frm, to = parse_time(t_from, "--from"), parse_time(t_to, "--to")
+    if frm is not None and to is not None and frm > to:
+        raise fail("--from must not be later than --to")
+    if folders and (frm is not None or to is not None):
+        raise fail("give frame-set folders or a time span (--from/--to), not both")
+    if not folders and dive is None and frm is None and to is None:
+        raise fail("say what to re-analyse: --dive NAME, --from/--to, or frame-set folders")
+    if folders and frames_url:
+        raise fail("--frames-url is for a stored dive's frames; folders are read where they are")
+    if workers < 1 or batch_size < 1:
+        raise fail("--workers and --batch-size must be at least 1")
+    lr = None
+    if linear_range:
+        vals = parse_floats(linear_range, "--linear-range")
+        if len(vals) != 2:
+            raise fail("--linear-range: give LOW,HIGH, e.g. 5,240")
+        lr = (vals[0], vals[1])
+    overrides = Overrides(
+        distances_m=parse_mapping(distance, "--distance") or None,
+        distance_errs_m=parse_mapping(distance_err, "--distance-err") or None,
+        emission_ratios=parse_ratios(ratio) or None,
+        linear_range=lr,
+    )
+    chosen = load_setup_file(setup) if setup else None
+    storage_options = parse_storage_options(storage_option)
+    options = ReanalysisOptions(
+        window_s=window_s,
+        interval_s=interval_s,
+        batch_size=batch_size,
+        reuse_live=reuse_live,
+        frames_url=frames_url,
+        storage_options=storage_options,
+        t_from=frm,
+        t_to=to,
+    )
+
+    def effective(base: Setup) -> Setup:
+        try:
+            return overrides.apply(chosen or base)
+        except FrameSetError as exc:
+            raise fail(str(exc)) from None
+
+    store = open_store(data, db_url, create=bool(folders))
+    runner = None
+    summaries: list[dict[str, Any]] = []
+    try:
+        jobs = (
+            _import_folders(store, folders, dive, storage_options)
+            if folders
+            else _stored(store, dive, frm, to)
+        )
+        if not jobs:
+            raise fail("no stored frames match (check --dive, --from and --to)")
+        runner = _start_runner(workers, scheduler)
+        for job in jobs:
+            summaries.append(_run(store, job, effective(job["base"]), options, runner, label))
+    finally:
+        if runner is not None:
+            runner.close()
+        store.close()
+    _print(summaries)
+    if json_out:
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        write_atomic(json_out, (json.dumps({"runs": summaries}, indent=1) + "\n").encode(), fsync=False)
+        console.print(f"wrote {json_out}")
+
+
+def _stored(store: Any, name: str | None, frm: float | None, to: float | None) -> list[dict[str, Any]]:
+    """A job per dive: the named one, or every dive with frames in the span."""
+    if name is not None:
+        d = store.dive_by_name(name)
+        if d is None:
+            raise fail(f"--dive: no dive named {name!r} in the store")
+        dives = [d]
+    else:
+        dives = store.dives_with_frames(frm, to)
+    return [{"dive": d, "base": _base_setup(store, d), "sources": None} for d in dives]
+
+
+def _base_setup(store: Any, dive: Any) -> Setup:
+    """The calibration the dive was analysed with: its live run's, else the dive's, else T-REX."""
+    live = store.analysis_run(dive.id, "live", create=False)
+    cal = (live.calibration if live is not None else None) or dive.setup or {}
+    try:
+        return parse_setup(cal, f"dive {dive.name}") if cal else Setup()
+    except FrameSetError:
+        return Setup()
+
+
+def _import_folders(
+    store: Any, folders: list[str], name: str | None, storage_options: dict[str, Any]
+) -> list[dict[str, Any]]:
+    """Import each folder (frames already stored are matched, not copied again); a job per dive."""
+    from ingest.importer import import_frame_set, read_frame_set
+    from storage.files import RemoteFolder
+
+    jobs: list[dict[str, Any]] = []
+    for folder in folders:
+        try:
+            _dir, _manifest, _rows, folder_setup = read_frame_set(RemoteFolder(folder, storage_options))
+            target = store.open_dive(name or folder.rstrip("/").rsplit("/", 1)[-1], folder_setup.to_json())
+            report = import_frame_set(
+                store, folder, dive_id=target.id, analyse=False, storage_options=storage_options
+            )
+        except FrameSetError as exc:
+            raise fail(str(exc)) from None
+        except (OSError, ValueError) as exc:
+            raise fail(f"{folder}: {exc}") from None
+        for file, why in report.problems:
+            console.print(f"[yellow]skipped[/] {file}: {why}")
+        located = store.locate_frames(report.sources)
+        by_dive: dict[int, dict[int, str]] = {}
+        for key, (fid, dive_id) in located.items():
+            by_dive.setdefault(dive_id, {})[fid] = report.sources[key]
+        for dive_id, sources in sorted(by_dive.items()):
+            d = _dive(store, dive_id)
+            if d.id != target.id:
+                console.print(f"{len(sources)} frames of {folder} were already stored in dive {d.name}")
+            jobs.append({"dive": d, "base": folder_setup, "sources": sources, "folder": folder})
+    return jobs
+
+
+def _dive(store: Any, dive_id: int) -> Any:
+    from storage.models import Dive
+
+    with store.read() as s:
+        return s.get(Dive, dive_id)
+
+
+def _start_runner(workers: int, scheduler: str | None) -> Any:
+    from ingest.runners import DaskRunner
+
+    try:
+        runner = DaskRunner(workers=workers, scheduler=scheduler)
+    except (OSError, TimeoutError) as exc:
+        where = scheduler or f"a local cluster of {workers} workers"
+        raise fail(f"cannot start Dask on {where}: {exc}") from None
+    console.print(
+        f"dask: {runner.n_workers} workers" + (f" at {scheduler}" if scheduler else " (local cluster)")
+    )
+    return runner
+
+
+def _run(
+    store: Any, job: dict[str, Any], setup: Setup, options: Any, runner: Any, label: str | None
+) -> dict[str, Any]:
+    from ingest.derived import ResultRow, attenuation_dict, span_attenuation
+    from ingest.reanalysis import reanalyse, start_run
+
+    d = job["dive"]
+    what = job.get("folder") or (
+        "frames in the span" if options.t_from is not None or options.t_to is not None else "all frames"
+    )
+    run_id = start_run(store, d.id, setup, label or f"camcal reanalyze: {what}")
+    store.audit("cli", "reanalysis.start", f"dive:{d.id}", {"run_id": run_id, "calibration": setup.to_json()})
+    t0 = time.perf_counter()
+    try:
+        n = reanalyse(store, d.id, run_id, setup, options, runner=runner, sources=job["sources"])
+    except Exception as exc:
+        raise fail(f"re-analysis of dive {d.name} failed (run {run_id}): {exc}", code=1) from None
+    elapsed = time.perf_counter() - t0
+    rows = [
+        ResultRow(
+            r["module"],
+            r["wavelength_nm"],
+            r["exposure_s"],
+            r["gain_db"],
+            r["captured_unix_s"],
+            r["depth_m"],
+            r["status"],
+            r["center_gray"],
+            r["i_center_gray"],
+            r["i_center_err_gray"],
+        )
+        for r in store.result_rows(run_id, d.id)
+    ]
+    table = span_attenuation(rows, setup)
+    return {
+        "dive": d.name,
+        "dive_id": d.id,
+        "run_id": run_id,
+        "frames": n,
+        "ok_frames": sum(1 for r in rows if r.status == "ok"),
+        "elapsed_s": round(elapsed, 3),
+        "frames_per_s": round(n / elapsed, 2) if elapsed > 0 else None,
+        "calibration": setup.to_json(),
+        "attenuation": [attenuation_dict(table[wl]) for wl in sorted(table)],
+    }
+
+
+def _print(summaries: list[dict[str, Any]]) -> None:
+    for s in summaries:
+        t = Table(
+            title=f"dive {s['dive']}: run {s['run_id']}, {s['frames']} frames in {s['elapsed_s']:.1f} s "
+            f"({s['frames_per_s'] or 0:.1f} frames/s), {s['ok_frames']} accepted",
+            title_justify="left",
+        )
+        for col in ("wavelength", "λ_att [m]", "stat [m]", "sys [m]", "pairs"):
+            t.add_column(col, justify="right")
+        for a in s["attenuation"]:
+            lam = a["lambda_att_m"]
+            t.add_row(
+                f"{a['wavelength_nm']} nm",
+                f"{lam:.2f}" if lam is not None else "—",
+                f"± {a['stat_err_m']:.2f}" if a["stat_err_m"] is not None else "—",
+                f"± {a['sys_err_m']:.2f}" if a["sys_err_m"] is not None else "—",
+                str(a["n_pairs"]),
+            )
+        console.print(t)

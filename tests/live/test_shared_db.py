@@ -1,0 +1,167 @@
+"""Several ingest processes on one PostgreSQL database, each serving its own modules."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from sqlalchemy import func, select
+
+from camcal.frameset import read_manifest
+from ingest.service import IngestService
+from storage.models import AnalysisRun, AttenuationPoint, Dive, Frame, FrameResult
+from storage.store import Store
+from tests.live.conftest import ingest_config
+from tests.live.test_faults import free_port
+from tests.live.test_ingest import finish, stored_keys, wait_for
+from tests.utils.live import make_agent
+
+
+def test_an_ingest_refuses_the_modules_it_does_not_serve(tmp_path: Path) -> None:
+    svc = IngestService(ingest_config(tmp_path / "data", modules=("A",)))
+    svc.start()
+    agents = [make_agent(m, svc.endpoint, tmp_path / f"outbox-{m}")[0] for m in ("A", "B")]
+    try:
+        for a in agents:
+            a.start()
+        a, b = agents
+        assert wait_for(lambda: a.counters["acked"] >= 4 and svc.refused["B"] >= 2, 20)
+        finish(agents)
+        assert a.wait_drained(20)
+        assert not b.linked.is_set() and b.counters["acked"] == 0
+        assert b.outbox.pending_count() >= b.counters["frames_captured"] > 0, "B must keep its frames"
+        assert stored_keys(svc, "B") == [] and len(stored_keys(svc, "A")) == a.counters["frames_captured"]
+        health = svc.health()
+        assert "B" not in health["modules"] and health["refused"]["B"] >= 2
+        assert health["served_modules"] == ["A"]
+    finally:
+        for x in agents:
+            x.stop()
+        svc.stop()
+
+
+@pytest.mark.parametrize("bad", ["A,,B!", ",", "x" * 65])
+def test_ingest_refuses_a_bad_module_list(tmp_path: Path, bad: str) -> None:
+    from typer.testing import CliRunner
+
+    from camcal.cli import app
+
+    res = CliRunner().invoke(app, ["ingest", "--data", str(tmp_path), "--modules", bad])
+    assert res.exit_code == 2 and "--modules: expected module ids" in res.output
+
+
+def start_ingest(
+    data: Path, db_url: str, module: str, port: int, events_port: int
+) -> subprocess.Popen[bytes]:
+    with (data.parent / f"ingest-{module}.log").open("ab") as log:
+        return subprocess.Popen(
+            [
+                sys.executable,
+                "-c",
+                "from camcal.cli import main; main()",
+                "ingest",
+                "--data",
+                str(data),
+                "--db-url",
+                db_url,
+                "--modules",
+                module,
+                "--dive",
+                "trident-shared",
+                "--bind",
+                f"tcp://127.0.0.1:{port}",
+                "--events",
+                f"tcp://127.0.0.1:{events_port}",
+                "--workers",
+                "1",
+            ],
+            stdout=log,
+            stderr=log,
+            start_new_session=True,
+        )
+
+
+@pytest.mark.slow
+def test_two_ingests_share_a_database_and_one_survives_sigkill(tmp_path: Path, pg_empty_url: str) -> None:
+    """Modules A and B stream to one ingest each; A's ingest is killed mid-stream and restarted.
+
+    Both ingests start together on an empty database (they migrate and create
+    the dive and its live run at once). After draining, every frame of both
+    modules is stored exactly once, with its bytes, and analysed once.
+    """
+    data = tmp_path / "data"
+    ports = {m: (free_port(), free_port()) for m in ("A", "B")}
+    procs = {m: start_ingest(data, pg_empty_url, m, *ports[m]) for m in ("A", "B")}
+    agents = {
+        m: make_agent(
+            m,
+            f"tcp://127.0.0.1:{ports[m][0]}",
+            tmp_path / f"outbox-{m}",
+            link_timeout_s=2.0,
+            ack_timeout_s=4.0,
+        )[0]
+        for m in ("A", "B")
+    }
+    store = Store.open(data, pg_empty_url, run_migrations=False)
+    try:
+        for a in agents.values():
+            a.start()
+        assert wait_for(lambda: all(a.counters["acked"] >= 4 for a in agents.values()), 60), _logs(tmp_path)
+        os.killpg(procs["A"].pid, signal.SIGKILL)
+        procs["A"].wait(10)
+        acked_b = agents["B"].counters["acked"]
+        assert wait_for(lambda: agents["B"].counters["acked"] >= acked_b + 3, 20), (
+            "B stalled while A was down"
+        )
+        procs["A"] = start_ingest(data, pg_empty_url, "A", *ports["A"])
+        assert wait_for(lambda: all(a.counters["frames_captured"] >= 16 for a in agents.values()), 60)
+        for a in agents.values():
+            a.runner.stop()
+        assert all(a.wait_drained(60) for a in agents.values()), _logs(tmp_path)
+        n_frames = _count(store, Frame)
+        assert wait_for(lambda: _count(store, FrameResult) == n_frames, 60), "frames left unanalysed"
+    finally:
+        for a in agents.values():
+            a.stop()
+        for p in procs.values():
+            p.send_signal(signal.SIGTERM)
+        for p in procs.values():
+            try:
+                p.wait(20)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait(5)
+    assert agents["A"].counters["link_lost"] + agents["A"].counters["resends_queued"] >= 1
+    with store.read() as s:
+        assert [d.name for d in s.scalars(select(Dive))] == ["trident-shared"]
+        runs = s.scalars(select(AnalysisRun)).all()
+        assert [r.kind for r in runs] == ["live"]
+        per_frame = s.execute(select(FrameResult.frame_id, func.count()).group_by(FrameResult.frame_id)).all()
+        assert {n for _, n in per_frame} == {1} and len(per_frame) == n_frames
+        # near and far camera on different ingests: no live λ_att (docs/scaling.md: shard whole pairs)
+        assert s.scalar(select(func.count(AttenuationPoint.id))) == 0
+        for m, a in agents.items():
+            sent = {(r.boot, r.seq): r for r in read_manifest(a.config.outbox / "frames")}
+            rows = list(s.scalars(select(Frame).where(Frame.module_id == m)))
+            keys = [(r.boot, r.seq) for r in rows]
+            assert len(keys) == len(set(keys)) == len(sent) >= 16, f"module {m}: a frame missing or doubled"
+            assert set(keys) == set(sent)
+            for r in rows:
+                stored = store.files.resolve(r.path).read_bytes()
+                original = (a.config.outbox / "frames" / sent[(r.boot, r.seq)].file).read_bytes()
+                assert hashlib.sha256(stored).hexdigest() == r.sha256 == hashlib.sha256(original).hexdigest()
+    store.close()
+
+
+def _count(store: Store, model: type) -> int:
+    with store.read() as s:
+        return int(s.scalar(select(func.count(model.id))))  # type: ignore[attr-defined]
+
+
+def _logs(tmp_path: Path) -> str:
+    return "\n".join(p.read_text(errors="replace")[-3000:] for p in sorted(tmp_path.glob("ingest-*.log")))

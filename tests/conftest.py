@@ -32,6 +32,7 @@ def dive_data(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str,
     return root / "data", info
 
 
+@pytest.fixture(scope="session")
 def pg_template() -> Iterator[tuple[str, str] | None]:
     """(server URL, name of a migrated template database), or None without ``CAMCAL_TEST_PG_URL``."""
     admin = pg_admin_url()

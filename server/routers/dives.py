@@ -69,7 +69,7 @@ async def timeline(
 
 
 @router.get("/api/dives/{dive_id}/settings")
-async def settings_of_dive(dive_id: int, store: StoreDep) -> dict[str, Any]:
+async def settings_of_dive(dive_id: IdPath, store: StoreDep) -> dict[str, Any]:
     """The modules, wavelengths, exposures and gains the dive's frames were taken with."""
     dive_or_404(store, dive_id)
 

@@ -18,7 +18,7 @@ from urllib.parse import urlsplit
 import httpx
 import pytest
 
-from tests.utils.system import CHROMIUM, CHROMIUM_ARGS, REPO, System, camcal_up, wait_until
+from tests.utils.system import REPO, System, camcal_up, wait_until
 
 
 @pytest.fixture(scope="session")
@@ -32,17 +32,6 @@ def artifacts() -> Path:
     out = REPO / "test-artifacts"
     out.mkdir(exist_ok=True)
     return out
-
-
-@pytest.fixture(scope="session")
-def browser() -> Iterator[Any]:
-    if not CHROMIUM.exists():
-        pytest.skip(f"{CHROMIUM} is missing: install Debian's chromium (apt-get install -y chromium)")
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright (Python) is not installed")
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
-        yield b
-        b.close()
 
 
 @contextlib.contextmanager

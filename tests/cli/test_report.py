@@ -28,17 +28,6 @@ from storage.store import Store
 from tests.utils.dive_store import copy_data
 
 ARTIFACTS = Path(__file__).resolve().parents[2] / "test-artifacts"
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_FLAGS = [
-    "--headless=new",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-    "--disable-quic",
-]
 
 
 def run(*args: str) -> tuple[int, str]:
@@ -221,10 +210,7 @@ def test_report_of_a_dive_without_data_says_so(tmp_path: Path) -> None:
 
 
 @pytest.mark.browser
-def test_report_renders_offline_in_a_browser(reports: dict[str, Any], tmp_path: Path) -> None:
-    if not CHROMIUM.exists():
-        pytest.skip(f"no Chromium at {CHROMIUM}")
-    sync_api = pytest.importorskip("playwright.sync_api", reason="Playwright for Python is not installed")
+def test_report_renders_offline_in_a_browser(reports: dict[str, Any], tmp_path: Path, browser: Any) -> None:
     # Opened from a folder of its own, like a file on a USB stick.
     stick = tmp_path / "usb"
     stick.mkdir()
@@ -240,20 +226,18 @@ def test_report_renders_offline_in_a_browser(reports: dict[str, Any], tmp_path: 
             route.abort()
 
     ARTIFACTS.mkdir(exist_ok=True)
-    with sync_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_FLAGS)
-        try:
-            context = browser.new_context(viewport={"width": 1100, "height": 900}, offline=True)
-            page = context.new_page()
-            page.route("**/*", only_the_file)
-            page.goto(page_file.as_uri())
-            page.wait_for_load_state("load")
-            widths = page.evaluate("Array.from(document.images).map(i => i.complete ? i.naturalWidth : 0)")
-            headings = page.locator("h2").all_inner_texts()
-            page.locator("#absorption-scattering").screenshot(path=str(ARTIFACTS / "report-fit.png"))
-            page.screenshot(path=str(ARTIFACTS / "report.png"), full_page=True)
-        finally:
-            browser.close()
+    context = browser.new_context(viewport={"width": 1100, "height": 900}, offline=True)
+    try:
+        page = context.new_page()
+        page.route("**/*", only_the_file)
+        page.goto(page_file.as_uri())
+        page.wait_for_load_state("load")
+        widths = page.evaluate("Array.from(document.images).map(i => i.complete ? i.naturalWidth : 0)")
+        headings = page.locator("h2").all_inner_texts()
+        page.locator("#absorption-scattering").screenshot(path=str(ARTIFACTS / "report-fit.png"))
+        page.screenshot(path=str(ARTIFACTS / "report.png"), full_page=True)
+    finally:
+        context.close()
     assert blocked == []
     assert widths and all(w > 300 for w in widths), widths
     assert headings == [title for _, title in SECTIONS]

@@ -16,6 +16,8 @@ import { $, confirmDialog, initTheme, mountOperator, setText, toast } from "./ui
 
 const RECENT_FRAMES = 8;
 const PREVIEW_DELAY_MS = 350;
+// The preview judges settings from the frames analysed so far: new results refresh it, at most this often.
+const PREVIEW_REFRESH_MS = 5000;
 const POLL_MS = 4000;
 const RANK = { pending: 0, sent: 1, accepted: 2, in_progress: 3, done: 4, rejected: 4 };
 const state = {
@@ -35,6 +37,7 @@ window.camcalControl = state;
 let editor;
 let previewTimer = null;
 let previewAbort = null;
+let lastPreviewAt = 0;
 
 // ------------------------------------------------------------------ modules
 function moduleState(id) {
@@ -85,6 +88,9 @@ function onEvent(msg) {
     moduleState(msg.module).link = p.state;
   } else if (msg.kind === "frame" && msg.module) {
     pushFrame(moduleState(msg.module), p);
+  } else if (msg.kind === "result") {
+    if (Date.now() - lastPreviewAt >= PREVIEW_REFRESH_MS) schedulePreview();
+    return;
   } else if (msg.kind === "command" && msg.module) {
     const list = state.commands.get(msg.module);
     const c = list?.find((x) => x.id === p.command_id);
@@ -204,6 +210,7 @@ async function runPreview() {
   const ctrl = new AbortController();
   previewAbort = ctrl;
   const spec = editor.read();
+  lastPreviewAt = Date.now();
   try {
     const p = await api("/api/schedules/preview", { method: "POST", body: { schedule: spec }, signal: ctrl.signal });
     if (ctrl.signal.aborted) return null;

@@ -1,4 +1,4 @@
-"""``camcal lrm``: run a module — simulated, or replaying a recorded frame set."""
+"""``camcal lrm``: run a module — on a real V4L2 camera, simulated, or replaying a recorded frame set."""
 
 from __future__ import annotations
 
@@ -17,7 +17,8 @@ from camcal.frameset import FrameSetError
 from camcal.schedule import CameraLimits, Schedule
 
 app = typer.Typer(
-    help="Run a light receiver module: simulated, or replaying a frame set.", no_args_is_help=True
+    help="Run a light receiver module: a real camera, simulated, or replaying a frame set.",
+    no_args_is_help=True,
 )
 
 
@@ -196,4 +197,102 @@ def replay(
         console.print(f"[yellow]skipped[/] {name}: {why}")
     console.print(
         f"sent {agent.counters['frames_captured']} frames; {agent.outbox.pending_count()} not acknowledged"
+    )
+
+
+@app.command("camera")
+def camera_module(
+    device: Annotated[str, typer.Option(help="The camera: a V4L2 device path (/dev/video0) or index.")],
+    camera: Annotated[str, typer.Option(help="Module / camera id written into every frame.")] = "A",
+    connect: Annotated[
+        str, typer.Option(help="The ship's ingest: tcp://HOST:PORT.")
+    ] = "tcp://127.0.0.1:5555",
+    outbox: Annotated[
+        Path | None, typer.Option(help="SD-card outbox folder (default lrm-<camera>-outbox).")
+    ] = None,
+    schedule: Annotated[str, typer.Option(help="Schedule preset or a schedule JSON file.")] = "trex",
+    lem_epoch: Annotated[
+        str | None,
+        typer.Option(
+            help="UTC time (ISO 8601) at which the LEM's colour cycle started with its first wavelength; "
+            "without it frames carry no wavelength."
+        ),
+    ] = None,
+    lem_dwell_s: Annotated[float, typer.Option(help="Seconds the LEM shows each wavelength.")] = 60.0,
+    lem_wavelengths: Annotated[
+        str, typer.Option(help="The LEM's colour cycle in order [nm].")
+    ] = "405,460,525",
+    exposure_range_s: Annotated[
+        str, typer.Option(help="The camera's exposure range MIN,MAX [s].")
+    ] = "0.0001,1.0",
+    gain_range_db: Annotated[str, typer.Option(help="The camera's gain range MIN,MAX [dB].")] = "0,24",
+    gain_units_per_db: Annotated[
+        float, typer.Option(help="Driver gain units per dB (10 for a driver in 0.1 dB steps).")
+    ] = 1.0,
+    gain_offset: Annotated[float, typer.Option(help="Driver gain value at 0 dB.")] = 0.0,
+    log_level: Annotated[str, typer.Option(help="debug, info, warning.")] = "info",
+) -> None:
+    """Run a real module: a V4L2 camera under the schedule, streaming to the ship.
+
+    The camera is driven through OpenCV's V4L2 backend with manual exposure
+    and gain (check the driver's controls with ``v4l2-ctl --list-ctrls``).
+    The housing sensors are not read here: their drivers depend on the
+    module's hardware (see lrm.camera.SensorBackend).
+    """
+    from camcal.cli.common import parse_floats
+    from lrm.agent import Agent, AgentConfig
+    from lrm.camera import CameraError, V4L2Camera
+    from lrm.clock import SystemClock
+    from lrm.dive import LEMTimetable
+    from lrm.runner import LemTimetableClock, ScheduleRunner
+
+    logging.basicConfig(level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    sched = load_schedule(schedule)
+    exp = parse_floats(exposure_range_s, "--exposure-range-s")
+    gain = parse_floats(gain_range_db, "--gain-range-db")
+    if len(exp) != 2 or len(gain) != 2:
+        raise fail("--exposure-range-s and --gain-range-db take MIN,MAX")
+    lem = None
+    if lem_epoch is not None:
+        try:
+            epoch = datetime.fromisoformat(lem_epoch.replace("Z", "+00:00"))
+            if epoch.tzinfo is None:
+                epoch = epoch.replace(tzinfo=UTC)
+            timetable = LEMTimetable(
+                tuple(int(w) for w in parse_floats(lem_wavelengths, "--lem-wavelengths")), lem_dwell_s
+            )
+        except ValueError as exc:
+            raise fail(f"--lem-epoch/--lem-dwell-s/--lem-wavelengths: {exc}") from None
+        lem = LemTimetableClock(timetable, epoch)
+    clock = SystemClock()
+    try:
+        cam = V4L2Camera(
+            int(device) if device.isdigit() else device,
+            camera,
+            clock=clock,
+            exposure_range_s=(exp[0], exp[1]),
+            gain_range_db=(gain[0], gain[1]),
+            gain_units_per_db=gain_units_per_db,
+            gain_offset=gain_offset,
+        )
+    except (CameraError, ValueError) as exc:
+        raise fail(str(exc)) from None
+    limits = CameraLimits(cam.exposure_range_s, cam.gain_range_db, cam.gain_step_db)
+    problems = limits.problems(sched)
+    if problems:
+        cam.close()
+        raise fail("; ".join(f"schedule {field}: {why}" for field, why in problems))
+    runner = ScheduleRunner(cam, clock, sched, lem=lem)
+    cfg = AgentConfig(module=camera, connect=connect, outbox=outbox or Path(f"lrm-{camera}-outbox"))
+    agent = Agent(cfg, clock=clock, runner=runner, camera_limits=limits)
+    agent.start()
+    console.print(
+        f"module {camera}: camera {cam.device_path}, schedule {sched.name} v{sched.version}, "
+        f"sending to {connect}, outbox {cfg.outbox}"
+    )
+    _run_until_signal(agent, lambda: False)
+    agent.stop()
+    console.print(
+        f"module {camera}: stopped; {agent.counters['frames_captured']} frames captured, "
+        f"{agent.outbox.pending_count()} not yet acknowledged (kept in {cfg.outbox})"
     )

@@ -11,6 +11,7 @@ from typing import Annotated, Any
 import typer
 from rich.table import Table
 
+from camcal.calibrations import setup_of
 from camcal.cli.analyze import parse_ratios
 from camcal.cli.common import console, fail, parse_floats, parse_mapping
 from camcal.frameset import FrameSetError, Setup, parse_setup, write_atomic
@@ -84,6 +85,13 @@ def reanalyze(
             help="setup.json with the calibration (default: the one the frames were analysed with)."
         ),
     ] = None,
+    calibration: Annotated[
+        str | None,
+        typer.Option(
+            help="A stored calibration record: NAME (its newest version valid now), NAME@VERSION or its id "
+            "(`camcal calibration list`). The new run records it."
+        ),
+    ] = None,
     distance: Annotated[
         list[str] | None, typer.Option(help="Override a camera distance: CAM=METRES.")
     ] = None,
@@ -150,6 +158,8 @@ def reanalyze(
         raise fail("--frames-url is for a stored dive's frames; folders are read where they are")
     if workers < 1 or batch_size < 1:
         raise fail("--workers and --batch-size must be at least 1")
+    if setup and calibration:
+        raise fail("give --setup or --calibration, not both")
     lr = None
     if linear_range:
         vals = parse_floats(linear_range, "--linear-range")
@@ -184,7 +194,14 @@ def reanalyze(
     store = open_store(data, db_url, create=bool(folders))
     runner = None
     summaries: list[dict[str, Any]] = []
+    record = None
     try:
+        if calibration:
+            record = _calibration_record(store, calibration)
+            try:
+                chosen = setup_of(record)
+            except FrameSetError as exc:
+                raise fail(f"--calibration {calibration}: {exc}") from None
         jobs = (
             _import_folders(store, folders, dive, storage_options)
             if folders
@@ -194,7 +211,7 @@ def reanalyze(
             raise fail("no stored frames match (check --dive, --from and --to)")
         runner = _start_runner(workers, scheduler)
         for job in jobs:
-            summaries.append(_run(store, job, effective(job["base"]), options, runner, label))
+            summaries.append(_run(store, job, effective(job["base"]), options, runner, label, record))
     finally:
         if runner is not None:
             runner.close()
@@ -282,8 +299,22 @@ def _start_runner(workers: int, scheduler: str | None) -> Any:
     return runner
 
 
+def _calibration_record(store: Any, ref: str) -> dict[str, Any]:
+    record = store.calibration(ref)
+    if record is None:
+        known = ", ".join(sorted({f"{c['name']}@{c['version']}" for c in store.calibrations()})) or "none"
+        raise fail(f"--calibration: no calibration {ref!r} in the store (stored: {known})")
+    return record
+
+
 def _run(
-    store: Any, job: dict[str, Any], setup: Setup, options: Any, runner: Any, label: str | None
+    store: Any,
+    job: dict[str, Any],
+    setup: Setup,
+    options: Any,
+    runner: Any,
+    label: str | None,
+    record: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     from ingest.derived import ResultRow, attenuation_dict, span_attenuation
     from ingest.reanalysis import reanalyse, start_run
@@ -292,8 +323,16 @@ def _run(
     what = job.get("folder") or (
         "frames in the span" if options.t_from is not None or options.t_to is not None else "all frames"
     )
-    run_id = start_run(store, d.id, setup, label or f"camcal reanalyze: {what}")
-    store.audit("cli", "reanalysis.start", f"dive:{d.id}", {"run_id": run_id, "calibration": setup.to_json()})
+    cal_id = record["id"] if record else None
+    if label is None and record is not None:
+        label = f"calibration {record['name']} v{record['version']}: {what}"
+    run_id = start_run(store, d.id, setup, label or f"camcal reanalyze: {what}", cal_id)
+    store.audit(
+        "cli",
+        "reanalysis.start",
+        f"dive:{d.id}",
+        {"run_id": run_id, "calibration_id": cal_id, "calibration": setup.to_json()},
+    )
     t0 = time.perf_counter()
     try:
         n = reanalyse(store, d.id, run_id, setup, options, runner=runner, sources=job["sources"])
@@ -325,6 +364,7 @@ def _run(
         "elapsed_s": round(elapsed, 3),
         "frames_per_s": round(n / elapsed, 2) if elapsed > 0 else None,
         "calibration": setup.to_json(),
+        "calibration_record": f"{record['name']}@{record['version']}" if record else None,
         "attenuation": [attenuation_dict(table[wl]) for wl in sorted(table)],
     }
 

@@ -1,6 +1,6 @@
 """Browser tests: the real system (``camcal up``) and headless Chromium driven by Playwright.
 
-One short simulated dive is shared by every test of the session (speed 20,
+One short simulated dive is shared by the browser tests (speed 20,
 fast winch): frames and λ_att points arrive within ~30 s. Pages may only
 reach the camcal server: any other request is refused and fails the test
 (no CDN, no web fonts, nothing from the internet). Screenshots go to
@@ -21,8 +21,9 @@ import pytest
 from tests.utils.system import REPO, System, camcal_up, wait_until
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")
 def system(tmp_path_factory: pytest.TempPathFactory) -> Iterator[System]:
+    """``camcal up`` for the browser tests; stopped after them (its simulated dive loads both cores)."""
     with camcal_up(tmp_path_factory.mktemp("browser") / "data") as s:
         yield s
 
@@ -67,7 +68,7 @@ def page(browser: Any, system: System) -> Iterator[Any]:
         yield pg
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")
 def dive_with_data(system: System) -> dict[str, Any]:
     """The dive once it has analysed frames of both modules, λ_att and linearity fits (waits for them)."""
 

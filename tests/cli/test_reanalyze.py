@@ -11,8 +11,9 @@ import pytest
 from sqlalchemy import select
 from typer.testing import CliRunner
 
+from camcal.calibrations import record_values
 from camcal.cli import app
-from camcal.frameset import read_manifest
+from camcal.frameset import parse_setup, read_manifest, read_setup
 from ingest.runners import DaskRunner
 from storage.models import AnalysisRun, Frame, FrameResult
 from storage.store import Store
@@ -115,6 +116,28 @@ def test_a_stored_dive_and_a_time_span_with_other_distances(
     scale = (45.0 - 21.56) / (41.62 - 21.56)
     for p, q in zip(same["attenuation"], moved["attenuation"], strict=True):
         assert q["lambda_att_m"] == pytest.approx(p["lambda_att_m"] * scale, rel=1e-9)
+    # a stored calibration record: the run uses its values and records which version it was
+    store = Store.open(data, run_migrations=False)
+    taped = read_setup(trex_small_set).to_json()
+    taped["cameras"]["B"]["distance_m"] = 45.0
+    record = store.add_calibration(
+        "lab-tape", record_values(parse_setup(taped, "test"), [], ["tape measure"]), actor="test"
+    )
+    store.close()
+    res = reanalyze(*dive, "--calibration", "lab-tape")
+    assert res.exit_code == 0, res.output
+    by_record = summary(out)
+    assert by_record["calibration_record"] == "lab-tape@1"
+    assert [a["lambda_att_m"] for a in by_record["attenuation"]] == pytest.approx(
+        [a["lambda_att_m"] for a in moved["attenuation"]], rel=1e-9
+    )
+    store = Store.open(data, run_migrations=False)
+    with store.read() as ses:
+        run = ses.get(AnalysisRun, by_record["run_id"])
+        assert run.calibration_id == record["id"] and run.label.startswith("calibration lab-tape v1")
+    store.close()
+    res = reanalyze(*dive, "--calibration", "lab-tape@7")
+    assert res.exit_code == 2 and "no calibration 'lab-tape@7'" in res.output and "lab-tape@1" in res.output
     # a time span: from the first frame to the last one at 405 nm
     rows = read_manifest(trex_small_set)
     t_end = [r.timestamp for r in rows if r.wavelength_nm == 405][-1]  # rows are in time order

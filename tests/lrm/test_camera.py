@@ -190,3 +190,17 @@ def test_v4l2_control_flow_against_a_fake_device() -> None:
     assert fake.released
     with pytest.raises(CameraClosed):
         camera.capture(0.05, 8.0)
+
+
+def test_camcal_lrm_camera_without_the_device_says_what_to_check(tmp_path) -> None:
+    from typer.testing import CliRunner
+
+    from camcal.cli import app
+
+    args = ["lrm", "camera", "--device", "/dev/video-missing", "--outbox", str(tmp_path / "ob")]
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 2, res.output
+    assert "/dev/video-missing does not exist" in res.output and "v4l2-ctl" in res.output
+    assert "Traceback" not in res.output
+    bad = CliRunner().invoke(app, [*args, "--lem-epoch", "tomorrow"])
+    assert bad.exit_code == 2 and "--lem-epoch" in bad.output

@@ -81,8 +81,10 @@ def main() -> None:
     pngs = [(folder / r.file).read_bytes() for r in rows]
     frames = [cv_dec(b) for b in pngs]
     z1, z3 = zstd(1), zstd(3)
+    camcal_png = cv_enc(".png", list(PNG_PARAMS))
     formats: list[tuple[str, Callable[[np.ndarray, bytes], bytes], Callable[[bytes], np.ndarray]]] = [
-        ("PNG, no filter, zlib 1 (camcal)", lambda f, png: cv_enc(".png", list(PNG_PARAMS))(f), cv_dec),
+        ("PNG as the module sent it (the ingest)", lambda f, png: png, cv_dec),
+        ("PNG, no filter, zlib 1, encoded (a module)", lambda f, png: camcal_png(f), cv_dec),
         ("PNG, OpenCV default", lambda f, png: cv_enc(".png", [])(f), cv_dec),
         (".npy", lambda f, png: npy_enc(f), npy_dec),
         ("TIFF uncompressed", lambda f, png: cv_enc(".tiff", [cv2.IMWRITE_TIFF_COMPRESSION, 1])(f), cv_dec),

@@ -19,7 +19,7 @@ from typing import Any
 from analysis import FrameConfig
 from camcal import __version__
 from camcal.frameset import Setup
-from ingest.derived import ResultRow, geometry_and_ratios, linearity_rows, mean_gray_by_setting
+from ingest.derived import geometry_and_ratios, linearity_rows, mean_gray_by_setting, result_row
 from ingest.rolling import RollingAttenuation, Sample
 from ingest.runners import BatchRunner, LocalRunner
 from ingest.worker import analyse_batch
@@ -193,21 +193,7 @@ def derive_run(store: Store, dive_id: int, run_id: int, setup: Setup, options: R
                     }
                 )
     store.add_attenuation_points(points)
-    result_rows = [
-        ResultRow(
-            r["module"],
-            r["wavelength_nm"],
-            r["exposure_s"],
-            r["gain_db"],
-            r["captured_unix_s"],
-            r["depth_m"],
-            r["status"],
-            r["center_gray"],
-            r["i_center_gray"],
-            r["i_center_err_gray"],
-        )
-        for r in rows
-    ]
+    result_rows = [result_row(r) for r in rows]
     lr = tuple(setup.linear_range)
     for (module, wl), pts in mean_gray_by_setting(result_rows).items():
         for row in linearity_rows(pts, lr):  # type: ignore[arg-type]

@@ -22,7 +22,7 @@ def trex_small_set(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="session")
 def dive_data(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, object]]:
-    """A data folder filled by a real simulated dive (~30 s), shared by read-only tests.
+    """A data folder filled by a real simulated dive (~45 s), shared by read-only tests.
 
     Tests that write to a store copy it first (`tests.utils.dive_store.copy_data`).
     """

@@ -6,9 +6,10 @@ import logging
 import signal
 import threading
 import time
+from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -20,6 +21,9 @@ app = typer.Typer(
     help="Run a light receiver module: a real camera, simulated, or replaying a frame set.",
     no_args_is_help=True,
 )
+
+
+ConnectOption = Annotated[str, typer.Option(help="The ship's ingest: tcp://HOST:PORT.")]
 
 
 def register(parent: typer.Typer) -> None:
@@ -42,6 +46,16 @@ def load_schedule(name: str) -> Schedule:
     raise fail(f"--schedule: {name!r} is neither a preset ({', '.join(table)}) nor a schedule file")
 
 
+def _run_module(agent: Any, finished: Callable[[], bool]) -> None:
+    """Run a started module agent until SIGTERM/SIGINT or ``finished()``; stop it and say what is left."""
+    _run_until_signal(agent, finished)
+    agent.stop()
+    console.print(
+        f"module {agent.config.module}: stopped; {agent.counters['frames_captured']} frames captured, "
+        f"{agent.outbox.pending_count()} not yet acknowledged (kept in {agent.config.outbox})"
+    )
+
+
 def _run_until_signal(agent: object, finished: object) -> None:
     done = threading.Event()
 
@@ -58,9 +72,7 @@ def _run_until_signal(agent: object, finished: object) -> None:
 @app.command("simulate")
 def simulate(
     camera: Annotated[str, typer.Option(help="Module / camera id: A (21.56 m) or B (41.62 m).")] = "A",
-    connect: Annotated[
-        str, typer.Option(help="The ship's ingest: tcp://HOST:PORT.")
-    ] = "tcp://127.0.0.1:5555",
+    connect: ConnectOption = "tcp://127.0.0.1:5555",
     outbox: Annotated[
         Path | None, typer.Option(help="SD-card outbox folder (default lrm-<camera>-outbox).")
     ] = None,
@@ -151,21 +163,14 @@ def simulate(
         agent.stop_producing()  # the dive is over: send what is left, then exit
         return agent.outbox.pending_count() == 0
 
-    _run_until_signal(agent, finished)
-    agent.stop()
-    console.print(
-        f"module {camera}: stopped; {agent.counters['frames_captured']} frames captured, "
-        f"{agent.outbox.pending_count()} not yet acknowledged (kept in {cfg.outbox})"
-    )
+    _run_module(agent, finished)
 
 
 @app.command("replay")
 def replay(
     folder: Annotated[Path, typer.Argument(help="A recorded frame set.")],
     camera: Annotated[str, typer.Option(help="Which camera's frames to replay.")] = "A",
-    connect: Annotated[
-        str, typer.Option(help="The ship's ingest: tcp://HOST:PORT.")
-    ] = "tcp://127.0.0.1:5555",
+    connect: ConnectOption = "tcp://127.0.0.1:5555",
     outbox: Annotated[Path | None, typer.Option(help="Outbox folder (default lrm-<camera>-replay).")] = None,
     speed: Annotated[
         float, typer.Option(help="1 = recorded pace, 10 = ten times faster, 0 = as fast as possible.")
@@ -204,9 +209,7 @@ def replay(
 def camera_module(
     device: Annotated[str, typer.Option(help="The camera: a V4L2 device path (/dev/video0) or index.")],
     camera: Annotated[str, typer.Option(help="Module / camera id written into every frame.")] = "A",
-    connect: Annotated[
-        str, typer.Option(help="The ship's ingest: tcp://HOST:PORT.")
-    ] = "tcp://127.0.0.1:5555",
+    connect: ConnectOption = "tcp://127.0.0.1:5555",
     outbox: Annotated[
         Path | None, typer.Option(help="SD-card outbox folder (default lrm-<camera>-outbox).")
     ] = None,
@@ -290,9 +293,4 @@ def camera_module(
         f"module {camera}: camera {cam.device_path}, schedule {sched.name} v{sched.version}, "
         f"sending to {connect}, outbox {cfg.outbox}"
     )
-    _run_until_signal(agent, lambda: False)
-    agent.stop()
-    console.print(
-        f"module {camera}: stopped; {agent.counters['frames_captured']} frames captured, "
-        f"{agent.outbox.pending_count()} not yet acknowledged (kept in {cfg.outbox})"
-    )
+    _run_module(agent, lambda: False)

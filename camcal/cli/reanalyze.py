@@ -316,7 +316,7 @@ def _run(
     label: str | None,
     record: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    from ingest.derived import ResultRow, attenuation_dict, span_attenuation
+    from ingest.derived import attenuation_dict, result_row, span_attenuation
     from ingest.reanalysis import reanalyse, start_run
 
     d = job["dive"]
@@ -339,21 +339,7 @@ def _run(
     except Exception as exc:
         raise fail(f"re-analysis of dive {d.name} failed (run {run_id}): {exc}", code=1) from None
     elapsed = time.perf_counter() - t0
-    rows = [
-        ResultRow(
-            r["module"],
-            r["wavelength_nm"],
-            r["exposure_s"],
-            r["gain_db"],
-            r["captured_unix_s"],
-            r["depth_m"],
-            r["status"],
-            r["center_gray"],
-            r["i_center_gray"],
-            r["i_center_err_gray"],
-        )
-        for r in store.result_rows(run_id, d.id)
-    ]
+    rows = [result_row(r) for r in store.result_rows(run_id, d.id)]
     table = span_attenuation(rows, setup)
     return {
         "dive": d.name,

@@ -11,7 +11,7 @@ from fastapi.responses import Response
 from pydantic import BaseModel, ConfigDict, Field
 
 from camcal.schedule import Schedule, presets
-from ingest.derived import ResultRow, predict_settings
+from ingest.derived import predict_settings, result_row
 from server.deps import OperatorDep, SettingsDep, StoreDep
 from server.errors import Conflict, Invalid, NotFound
 from storage import queries
@@ -75,22 +75,7 @@ async def preview(body: PreviewRequest, store: StoreDep, settings: SettingsDep) 
         if run is None:
             return {}
         rows = store.result_rows(run, dives[0]["id"])[-3000:]
-        rr = [
-            ResultRow(
-                r["module"],
-                r["wavelength_nm"],
-                r["exposure_s"],
-                r["gain_db"],
-                r["captured_unix_s"],
-                r["depth_m"],
-                r["status"],
-                r["center_gray"],
-                r["i_center_gray"],
-                r["i_center_err_gray"],
-            )
-            for r in rows
-            if body.module is None or r["module"] == body.module
-        ]
+        rr = [result_row(r) for r in rows if body.module is None or r["module"] == body.module]
         setts = [(wl, e, g) for wl in sched.wavelengths_nm for e, g, _ in sched.settings()]
         return predict_settings(rr, setts, settings.linear_range)
 

@@ -76,7 +76,9 @@ def _trex_ratios() -> dict[int, RatioSetup]:
 class Settings(BaseSettings):
     """Everything a camcal deployment can set."""
 
-    model_config = SettingsConfigDict(env_prefix="CAMCAL_", env_nested_delimiter="__", extra="forbid")
+    model_config = SettingsConfigDict(
+        env_prefix="CAMCAL_", env_nested_delimiter="__", extra="forbid", env_ignore_empty=True
+    )
 
     data_dir: Path = Field(Path("camcal-data"), description="folder of the database (SQLite) and frame files")
     database_url: str | None = Field(None, description="SQLAlchemy URL; default SQLite in data_dir")

@@ -41,6 +41,11 @@ def test_environment_and_toml_feed_the_settings(tmp_path: Path, monkeypatch: pyt
     assert s.alarms.tilt_major_deg == 9 and s.alarms.tilt_minor_deg == 4
     assert s.tokens() == {"alice": "secret-token-123"}
     assert load_settings(http_port=9200).http_port == 9200
+    # An empty variable (e.g. `CAMCAL_OPERATOR_TOKENS=` in a compose file) counts as unset.
+    monkeypatch.setenv("CAMCAL_OPERATOR_TOKENS", "")
+    monkeypatch.setenv("CAMCAL_HTTP_PORT", "")
+    s = load_settings()
+    assert s.tokens() == {} and s.http_port == 9000
 
 
 def test_config_show_masks_secrets(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -25,14 +25,32 @@ from tests.utils.system import System, camcal_up, module_pid, wait_until
 pytestmark = pytest.mark.browser
 
 STEPS = ["pending", "sent", "accepted", "in_progress", "done"]
-# Records every state the tracker shows for each command (attribute changes), to see a command's path.
+# Records every state the tracker shows for each command. Several states may be set within one task
+# (the module's answers arrive together); each mutation record keeps the value before it, so the
+# sequence is replayed from them. The page sets data-state, then data-command-id.
 WATCH_TRACKER = """() => {
   window.trackerStates = [];
   const t = document.querySelector('#tracker');
-  const note = () => { const s = [t.dataset.commandId, t.dataset.state]; const l = window.trackerStates;
-                       const last = l[l.length - 1];
-                       if (s[1] && !(last && last[0] === s[0] && last[1] === s[1])) l.push(s); };
-  new MutationObserver(note).observe(t, { attributes: true, attributeFilter: ['data-state'] });
+  const ID = 'data-command-id';
+  let id = t.dataset.commandId, state = t.dataset.state;
+  const push = () => { const l = window.trackerStates; const last = l[l.length - 1];
+                       if (state && !(last && last[0] === id && last[1] === state)) l.push([id, state]); };
+  window.trackerObserver?.disconnect();  // one observer per page, however often this runs
+  window.trackerObserver = new MutationObserver((records) => {
+    const after = (i, name, now) => {
+      for (const q of records.slice(i + 1)) if (q.attributeName === name) return q.oldValue;
+      return now;
+    };
+    const finalId = t.dataset.commandId, finalState = t.dataset.state;
+    for (let i = 0; i < records.length; i++) {
+      if (records[i].attributeName === ID) { id = after(i, ID, finalId); continue; }
+      state = after(i, 'data-state', finalState);
+      if (records[i + 1]?.attributeName === ID) { id = after(i + 1, ID, finalId); i++; }
+      push();
+    }
+  });
+  const what = { attributes: true, attributeOldValue: true, attributeFilter: ['data-state', ID] };
+  window.trackerObserver.observe(t, what);
 }"""
 
 

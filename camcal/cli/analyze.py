@@ -9,7 +9,14 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 from rich.table import Table
 
-from camcal.cli.common import console, fail, parse_floats, parse_mapping, progress_bar
+from camcal.cli.common import console, fail, progress_bar
+from camcal.cli.overrides import (
+    DistanceErrOption,
+    DistanceOption,
+    LinearRangeOption,
+    RatioOption,
+    overrides_from,
+)
 from camcal.frameset import FrameSetError, write_atomic
 
 if TYPE_CHECKING:
@@ -20,54 +27,22 @@ def register(app: typer.Typer) -> None:
     app.command("analyze")(analyze)
 
 
-def parse_ratios(items: list[str] | None) -> dict[int, tuple[float, float]]:
-    """``["460=1.27:0.04"]`` -> ``{460: (1.27, 0.04)}``."""
-    out: dict[int, tuple[float, float]] = {}
-    for item in items or []:
-        key, _sep, rest = item.partition("=")
-        value, _, err = rest.partition(":")
-        try:
-            out[int(key)] = (float(value), float(err) if err else 0.0)
-        except ValueError:
-            raise fail(f"--ratio: expected NM=VALUE[:ERR] such as 460=1.27:0.04, got {item!r}") from None
-    return out
-
-
 def analyze(
     folder: Annotated[Path, typer.Argument(help="Frame-set folder (manifest.csv, setup.json, images).")],
     json_out: Annotated[Path | None, typer.Option("--json", help="Write the results as JSON here.")] = None,
     plots: Annotated[Path | None, typer.Option(help="Write figures (PNG) into this folder.")] = None,
-    distance: Annotated[
-        list[str] | None, typer.Option(help="Override a camera distance: CAM=METRES.")
-    ] = None,
-    distance_err: Annotated[
-        list[str] | None, typer.Option(help="Override a distance error: CAM=METRES.")
-    ] = None,
-    ratio: Annotated[
-        list[str] | None, typer.Option(help="Override I0'/I0: NM=VALUE[:ERR], e.g. 460=1.27:0.04.")
-    ] = None,
-    linear_range: Annotated[
-        str | None, typer.Option(help="Override the linear range: LOW,HIGH gray.")
-    ] = None,
+    distance: DistanceOption = None,
+    distance_err: DistanceErrOption = None,
+    ratio: RatioOption = None,
+    linear_range: LinearRangeOption = None,
     workers: Annotated[int, typer.Option(help="Worker processes (default: all cores).")] = 0,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
 ) -> None:
     """Measure I_center on every frame and the attenuation length per wavelength."""
-    from camcal.pipeline import Overrides, analyze_rows, load_frame_set, to_json
+    from camcal.pipeline import analyze_rows, load_frame_set, to_json
     from camcal.plots import write_plots
 
-    lr = None
-    if linear_range:
-        vals = parse_floats(linear_range, "--linear-range")
-        if len(vals) != 2:
-            raise fail("--linear-range: give LOW,HIGH, e.g. 5,240")
-        lr = (vals[0], vals[1])
-    overrides = Overrides(
-        distances_m=parse_mapping(distance, "--distance") or None,
-        distance_errs_m=parse_mapping(distance_err, "--distance-err") or None,
-        emission_ratios=parse_ratios(ratio) or None,
-        linear_range=lr,
-    )
+    overrides = overrides_from(distance, distance_err, ratio, linear_range)
     try:
         rows, setup = load_frame_set(folder, overrides)
     except FrameSetError as exc:

@@ -12,8 +12,8 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from camcal.cli.analyze import parse_ratios
-from camcal.cli.common import console, err_console, fail, parse_floats, parse_mapping
+from camcal.cli.common import console, err_console, fail, parse_floats
+from camcal.cli.overrides import DistanceErrOption, DistanceOption, RatioOption, overrides_from
 from camcal.frameset import FrameSetError, write_atomic
 from lrm.sim.camera import CameraModel
 
@@ -108,15 +108,9 @@ def fit(
             help="Count the templates' Monte Carlo errors (off for frames simulated from these templates)."
         ),
     ] = True,
-    distance: Annotated[
-        list[str] | None, typer.Option(help="Override a camera distance: CAM=METRES.")
-    ] = None,
-    distance_err: Annotated[
-        list[str] | None, typer.Option(help="Override a distance error: CAM=METRES.")
-    ] = None,
-    ratio: Annotated[
-        list[str] | None, typer.Option(help="Override I0'/I0: NM=VALUE[:ERR], e.g. 460=1.27:0.04.")
-    ] = None,
+    distance: DistanceOption = None,
+    distance_err: DistanceErrOption = None,
+    ratio: RatioOption = None,
     workers: Annotated[int, typer.Option(help="Worker processes (default: all cores).")] = 0,
     quiet: Annotated[bool, typer.Option(help="No progress bars.")] = False,
 ) -> None:
@@ -135,7 +129,6 @@ def fit(
     from analysis.chisq import FitConfig, FitInputError
     from camcal.fitplots import write_fit_plots
     from camcal.fitset import FitOptions, fit_folder, to_json
-    from camcal.pipeline import Overrides
 
     try:
         options = FitOptions(
@@ -154,11 +147,7 @@ def fit(
                 psf_sigma_px=psf_sigma, psf_sigma_err_px=psf_sigma_err, template_errors=template_errors
             ),
         )
-        overrides = Overrides(
-            distances_m=parse_mapping(distance, "--distance") or None,
-            distance_errs_m=parse_mapping(distance_err, "--distance-err") or None,
-            emission_ratios=parse_ratios(ratio) or None,
-        )
+        overrides = overrides_from(distance, distance_err, ratio)
         if dive is not None:
             doc, result = fit_stored_dive(
                 dive,

@@ -12,8 +12,14 @@ import typer
 from rich.table import Table
 
 from camcal.calibrations import setup_of
-from camcal.cli.analyze import parse_ratios
-from camcal.cli.common import console, fail, parse_floats, parse_mapping
+from camcal.cli.common import console, fail
+from camcal.cli.overrides import (
+    DistanceErrOption,
+    DistanceOption,
+    LinearRangeOption,
+    RatioOption,
+    overrides_from,
+)
 from camcal.frameset import FrameSetError, Setup, parse_setup, write_atomic
 
 
@@ -92,18 +98,10 @@ def reanalyze(
             "(`camcal calibration list`). The new run records it."
         ),
     ] = None,
-    distance: Annotated[
-        list[str] | None, typer.Option(help="Override a camera distance: CAM=METRES.")
-    ] = None,
-    distance_err: Annotated[
-        list[str] | None, typer.Option(help="Override a distance error: CAM=METRES.")
-    ] = None,
-    ratio: Annotated[
-        list[str] | None, typer.Option(help="Override I0'/I0: NM=VALUE[:ERR], e.g. 460=1.27:0.04.")
-    ] = None,
-    linear_range: Annotated[
-        str | None, typer.Option(help="Override the linear range: LOW,HIGH gray.")
-    ] = None,
+    distance: DistanceOption = None,
+    distance_err: DistanceErrOption = None,
+    ratio: RatioOption = None,
+    linear_range: LinearRangeOption = None,
     data: Annotated[Path, typer.Option(help="Data folder of the store.")] = Path("camcal-data"),
     db_url: Annotated[
         str | None, typer.Option(help="SQLAlchemy URL (default: SQLite in the data folder).")
@@ -144,7 +142,6 @@ def reanalyze(
     folder and an S3-compatible bucket work the same.
     """
     from camcal.cli.data import open_store
-    from camcal.pipeline import Overrides
     from ingest.reanalysis import ReanalysisOptions
 
     frm, to = parse_time(t_from, "--from"), parse_time(t_to, "--to")
@@ -160,18 +157,7 @@ def reanalyze(
         raise fail("--workers and --batch-size must be at least 1")
     if setup and calibration:
         raise fail("give --setup or --calibration, not both")
-    lr = None
-    if linear_range:
-        vals = parse_floats(linear_range, "--linear-range")
-        if len(vals) != 2:
-            raise fail("--linear-range: give LOW,HIGH, e.g. 5,240")
-        lr = (vals[0], vals[1])
-    overrides = Overrides(
-        distances_m=parse_mapping(distance, "--distance") or None,
-        distance_errs_m=parse_mapping(distance_err, "--distance-err") or None,
-        emission_ratios=parse_ratios(ratio) or None,
-        linear_range=lr,
-    )
+    overrides = overrides_from(distance, distance_err, ratio, linear_range)
     chosen = load_setup_file(setup) if setup else None
     storage_options = parse_storage_options(storage_option)
     options = ReanalysisOptions(

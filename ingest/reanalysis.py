@@ -19,7 +19,13 @@ from typing import Any
 from analysis import FrameConfig
 from camcal import __version__
 from camcal.frameset import Setup
-from ingest.derived import geometry_and_ratios, linearity_rows, mean_gray_by_setting, result_row
+from ingest.derived import (
+    attenuation_point_row,
+    geometry_and_ratios,
+    linearity_rows,
+    mean_gray_by_setting,
+    result_row,
+)
 from ingest.rolling import RollingAttenuation, Sample
 from ingest.runners import BatchRunner, LocalRunner
 from ingest.worker import analyse_batch
@@ -177,20 +183,15 @@ def derive_run(store: Store, dive_id: int, run_id: int, setup: Setup, options: R
             if out is not None:
                 res, t, depth = out
                 points.append(
-                    {
-                        "run_id": run_id,
-                        "dive_id": dive_id,
-                        "wavelength_nm": res.wavelength_nm,
-                        "t_unix_s": t,
-                        "depth_m": depth,
-                        "lambda_att_m": res.lambda_att_m,
-                        "stat_err_m": res.stat_err_m,
-                        "sys_err_m": res.sys_err_m,
-                        "n_pairs": res.n_pairs,
-                        "chi2_ndof": res.chi2_ndof,
-                        "window_s": options.window_s,
-                        "details": {"note": res.note},
-                    }
+                    attenuation_point_row(
+                        res,
+                        t,
+                        depth,
+                        run_id=run_id,
+                        dive_id=dive_id,
+                        window_s=options.window_s,
+                        details={"note": res.note},
+                    )
                 )
     store.add_attenuation_points(points)
     result_rows = [result_row(r) for r in rows]

@@ -51,7 +51,7 @@ from camcal.calibrations import setup_of
 from camcal.frameset import Setup
 from camcal.parallel import process_pool
 from ingest.alarms import AlarmEvaluator, AlarmLimits
-from ingest.derived import geometry_and_ratios, linearity_rows
+from ingest.derived import attenuation_point_row, geometry_and_ratios, linearity_rows
 from ingest.events import EventBus
 from ingest.rolling import RollingAttenuation, Sample
 from ingest.seqtrack import SeqTracker
@@ -811,29 +811,23 @@ class _StoreState:
 
     def _store_points(self, points: list[Any]) -> None:
         svc = self.svc
-        rows = []
-        for res, t, depth in points:
-            rows.append(
-                {
-                    "run_id": svc.run.id,
-                    "dive_id": svc.dive.id,
-                    "wavelength_nm": res.wavelength_nm,
-                    "t_unix_s": t,
-                    "depth_m": depth,
-                    "lambda_att_m": res.lambda_att_m,
-                    "stat_err_m": res.stat_err_m,
-                    "sys_err_m": res.sys_err_m,
-                    "n_pairs": res.n_pairs,
-                    "chi2_ndof": res.chi2_ndof,
-                    "window_s": svc.config.rolling_window_s,
-                    "details": {
-                        "pairs": [
-                            [p.exposure_s, p.gain_db, p.n_near, p.n_far, p.lambda_att_m] for p in res.pairs
-                        ],
-                        "note": res.note,
-                    },
-                }
+        rows = [
+            attenuation_point_row(
+                res,
+                t,
+                depth,
+                run_id=svc.run.id,
+                dive_id=svc.dive.id,
+                window_s=svc.config.rolling_window_s,
+                details={
+                    "pairs": [
+                        [p.exposure_s, p.gain_db, p.n_near, p.n_far, p.lambda_att_m] for p in res.pairs
+                    ],
+                    "note": res.note,
+                },
             )
+            for res, t, depth in points
+        ]
         ids = self.store.add_attenuation_points(rows)
         for pid, r in zip(ids, rows, strict=True):
             svc.events.emit(

@@ -7,7 +7,6 @@ import os
 import signal
 import socket
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -18,7 +17,7 @@ from camcal.frameset import read_manifest
 from storage.models import Frame, FrameResult
 from storage.store import Store
 from tests.live.test_ingest import wait_for
-from tests.utils.live import make_agent
+from tests.utils.live import make_agent, start_ingest
 
 
 def free_port() -> int:
@@ -27,29 +26,6 @@ def free_port() -> int:
     port = s.getsockname()[1]
     s.close()
     return port
-
-
-def start_ingest(data: Path, port: int, events_port: int) -> subprocess.Popen[bytes]:
-    with (data.parent / "ingest.log").open("ab") as log:
-        return subprocess.Popen(
-            [
-                sys.executable,
-                "-c",
-                "from camcal.cli import main; main()",
-                "ingest",
-                "--data",
-                str(data),
-                "--bind",
-                f"tcp://127.0.0.1:{port}",
-                "--events",
-                f"tcp://127.0.0.1:{events_port}",
-                "--workers",
-                "1",
-            ],
-            stdout=log,
-            stderr=log,
-            start_new_session=True,
-        )
 
 
 @pytest.mark.slow

@@ -6,7 +6,6 @@ import hashlib
 import os
 import signal
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -19,7 +18,7 @@ from storage.store import Store
 from tests.live.conftest import ingest_config
 from tests.live.test_faults import free_port
 from tests.live.test_ingest import finish, stored_keys, wait_for
-from tests.utils.live import make_agent
+from tests.utils.live import make_agent, start_ingest
 
 
 def test_an_ingest_refuses_the_modules_it_does_not_serve(tmp_path: Path) -> None:
@@ -55,35 +54,12 @@ def test_ingest_refuses_a_bad_module_list(tmp_path: Path, bad: str) -> None:
     assert res.exit_code == 2 and "--modules: expected module ids" in res.output
 
 
-def start_ingest(
+def start_ingest_for(
     data: Path, db_url: str, module: str, port: int, events_port: int
 ) -> subprocess.Popen[bytes]:
-    with (data.parent / f"ingest-{module}.log").open("ab") as log:
-        return subprocess.Popen(
-            [
-                sys.executable,
-                "-c",
-                "from camcal.cli import main; main()",
-                "ingest",
-                "--data",
-                str(data),
-                "--db-url",
-                db_url,
-                "--modules",
-                module,
-                "--dive",
-                "trident-shared",
-                "--bind",
-                f"tcp://127.0.0.1:{port}",
-                "--events",
-                f"tcp://127.0.0.1:{events_port}",
-                "--workers",
-                "1",
-            ],
-            stdout=log,
-            stderr=log,
-            start_new_session=True,
-        )
+    """An ingest serving only ``module`` of the shared dive, on the shared database."""
+    extra = ("--db-url", db_url, "--modules", module, "--dive", "trident-shared")
+    return start_ingest(data, port, events_port, *extra, log=f"ingest-{module}.log")
 
 
 @pytest.mark.slow
@@ -96,7 +72,7 @@ def test_two_ingests_share_a_database_and_one_survives_sigkill(tmp_path: Path, p
     """
     data = tmp_path / "data"
     ports = {m: (free_port(), free_port()) for m in ("A", "B")}
-    procs = {m: start_ingest(data, pg_empty_url, m, *ports[m]) for m in ("A", "B")}
+    procs = {m: start_ingest_for(data, pg_empty_url, m, *ports[m]) for m in ("A", "B")}
     agents = {
         m: make_agent(
             m,
@@ -118,7 +94,7 @@ def test_two_ingests_share_a_database_and_one_survives_sigkill(tmp_path: Path, p
         assert wait_for(lambda: agents["B"].counters["acked"] >= acked_b + 3, 20), (
             "B stalled while A was down"
         )
-        procs["A"] = start_ingest(data, pg_empty_url, "A", *ports["A"])
+        procs["A"] = start_ingest_for(data, pg_empty_url, "A", *ports["A"])
         assert wait_for(lambda: all(a.counters["frames_captured"] >= 16 for a in agents.values()), 60)
         for a in agents.values():
             a.runner.stop()

@@ -319,3 +319,30 @@ def cli_env() -> dict[str, str]:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
     return env
+
+
+def start_ingest(
+    data: Path, port: int, events_port: int, *extra: str, log: str = "ingest.log"
+) -> subprocess.Popen[bytes]:
+    """``camcal ingest`` as its own process (one analysis worker) on 127.0.0.1; output to ``data/../log``."""
+    with (data.parent / log).open("ab") as out:
+        return subprocess.Popen(
+            [
+                sys.executable,
+                "-c",
+                "from camcal.cli import main; main()",
+                "ingest",
+                "--data",
+                str(data),
+                *extra,
+                "--bind",
+                f"tcp://127.0.0.1:{port}",
+                "--events",
+                f"tcp://127.0.0.1:{events_port}",
+                "--workers",
+                "1",
+            ],
+            stdout=out,
+            stderr=out,
+            start_new_session=True,
+        )

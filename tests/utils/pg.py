@@ -9,12 +9,14 @@ storage and live tests skip.
 from __future__ import annotations
 
 import os
+import time
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-from sqlalchemy import create_engine
+from sqlalchemy import Engine, create_engine, text
 from sqlalchemy.engine import make_url
+from sqlalchemy.exc import OperationalError
 from sqlalchemy.pool import NullPool
 
 from storage.db import make_engine, migrate, normalise_url
@@ -34,6 +36,33 @@ def _url(admin_url: str, database: str) -> str:
     return make_url(normalise_url(admin_url)).set(database=database).render_as_string(hide_password=False)
 
 
+def _drop(admin: Engine, name: str, timeout_s: float = 30.0) -> None:
+    """Drop database ``name``, ending the sessions a killed test process left open.
+
+    Not ``DROP DATABASE ... WITH (FORCE)``: that refuses, for a role without
+    ``pg_signal_backend``, whenever an autovacuum worker happens to be in the
+    database. Ending our own role's sessions and then a plain drop works for
+    such a role: PostgreSQL itself stops autovacuum workers for a drop.
+    """
+    deadline = time.monotonic() + timeout_s
+    while True:
+        with admin.connect() as conn:
+            conn.execute(
+                text(
+                    "SELECT pg_terminate_backend(pid) FROM pg_stat_activity "
+                    "WHERE datname = :name AND usename = current_user AND pid <> pg_backend_pid()"
+                ),
+                {"name": name},
+            )
+            try:
+                conn.exec_driver_sql(f'DROP DATABASE IF EXISTS "{name}"')
+                return
+            except OperationalError as exc:  # 55006 object_in_use: a session still closing
+                if getattr(exc.orig, "sqlstate", None) != "55006" or time.monotonic() > deadline:
+                    raise
+        time.sleep(0.2)
+
+
 @contextmanager
 def fresh_database(admin_url: str, template: str | None = None) -> Iterator[str]:
     """Create a database (empty, or a copy of ``template``), yield its URL, drop it.
@@ -50,8 +79,7 @@ def fresh_database(admin_url: str, template: str | None = None) -> Iterator[str]
         try:
             yield _url(admin_url, name)
         finally:
-            with admin.connect() as conn:
-                conn.exec_driver_sql(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+            _drop(admin, name)
     finally:
         admin.dispose()
 

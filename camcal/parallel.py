@@ -9,9 +9,13 @@ fork server instead, which has the heavy modules already imported.
 from __future__ import annotations
 
 import multiprocessing
-from collections.abc import Callable
+import threading
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from typing import Any
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+R = TypeVar("R")
 
 _PRELOAD = ["numpy", "cv2", "scipy.optimize", "analysis", "camcal.frameset"]
 _context: Any = None
@@ -44,3 +48,45 @@ def process_pool(
         initializer=_init_worker,
         initargs=(initializer, initargs),
     )
+
+
+def _ready() -> None:
+    """Nothing: running it proves a worker process is up."""
+
+
+def map_in_order(
+    fn: Callable[[T], R],
+    items: Sequence[T],
+    workers: int,
+    done: Callable[[R], None] | None = None,
+) -> list[R]:
+    """``[fn(x) for x in items]`` on a pool of ``workers`` processes; ``done`` is called on each result.
+
+    Starting the pool takes the better part of a second (the fork server
+    imports numpy, OpenCV, SciPy before it forks a worker). Until it is up,
+    this process works through the list itself, so a short job does not
+    wait idle for the pool. ``fn`` must be picklable (module level).
+    """
+    results: list[R] = []
+    with process_pool(workers) as pool:
+        up = threading.Event()
+
+        def start() -> None:
+            try:
+                for warm in [pool.submit(_ready) for _ in range(workers)]:
+                    warm.result()
+            finally:
+                up.set()
+
+        starter = threading.Thread(target=start, name="pool-start", daemon=True)
+        starter.start()
+        while not up.is_set() and len(results) < len(items):
+            results.append(fn(items[len(results)]))
+            if done is not None:
+                done(results[-1])
+        starter.join()
+        for future in [pool.submit(fn, item) for item in items[len(results) :]]:
+            results.append(future.result())
+            if done is not None:
+                done(results[-1])
+    return results

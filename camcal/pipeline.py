@@ -33,7 +33,7 @@ from camcal.frameset import (
     read_manifest,
     read_setup,
 )
-from camcal.parallel import process_pool
+from camcal.parallel import map_in_order
 
 
 @dataclass(frozen=True)
@@ -167,11 +167,16 @@ def analyze_rows(
             if progress:
                 progress(len(frames), len(rows))
     else:
-        with process_pool(workers) as pool:
-            for out in pool.map(_analyze_batch, batches):
-                frames.extend(out)
-                if progress:
-                    progress(len(frames), len(rows))
+        finished = 0
+
+        def count(out: list[FrameAnalysis]) -> None:
+            nonlocal finished
+            finished += len(out)
+            if progress:
+                progress(finished, len(rows))
+
+        for out in map_in_order(_analyze_batch, batches, workers, count):
+            frames.extend(out)
 
     records = [
         FrameRecord(row.camera, Setting(row.wavelength_nm, row.exposure_s, row.gain_db), f)

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from camcal.frameset import (
     FrameReadError,
@@ -13,6 +16,7 @@ from camcal.frameset import (
     FrameSetWriter,
     ManifestRow,
     Setup,
+    _decode_unfiltered_png,
     decode_frame,
     encode_png,
     read_frame,
@@ -109,3 +113,49 @@ def test_decode_reports_each_problem() -> None:
     with pytest.raises(FrameReadError) as info:
         read_frame(Path("/nonexistent/x.png"))
     assert "file not found" in info.value.detail
+
+
+def _frame(seed: int, shape: tuple[int, int] = (48, 64)) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    frame = rng.poisson(6.0, shape).astype(np.uint8)  # a dark, noisy camera frame
+    frame[10:20, 30:45] = 250  # and something bright
+    return frame
+
+
+def test_module_pngs_decode_fast_and_every_other_png_as_opencv_does() -> None:
+    frame = _frame(1)
+    png = encode_png(frame)
+    fast = _decode_unfiltered_png(np.frombuffer(png, np.uint8))
+    assert fast is not None
+    np.testing.assert_array_equal(fast, frame)
+    np.testing.assert_array_equal(decode_frame(png), frame)
+    # OpenCV's default PNG filters its rows: not for the fast path, still decoded
+    filtered = cv2.imencode(".png", frame)[1].tobytes()
+    assert _decode_unfiltered_png(np.frombuffer(filtered, np.uint8)) is None
+    np.testing.assert_array_equal(decode_frame(filtered), frame)
+    tiff = cv2.imencode(".tiff", frame)[1].tobytes()
+    np.testing.assert_array_equal(decode_frame(tiff), frame)
+    for other, kind in (
+        (cv2.imencode(".png", frame.astype(np.uint16) * 200)[1].tobytes(), "uint16"),
+        (cv2.imencode(".png", cv2.merge([frame, frame, frame]))[1].tobytes(), "3-channel"),
+    ):
+        with pytest.raises(FrameReadError, match=kind) as info:
+            decode_frame(other)
+        assert info.value.reason == "bad_format"
+
+
+@settings(max_examples=300, deadline=None)
+@given(data=st.data())
+def test_a_damaged_png_is_refused_or_decoded_exactly_as_opencv_decodes_it(data: st.DataObject) -> None:
+    png = bytearray(encode_png(_frame(2)))
+    at = data.draw(st.integers(0, len(png) - 1), label="byte")
+    png[at] = data.draw(st.integers(0, 255).filter(lambda v: v != png[at]), label="value")
+    cut = data.draw(st.integers(1, len(png)), label="length")
+    damaged = bytes(png[:cut])
+    fast = _decode_unfiltered_png(np.frombuffer(damaged, np.uint8))
+    assert fast is None  # every byte is covered by a CRC, Adler-32 or the exact size
+    try:
+        got = decode_frame(damaged)
+    except FrameReadError:
+        return
+    np.testing.assert_array_equal(got, cv2.imdecode(np.frombuffer(damaged, np.uint8), cv2.IMREAD_UNCHANGED))

@@ -13,6 +13,7 @@ import json
 import math
 import os
 import struct
+import threading
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -395,7 +396,7 @@ def write_atomic(path: Path, data: bytes, *, fsync: bool = True) -> None:
     A reader (or a crash) never sees a half-written file under ``path``.
     """
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}-{threading.get_native_id()}")
     with open(tmp, "wb") as fh:
         fh.write(data)
         if fsync:

@@ -564,13 +564,14 @@ class _StoreState:
         svc, files = self.svc, self.store.files
         frames: list[FrameRow] = []
         sensors: list[SensorBatchRow] = []
+        writes: list[tuple[str, bytes | memoryview]] = []
         for it in items:
             m = it.msg
             key = (m.module, m.boot, m.seq)
             if it.kind == "frame":
                 rel = files.relative_path(svc.dive.id, m.module, m.boot, m.seq, m.encoding)
                 if key not in self.recent_set:
-                    files.write(rel, it.payload, fsync=svc.config.fsync)
+                    writes.append((rel, it.payload))
                 frames.append(
                     FrameRow(
                         module_id=m.module,
@@ -601,6 +602,7 @@ class _StoreState:
                     continue
                 samples = [_sample_columns(r) for r in rows]
                 sensors.append(SensorBatchRow(m.module, m.boot, m.seq, it.received_unix_s, samples))
+        files.write_many(writes, fsync=svc.config.fsync)  # every file durable before its row
         outcome = self.store.commit_batch(svc.dive.id, frames, sensors)
         svc.counters["frames_stored"] += len(outcome.new_frames)
         svc.counters["duplicates"] += len(outcome.duplicate_frames) + len(outcome.duplicate_sensor_batches)

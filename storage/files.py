@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +32,7 @@ class FrameFiles:
 
     def __init__(self, root: Path) -> None:
         self.root = Path(root)
+        self._pool: ThreadPoolExecutor | None = None
 
     def relative_path(self, dive_id: int, module: str, boot: str, seq: int, encoding: str = "png") -> str:
         ext = "tif" if encoding == "tiff" else "png"
@@ -48,12 +50,40 @@ class FrameFiles:
 
     def write(self, relative: str, data: bytes | memoryview, *, fsync: bool = True) -> Path:
         """Write to a temporary name, fsync, rename, fsync the folder."""
-        path = self.resolve(relative)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        write_atomic(path, bytes(data), fsync=fsync)
+        return self.write_many([(relative, data)], fsync=fsync)[0]
+
+    def write_many(
+        self, items: Sequence[tuple[str, bytes | memoryview]], *, fsync: bool = True
+    ) -> list[Path]:
+        """Write files as `write` does, their fsyncs overlapping on a few threads; each folder
+        is fsynced once, after every rename in it. When this returns, all are durable.
+        A path given twice is written once, with its first data."""
+        unique: dict[str, bytes | memoryview] = {}
+        for relative, data in items:
+            unique.setdefault(relative, data)
+        paths = [self.resolve(relative) for relative in unique]
+        folders = sorted({p.parent for p in paths})
+        for folder in folders:
+            folder.mkdir(parents=True, exist_ok=True)
+
+        def one(job: tuple[Path, bytes | memoryview]) -> None:
+            write_atomic(job[0], bytes(job[1]) if isinstance(job[1], memoryview) else job[1], fsync=fsync)
+
+        jobs = list(zip(paths, unique.values(), strict=True))
+        if fsync and len(jobs) > 1:
+            list(self._writers().map(one, jobs))  # re-raises the first error
+        else:
+            for job in jobs:
+                one(job)
         if fsync:
-            fsync_dir(path.parent)
-        return path
+            for folder in folders:
+                fsync_dir(folder)
+        return paths
+
+    def _writers(self) -> ThreadPoolExecutor:
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=4, thread_name_prefix="frame-write")
+        return self._pool
 
     def read(self, relative: str) -> bytes:
         return self.resolve(relative).read_bytes()

@@ -113,3 +113,19 @@ def test_file_write_is_atomic_and_temporaries_are_cleaned(tmp_path: Path) -> Non
     stale = files.resolve(rel).with_name(".00000004.png.tmp-123")
     stale.write_bytes(b"half")
     assert files.remove_temporaries() == 1 and not stale.exists()
+
+
+def test_a_batch_of_files_is_written_whole_each_path_once(tmp_path: Path) -> None:
+    files = FrameFiles(tmp_path)
+    batch = [
+        (files.relative_path(1, m, "b1", seq), f"{m}{seq}".encode() * 1000) for m in "AB" for seq in range(6)
+    ]
+    resent = (batch[0][0], b"a later copy of the same frame")
+    written = files.write_many([*batch, resent])
+    assert len(written) == len(batch)
+    for rel, data in batch:
+        assert files.read(rel) == data  # the first copy of a path is the one kept
+    assert not [p for p in tmp_path.rglob("*") if ".tmp-" in p.name]
+    with pytest.raises(UnsafePath):  # nothing is written when one path is unsafe
+        files.write_many([(files.relative_path(1, "A", "b2", 1), b"x"), ("../escape.png", b"x")])
+    assert not files.resolve(files.relative_path(1, "A", "b2", 1)).exists()

@@ -26,7 +26,7 @@ import numpy as np
 import pyarrow as pa
 from bench_ingest import frame_set  # bench/ is on the path when this file runs
 
-from camcal.frameset import PNG_PARAMS, read_manifest
+from camcal.frameset import PNG_PARAMS, decode_frame, read_manifest
 
 
 def write_fsync(path: Path, data: bytes) -> None:
@@ -83,8 +83,9 @@ def main() -> None:
     z1, z3 = zstd(1), zstd(3)
     camcal_png = cv_enc(".png", list(PNG_PARAMS))
     formats: list[tuple[str, Callable[[np.ndarray, bytes], bytes], Callable[[bytes], np.ndarray]]] = [
-        ("PNG as the module sent it (the ingest)", lambda f, png: png, cv_dec),
-        ("PNG, no filter, zlib 1, encoded (a module)", lambda f, png: camcal_png(f), cv_dec),
+        ("PNG as the module sent it (the ingest; camcal's decoder)", lambda f, png: png, decode_frame),
+        ("PNG as the module sent it, read by OpenCV", lambda f, png: png, cv_dec),
+        ("PNG, no filter, zlib 1, encoded (a module)", lambda f, png: camcal_png(f), decode_frame),
         ("PNG, OpenCV default", lambda f, png: cv_enc(".png", [])(f), cv_dec),
         (".npy", lambda f, png: npy_enc(f), npy_dec),
         ("TIFF uncompressed", lambda f, png: cv_enc(".tiff", [cv2.IMWRITE_TIFF_COMPRESSION, 1])(f), cv_dec),

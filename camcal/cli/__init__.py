@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import importlib.machinery
+import sys
+
 import typer
 
 from camcal.cli import (
@@ -52,4 +55,16 @@ reanalyze.register(app)
 
 
 def main() -> None:
+    _workers_skip_the_entry_script()
     app()
+
+
+def _workers_skip_the_entry_script() -> None:
+    """Worker processes (analysis pools) start by re-running the parent's ``__main__``,
+    which for the ``camcal`` script means importing every command (~0.5 s each,
+    for nothing: they only run functions of importable modules). A main module
+    named like a package's ``__main__`` is one multiprocessing never re-runs, as
+    for ``python -m camcal``."""
+    entry = sys.modules.get("__main__")
+    if entry is not None and getattr(entry, "__spec__", None) is None:
+        entry.__spec__ = importlib.machinery.ModuleSpec("camcal.__main__", None)

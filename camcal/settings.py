@@ -103,6 +103,12 @@ class Settings(BaseSettings):
         "FULL", pattern="^(OFF|NORMAL|FULL|EXTRA)$", description="SQLite durability"
     )
     rolling_window_s: float = Field(300.0, gt=0, description="time window of the rolling λ_att")
+    station_depth_m: float | None = Field(
+        None,
+        gt=0,
+        description="the dive plan's station depth: a stop within 50 m of it shows as the station, "
+        "others as stops (unset: a stop near the deepest depth so far)",
+    )
     retention_days: float | None = Field(
         None, gt=0, description="delete frame files older than this (None: keep)"
     )

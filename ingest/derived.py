@@ -255,13 +255,24 @@ def attenuation_dict(res: AttenuationResult) -> dict[str, Any]:
     }
 
 
+#: A stop within this of the station depth (planned, or the deepest so far) is the station.
+STATION_TOLERANCE_M = 50.0
+
+
 def dive_phase(
-    t_unix_s: list[float] | np.ndarray, depth_m: list[float] | np.ndarray, max_depth_m: float | None = None
+    t_unix_s: list[float] | np.ndarray,
+    depth_m: list[float] | np.ndarray,
+    max_depth_m: float | None = None,
+    station_depth_m: float | None = None,
 ) -> str:
     """The dive phase from a module's recent depth: deck, descent, stop, station or ascent.
 
-    The rate of depth change over the last ~30 s tells moving from stopped;
-    a stop near the deepest depth seen is the station.
+    The rate of depth change over the last ~30 s tells moving from stopped.
+    A stop near the planned ``station_depth_m`` is the station, any other a
+    (test) stop. Without a plan, a stop near the deepest depth seen so far
+    (``max_depth_m``, else the deepest of the samples given) is taken for
+    the station: on the way down a test stop shows as the station until the
+    module goes deeper, which only the plan avoids.
     """
     t = np.asarray(t_unix_s, dtype=np.float64)
     d = np.asarray(depth_m, dtype=np.float64)
@@ -278,8 +289,10 @@ def dive_phase(
         return "descent"
     if rate < -0.2:
         return "ascent"
-    deepest = max_depth_m if max_depth_m is not None else float(d.max())
-    return "station" if depth >= deepest - 50.0 else "stop"
+    if station_depth_m is not None:
+        return "station" if abs(depth - station_depth_m) <= STATION_TOLERANCE_M else "stop"
+    deepest = max(max_depth_m, float(d.max())) if max_depth_m is not None else float(d.max())
+    return "station" if depth >= deepest - STATION_TOLERANCE_M else "stop"
 
 
 def predict_settings(

@@ -43,7 +43,9 @@ def create_app(settings: ServerSettings | None = None, *, store: Store | None = 
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         own = store is None
         st = store or Store.open(settings.data_dir, settings.db_url, run_migrations=settings.run_migrations)
-        hub = LiveHub(st, settings.events, client_queue=settings.client_queue)
+        hub = LiveHub(
+            st, settings.events, client_queue=settings.client_queue, station_depth_m=settings.station_depth_m
+        )
         app.state.store, app.state.hub = st, hub
         hub.start(asyncio.get_running_loop())
         try:

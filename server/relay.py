@@ -68,6 +68,7 @@ class LiveHub:
         *,
         client_queue: int = 256,
         ctx: zmq.Context[Any] | None = None,
+        station_depth_m: float | None = None,
     ) -> None:
         self.store = store
         self.endpoint = events_endpoint
@@ -79,6 +80,8 @@ class LiveHub:
         self.sensors: dict[str, dict[str, Any]] = {}
         self.attitude: dict[str, dict[str, Any]] = {}
         self.depths: dict[str, deque[tuple[float, float]]] = {}
+        self.deepest_m: dict[str, float] = {}  # over the whole run, not just the recent samples
+        self.station_depth_m = station_depth_m
         self.last_event_id = store.last_event_id()
         self.received = 0
         self.recovered = 0
@@ -156,6 +159,7 @@ class LiveHub:
             if payload.get("depth_m") is not None and payload.get("t_unix_s") is not None:
                 hist = self.depths.setdefault(module, deque(maxlen=600))
                 hist.append((payload["t_unix_s"], payload["depth_m"]))
+                self.deepest_m[module] = max(self.deepest_m.get(module, 0.0), float(payload["depth_m"]))
         elif kind == "attitude" and module:
             self.attitude[module] = payload
         message = {
@@ -207,4 +211,4 @@ class LiveHub:
             return None
         t = [x[0] for x in hist]
         d = [x[1] for x in hist]
-        return dive_phase(t, d)
+        return dive_phase(t, d, self.deepest_m.get(module), self.station_depth_m)

@@ -15,7 +15,8 @@ class ServerSettings:
     ``events`` is the ingest's event publisher (``camcal ingest --events``);
     None runs the server on the database alone (review of past dives).
     ``operator_tokens`` maps operator names to tokens; without any, nobody
-    can change anything (watching needs no token).
+    can change anything (watching needs no token). ``station_depth_m``, the
+    dive plan's station depth, tells the live view's station from test stops.
     """
 
     data_dir: Path = Path("camcal-data")
@@ -30,3 +31,4 @@ class ServerSettings:
     linear_range: tuple[float, float] = (5.0, 240.0)
     readout_s: float = 0.8
     lem_dwell_s: float | None = 60.0
+    station_depth_m: float | None = None

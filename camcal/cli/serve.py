@@ -51,6 +51,7 @@ def run_server(settings: Settings, tokens: dict[str, str], events: str | None) -
             events=events,
             operator_tokens=tokens,
             linear_range=settings.linear_range,
+            station_depth_m=settings.station_depth_m,
         )
     )
     # No permessage-deflate: compressing every event once per browser costs the ship more CPU than
@@ -210,6 +211,10 @@ def up(
     for name, token in tokens.items():
         console.print(f"operator token for {name}: {token}")
     console.print("stop with Ctrl-C")
+    if simulate and s.station_depth_m is None:  # the simulated dive's plan
+        from lrm.dive import DiveProfile
+
+        s = s.model_copy(update={"station_depth_m": DiveProfile().station_depth_m})
     try:
         run_server(s, tokens, events)
     finally:

@@ -11,6 +11,7 @@ import csv
 import io
 import os
 import signal
+import uuid
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -19,6 +20,7 @@ import httpx
 import pytest
 
 from camcal.schedule import linearity_scan, trex_subsampled
+from storage.store import Store
 from tests.browser.conftest import camcal_page
 from tests.utils.system import System, camcal_up, module_pid, wait_until
 
@@ -330,3 +332,48 @@ def test_move_module_a_to_the_linearity_scan_and_back(
         rows = list(csv.DictReader(io.StringIO(Path(dl.value.path()).read_text())))
         for cid in ids:
             assert {r["action"] for r in rows if cid in r["details"]} >= {"command.accepted", "command.done"}
+
+
+def test_a_command_the_module_refuses_shows_rejected_with_the_modules_reason(
+    browser: Any, control_system: System, artifacts: Path
+) -> None:
+    """A schedule command the module refuses (here: one queued straight into the store, as a
+    stale tool might, for the version the module already runs; the server's API would have
+    refused it) ends rejected, and the page says so and gives the module's reason."""
+    system = control_system
+    running = wait_until(
+        lambda: (api(system, "/api/health")["modules"].get("A") or {}).get("schedule"), 60, "module A"
+    )
+    version = running["version"]
+    sched = trex_subsampled().model_copy(update={"version": version})
+    store = Store.open(system.data)
+    try:
+        cmd = store.create_command(
+            uuid.uuid4().hex,
+            "A",
+            "set_schedule",
+            "stale-tool",
+            payload={"schedule": sched.model_dump(mode="json")},
+            target_version=version,
+        )
+    finally:
+        store.close()
+    answered = wait_until(
+        lambda: (c := api(system, f"/api/commands/{cmd['id']}"))["state"] in ("done", "rejected") and c,
+        40,
+        "the module's answer",
+    )
+    reason = f"version {version} is not newer than the running version {version}"
+    assert (answered["state"], answered["reason"]) == ("rejected", reason)
+    with camcal_page(browser, system) as page:
+        open_control(page, system)  # follows the module's newest command: the refused one
+        page.wait_for_selector(f"#tracker[data-state='rejected'][data-command-id='{cmd['id']}']")
+        assert page.inner_text("#tracker-text") == f"Rejected by LRM-A: {reason}."
+        assert page.locator("#tracker [data-step='rejected']").is_visible()
+        assert page.locator("#tracker [data-step='done']").count() == 0
+        row = page.locator(f"#commands-table tr[data-command-id='{cmd['id']}']")
+        assert row.locator(".cmd-state").inner_text() == "rejected"
+        assert page.inner_text(f"#commands-table tr[data-reason-for='{cmd['id']}']") == reason
+        page.wait_for_selector(f"#current-schedule:has-text('v{version}')")  # still what it ran
+        hide_toast(page)
+        page.screenshot(path=artifacts / "control-rejected.png", full_page=True)

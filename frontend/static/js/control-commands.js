@@ -99,10 +99,11 @@ export function renderCommands(table, commands, followed) {
     el(
       "tbody",
       {},
-      ...commands.map((c) =>
-        el(
+      ...commands.flatMap((c) => {
+        const selected = c.id === followed ? "selected" : "";
+        const row = el(
           "tr",
-          { "data-command-id": c.id, class: c.id === followed ? "selected" : "" },
+          { "data-command-id": c.id, class: `${selected}${c.reason ? " has-reason" : ""}` },
           el("td", {}, utc(c.issued_unix_s, { date: false })),
           el(
             "td",
@@ -110,15 +111,16 @@ export function renderCommands(table, commands, followed) {
             commandWhat(c),
             c.action === "set_schedule" ? el("div", { class: "muted small" }, applyText(c.apply)) : null,
           ),
-          el("td", {}, c.issued_by),
-          el(
-            "td",
-            { class: "wrap" },
-            el("span", { class: `cmd-state state-${c.state}` }, STATE_LABEL[c.state] || c.state),
-            c.reason ? el("div", { class: "reason" }, c.reason) : null,
-          ),
-        ),
-      ),
+          el("td", { class: "wrap" }, c.issued_by),
+          el("td", {}, el("span", { class: `cmd-state state-${c.state}` }, STATE_LABEL[c.state] || c.state)),
+        );
+        // The module's reason on a row of its own, the table's full width: a narrow column would
+        // cut it or stack it a word a line.
+        const reason = c.reason
+          ? el("tr", { class: `reason-row ${selected}`, "data-reason-for": c.id }, el("td", { colspan: 4, class: "reason" }, c.reason))
+          : null;
+        return reason ? [row, reason] : [row];
+      }),
       ...(commands.length ? [] : [el("tr", {}, el("td", { colspan: 4, class: "empty" }, "No commands to this module yet."))]),
     ),
   );

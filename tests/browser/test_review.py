@@ -198,3 +198,26 @@ def test_review_reanalysis_side_by_side_and_audit(
     page.wait_for_selector("#audit-table tbody tr:has-text('reanalysis.start')")
     assert "tester" in page.locator("#audit-table tbody tr:has-text('reanalysis.start')").first.inner_text()
     page.screenshot(path=artifacts / "review-audit.png", full_page=True)
+
+
+def test_review_frame_list_fits_a_tablet_in_portrait(
+    page: Any, system: System, dive_with_data: dict[str, Any], artifacts: Path
+) -> None:
+    """At 768 px every column that says whether a frame is good is in view, without scrolling."""
+    page.set_viewport_size({"width": 768, "height": 1024})
+    page.goto(system.url("/review"))
+    page.wait_for_selector("#frames-table tbody tr[data-frame-id]")
+    fit = page.evaluate(
+        """() => { const t = document.querySelector('#frames-table');
+                   const r = t.querySelector('tbody tr[data-frame-id]').children;
+                   return {table: t.scrollWidth, wrap: t.parentElement.clientWidth,
+                           status: r[8].getBoundingClientRect().right,
+                           center: r[9].getBoundingClientRect().right,
+                           time: r[2].innerText, title: r[2].title}; }"""
+    )
+    assert fit["table"] <= fit["wrap"], fit
+    assert fit["status"] <= 768 and fit["center"] <= 768, fit
+    assert re.fullmatch(r"\d\d:\d\d:\d\d", fit["time"]), fit  # the date is in the tooltip
+    assert re.fullmatch(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d", fit["title"]), fit
+    page.wait_for_function(DRAWN, arg="#timeline")
+    page.screenshot(path=artifacts / "review-tablet-portrait.png", full_page=True)

@@ -84,7 +84,10 @@ class Settings(BaseSettings):
     database_url: str | None = Field(None, description="SQLAlchemy URL; default SQLite in data_dir")
     ingest_bind: str = Field("tcp://*:5555", description="where modules connect (ZeroMQ ROUTER)")
     events_bind: str = Field("tcp://127.0.0.1:5556", description="the ingest's event publisher (bind)")
-    events_connect: str = Field("tcp://127.0.0.1:5556", description="where the server subscribes to events")
+    events_connect: str = Field(
+        "tcp://127.0.0.1:5556",
+        description="where the server subscribes to events (several ingests: comma-separated)",
+    )
     http_host: str = Field("127.0.0.1", description="dashboard address (0.0.0.0 for the ship's network)")
     http_port: int = Field(8000, ge=1, le=65535, description="dashboard port")
     modules: list[ModuleSetting] = Field(

@@ -31,6 +31,7 @@ import logging
 import os
 import queue
 import shutil
+import socket
 import threading
 import time
 import uuid
@@ -454,6 +455,13 @@ class IngestService:
             self.queue_analysis(f.id, f.path, _frame_meta_from_row(f))
 
     # -- status ----------------------------------------------------------
+    @property
+    def ingest_id(self) -> str:
+        """Which ingest this is, for a server that follows several: host, then where modules connect."""
+        return f"{socket.gethostname()} {self.config.bind}" + (
+            f" ({','.join(self.config.modules)})" if self.config.modules else ""
+        )
+
     def health(self) -> dict[str, Any]:
         """Per-module link state, last packet age, frames/s, queue depths, counters."""
         now = time.monotonic()
@@ -472,6 +480,7 @@ class IngestService:
                 "last_seq": link.last_seq,
             }
         return {
+            "ingest_id": self.ingest_id,
             "modules": modules,
             "queues": {
                 "store": self._q.qsize(),

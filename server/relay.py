@@ -58,6 +58,10 @@ def encode_for(message: dict[str, Any], seq: int) -> str:
     return f'{{"seq":{seq},{body[1:]}'
 
 
+#: Event ids remembered as delivered (duplicates and late commits are told apart among them).
+SEEN_IDS = 20_000
+
+
 class LiveHub:
     """Receives the ingest's events and delivers them to the connected browsers."""
 
@@ -72,17 +76,25 @@ class LiveHub:
     ) -> None:
         self.store = store
         self.endpoint = events_endpoint
+        # Several ingests (one per group of modules, sharing the database): their publishers,
+        # comma-separated. One SUB socket connects to them all; heartbeats are kept per ingest.
+        self.endpoints = [e.strip() for e in (events_endpoint or "").split(",") if e.strip()]
         self.client_queue = client_queue
         self.ctx = ctx or zmq.Context.instance()
         self.clients: set[Client] = set()
-        self.health: dict[str, Any] | None = None
-        self.health_at = 0.0
+        self._heartbeats: dict[str, tuple[dict[str, Any], float]] = {}  # ingest id -> (health, when)
         self.sensors: dict[str, dict[str, Any]] = {}
         self.attitude: dict[str, dict[str, Any]] = {}
         self.depths: dict[str, deque[tuple[float, float]]] = {}
         self.deepest_m: dict[str, float] = {}  # over the whole run, not just the recent samples
         self.station_depth_m = station_depth_m
-        self.last_event_id = store.last_event_id()
+        self.last_event_id = store.last_event_id()  # the highest id delivered
+        # Ids delivered recently, and below them the floor under which every id counts as delivered:
+        # with several ingests on PostgreSQL, ids are taken in one order and committed in another,
+        # so an id below the highest may still be new.
+        self._seen: set[int] = set()
+        self._seen_order: deque[int] = deque()
+        self._floor = self.last_event_id
         self.received = 0
         self.recovered = 0
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -106,7 +118,8 @@ class LiveHub:
         sub.setsockopt(zmq.SUBSCRIBE, b"")
         sub.setsockopt(zmq.RCVHWM, 100000)
         sub.setsockopt(zmq.LINGER, 0)
-        sub.connect(self.endpoint)
+        for endpoint in self.endpoints:
+            sub.connect(endpoint)
         try:
             while not self._stop.is_set():
                 if not sub.poll(200):
@@ -131,17 +144,27 @@ class LiveHub:
         self.received += 1
         eid = event.get("id")
         if eid is not None:
-            if eid <= self.last_event_id:
+            if eid <= self._floor or eid in self._seen:
                 return
             if eid > self.last_event_id + 1:
                 with self.store.read() as s:
                     missed = queries.events_after(s, self.last_event_id, eid - self.last_event_id - 1)
                 for m in missed:
-                    if m["id"] < eid:
+                    if m["id"] < eid and m["id"] not in self._seen:
                         self.recovered += 1
+                        self._mark(m["id"])
                         self._post(m)
-            self.last_event_id = eid
+            self._mark(eid)
         self._post(event)
+
+    def _mark(self, eid: int) -> None:
+        self._seen.add(eid)
+        self._seen_order.append(eid)
+        self.last_event_id = max(self.last_event_id, eid)
+        while len(self._seen_order) > SEEN_IDS:
+            old = self._seen_order.popleft()
+            self._seen.discard(old)
+            self._floor = max(self._floor, old)
 
     def _post(self, event: dict[str, Any]) -> None:
         if self._loop is not None and not self._loop.is_closed():
@@ -153,7 +176,7 @@ class LiveHub:
         module = event.get("module")
         payload = event.get("payload") or {}
         if kind == "health":
-            self.health, self.health_at = payload, time.time()
+            self.record_health(payload)
         elif kind == "sensors" and module:
             self.sensors[module] = payload
             if payload.get("depth_m") is not None and payload.get("t_unix_s") is not None:
@@ -197,12 +220,29 @@ class LiveHub:
         self.clients.discard(client)
 
     # ------------------------------------------------------------ state
+    def record_health(self, payload: dict[str, Any], at: float | None = None) -> None:
+        """An ingest's heartbeat (its ``ingest_id`` tells several ingests apart)."""
+        key = str(payload.get("ingest_id") or "ingest")
+        self._heartbeats[key] = (payload, time.time() if at is None else at)
+
+    def live_health(self, stale_after_s: float) -> dict[str, Any] | None:
+        """The heartbeats of the ingests heard from within ``stale_after_s``, as one; None if none."""
+        now = time.time()
+        fresh = [p for p, at in self._heartbeats.values() if now - at <= stale_after_s]
+        return merge_health(fresh) if fresh else None
+
     def ingest_state(self, stale_after_s: float) -> dict[str, Any]:
-        age = time.time() - self.health_at if self.health_at else None
+        """Up when every ingest heard from is still beating: a silent one is the deck's business."""
+        now = time.time()
+        ingests = [
+            {"id": key, "up": now - at <= stale_after_s, "age_s": round(now - at, 2)}
+            for key, (_, at) in sorted(self._heartbeats.items())
+        ]
         return {
-            "connected": self.endpoint is not None,
-            "up": age is not None and age <= stale_after_s,
-            "age_s": round(age, 2) if age is not None else None,
+            "connected": bool(self.endpoints),
+            "up": bool(ingests) and all(i["up"] for i in ingests),
+            "age_s": max((i["age_s"] for i in ingests), default=None),
+            "ingests": ingests,
         }
 
     def phase(self, module: str) -> str | None:
@@ -212,3 +252,28 @@ class LiveHub:
         t = [x[0] for x in hist]
         d = [x[1] for x in hist]
         return dive_phase(t, d, self.deepest_m.get(module), self.station_depth_m)
+
+
+def merge_health(payloads: list[dict[str, Any]]) -> dict[str, Any]:
+    """Several ingests' heartbeats as one: modules side by side, counts and queues added up,
+    the least free disk and the worst latency."""
+    if len(payloads) == 1:
+        return payloads[0]
+    out: dict[str, Any] = {"ingest_id": ", ".join(str(p.get("ingest_id")) for p in payloads)}
+    out["modules"] = {m: h for p in payloads for m, h in (p.get("modules") or {}).items()}
+    for key in ("queues", "counters", "malformed", "refused"):
+        total: dict[str, float] = {}
+        for p in payloads:
+            for k, v in (p.get(key) or {}).items():
+                if isinstance(v, int | float):
+                    total[k] = total.get(k, 0) + v
+        out[key] = total
+    out["served_modules"] = [m for p in payloads for m in p.get("served_modules") or []]
+    out["dive"] = payloads[0].get("dive")
+    out["window"] = payloads[0].get("window")
+    disk = [p["disk_free_gb"] for p in payloads if p.get("disk_free_gb") is not None]
+    out["disk_free_gb"] = min(disk) if disk else None
+    for key in ("latency_p50_s", "latency_p95_s"):
+        values = [p[key] for p in payloads if p.get(key) is not None]
+        out[key] = max(values) if values else None
+    return out

@@ -103,7 +103,8 @@ def check_ingest(s: Settings, wait_s: float) -> tuple[list[tuple[str, str, str]]
     sub = ctx.socket(zmq.SUB)
     sub.setsockopt(zmq.SUBSCRIBE, b"health")
     sub.setsockopt(zmq.LINGER, 0)
-    sub.connect(s.events_connect)
+    for endpoint in s.events_connect.split(","):  # several ingests: any one's heartbeat will do here
+        sub.connect(endpoint.strip())
     try:
         if sub.poll(int(wait_s * 1000)):
             _, body = sub.recv_multipart()

@@ -29,7 +29,8 @@ async def health(hub: HubDep, store: StoreDep, settings: SettingsDep) -> dict[st
 
     known = await run_in_threadpool(modules)
     ingest = hub.ingest_state(settings.stale_after_s)
-    live = (hub.health or {}).get("modules", {}) if ingest["up"] else {}
+    health = hub.live_health(settings.stale_after_s)
+    live = (health or {}).get("modules", {})
     now = time.time()
     out = {}
     for m in known:
@@ -46,7 +47,6 @@ async def health(hub: HubDep, store: StoreDep, settings: SettingsDep) -> dict[st
         }
     for mid, h in live.items():
         out.setdefault(mid, {**h, "distance_m": None, "phase": hub.phase(mid)})
-    health = hub.health if ingest["up"] else None
     return {
         "status": "ok" if ingest["up"] else "degraded",
         "server": {"version": __version__, "time_unix_s": now, "clients": len(hub.clients)},

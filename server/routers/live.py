@@ -39,7 +39,7 @@ def build_snapshot(store: Store, hub: LiveHub, settings: ServerSettings) -> dict
         attenuation = queries.attenuation_series(s, run_id) if run_id else {}
         alarms = queries.alarms(s, active=True) + queries.alarms(s, active=False, limit=20)
     ingest = hub.ingest_state(settings.stale_after_s)
-    live = (hub.health or {}).get("modules", {}) if ingest["up"] else {}
+    live = (hub.live_health(settings.stale_after_s) or {}).get("modules", {})
     out_modules = {}
     for m in modules:
         mid = m["id"]

@@ -113,7 +113,7 @@ async def metrics(hub: HubDep, store: StoreDep, settings: SettingsDep) -> Respon
         ingest = hub.ingest_state(settings.stale_after_s)
         registry.register(
             _Snapshot(
-                hub.health if ingest["up"] else None,
+                hub.live_health(settings.stale_after_s),
                 ingest["up"],
                 alarms,
                 shutil.disk_usage(store.files.root).free,

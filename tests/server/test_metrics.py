@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 from fastapi.testclient import TestClient
 from prometheus_client.parser import text_string_to_metric_families
 
@@ -15,26 +13,32 @@ def test_metrics_in_prometheus_format(tmp_path) -> None:
     app = create_app(ServerSettings(data_dir=tmp_path / "data", events=None))
     with TestClient(app) as client:
         hub = app.state.hub
-        hub.health = {
-            "modules": {
-                "A": {"link": "up", "last_packet_age_s": 0.2, "frames_per_s": 1.5, "outbox_pending": 3},
-                "B": {"link": "down", "last_packet_age_s": 12.0, "frames_per_s": 0.0, "outbox_pending": 40},
-            },
-            "queues": {"store": 2, "analysis_backlog": 5},
-            "counters": {
-                "frames_received": 100,
-                "frames_stored": 98,
-                "duplicates": 4,
-                "acks_sent": 60,
-                "result_ok": 80,
-                "result_saturated": 12,
-                "result_too_dark": 3,
-            },
-            "malformed": {"bad_header": 2},
-            "latency_p50_s": 0.08,
-            "latency_p95_s": 0.21,
-        }
-        hub.health_at = time.time()
+        hub.record_health(
+            {
+                "modules": {
+                    "A": {"link": "up", "last_packet_age_s": 0.2, "frames_per_s": 1.5, "outbox_pending": 3},
+                    "B": {
+                        "link": "down",
+                        "last_packet_age_s": 12.0,
+                        "frames_per_s": 0.0,
+                        "outbox_pending": 40,
+                    },
+                },
+                "queues": {"store": 2, "analysis_backlog": 5},
+                "counters": {
+                    "frames_received": 100,
+                    "frames_stored": 98,
+                    "duplicates": 4,
+                    "acks_sent": 60,
+                    "result_ok": 80,
+                    "result_saturated": 12,
+                    "result_too_dark": 3,
+                },
+                "malformed": {"bad_header": 2},
+                "latency_p50_s": 0.08,
+                "latency_p95_s": 0.21,
+            }
+        )
         r = client.get("/metrics")
         assert r.status_code == 200 and r.headers["content-type"].startswith("text/plain")
         samples = {

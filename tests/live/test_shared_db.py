@@ -2,17 +2,23 @@
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import signal
 import subprocess
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
+from fastapi.testclient import TestClient
 from sqlalchemy import func, select
 
 from camcal.frameset import read_manifest
 from ingest.service import IngestService
+from server.app import create_app
+from server.settings import ServerSettings
 from storage.models import AnalysisRun, AttenuationPoint, Dive, Frame, FrameResult
 from storage.store import Store
 from tests.live.conftest import ingest_config
@@ -84,17 +90,46 @@ def test_two_ingests_share_a_database_and_one_survives_sigkill(tmp_path: Path, p
         for m in ("A", "B")
     }
     store = Store.open(data, pg_empty_url, run_migrations=False)
+    # One dashboard server following both ingests, as on a ship with sharded ingests (started
+    # once the ingests have migrated the empty database).
+    events = ", ".join(f"tcp://127.0.0.1:{ports[m][1]}" for m in ("A", "B"))
+    settings = ServerSettings(
+        data_dir=data, db_url=pg_empty_url, events=events, run_migrations=False, stale_after_s=3
+    )
+    dashboard = TestClient(create_app(settings))
+    stack = contextlib.ExitStack()
+
+    def health_where(ok: Callable[[dict[str, Any]], bool], what: str) -> dict[str, Any]:
+        found: list[dict[str, Any]] = []
+        assert wait_for(lambda: ok(h := dashboard.get("/api/health").json()) and not found.append(h), 30), (
+            f"dashboard never showed {what}: {dashboard.get('/api/health').json()}"
+        )
+        return found[0]
+
     try:
         for a in agents.values():
             a.start()
         assert wait_for(lambda: all(a.counters["acked"] >= 4 for a in agents.values()), 60), _logs(tmp_path)
+        stack.enter_context(dashboard)
+        both = health_where(
+            lambda h: (
+                h["status"] == "ok"
+                and len(h["ingest"]["ingests"]) == 2
+                and all(h["modules"].get(m, {}).get("link") == "up" for m in "AB")
+            ),
+            "both ingests and both modules up",
+        )
+        assert both["counters"]["frames_stored"] >= 8
         os.killpg(procs["A"].pid, signal.SIGKILL)
         procs["A"].wait(10)
         acked_b = agents["B"].counters["acked"]
         assert wait_for(lambda: agents["B"].counters["acked"] >= acked_b + 3, 20), (
             "B stalled while A was down"
         )
+        one = health_where(lambda h: h["status"] == "degraded", "A's ingest silent")
+        assert one["modules"]["B"]["link"] == "up" and one["modules"]["A"]["link"] == "unknown"
         procs["A"] = start_ingest_for(data, pg_empty_url, "A", *ports["A"])
+        health_where(lambda h: h["status"] == "ok" and h["modules"]["A"]["link"] == "up", "A's ingest back")
         assert wait_for(lambda: all(a.counters["frames_captured"] >= 16 for a in agents.values()), 60)
         for a in agents.values():
             a.runner.stop()
@@ -102,6 +137,7 @@ def test_two_ingests_share_a_database_and_one_survives_sigkill(tmp_path: Path, p
         n_frames = _count(store, Frame)
         assert wait_for(lambda: _count(store, FrameResult) == n_frames, 60), "frames left unanalysed"
     finally:
+        stack.close()
         for a in agents.values():
             a.stop()
         for p in procs.values():

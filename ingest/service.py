@@ -57,6 +57,7 @@ from ingest.events import EventBus
 from ingest.rolling import RollingAttenuation, Sample
 from ingest.seqtrack import SeqTracker
 from ingest.worker import analyse_stored_frame, warm_up
+from storage.models import AnalysisRun, Dive
 from storage.store import FrameRow, SensorBatchRow, Store
 
 log = logging.getLogger("camcal.ingest")
@@ -187,12 +188,14 @@ class IngestService:
             self._pub.bind(self.config.events_bind)
             self.events_endpoint = self._pub.getsockopt(zmq.LAST_ENDPOINT).decode()
         setup = self.config.setup
-        self.dive = self.store.current_dive(create=True, name=self.config.dive_name, setup=setup.to_json())
-        assert self.dive is not None
-        self.run = self.store.analysis_run(
-            self.dive.id, "live", software_version=__version__, calibration=setup.to_json()
+        dive = self.store.current_dive(create=True, name=self.config.dive_name, setup=setup.to_json())
+        assert dive is not None  # create=True
+        self.dive: Dive = dive
+        run = self.store.analysis_run(
+            dive.id, "live", software_version=__version__, calibration=setup.to_json()
         )
-        assert self.run is not None
+        assert run is not None
+        self.run: AnalysisRun = run
         if calibration is not None and self.run.calibration_id != calibration["id"]:
             self.store.use_calibration(self.dive.id, self.run.id, calibration["id"], actor="ingest")
         self._pool = process_pool(self.config.n_workers)

@@ -45,13 +45,16 @@ def _problems(settings: Any, schedule: Schedule) -> list[dict[str, str]]:
 
 
 @router.get("/api/schedules/presets")
-def list_presets() -> dict[str, Any]:
-    """The named schedules to start from: T-REX, quick λ_att check, linearity scan, monitoring."""
+def list_presets(settings: SettingsDep) -> dict[str, Any]:
+    """The named schedules to start from: T-REX, quick λ_att check, linearity scan, monitoring.
+
+    ``pass_duration_s`` is estimated as the preview does: readout and the LEM's colour waits included.
+    """
     return {
         name: {
             **s.model_dump(mode="json"),
             "n_frames": s.n_frames,
-            "pass_duration_s": round(s.pass_duration_s(), 1),
+            "pass_duration_s": round(s.pass_duration_s(settings.readout_s, settings.lem_dwell_s), 1),
         }
         for name, s in presets().items()
     }

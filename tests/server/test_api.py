@@ -7,6 +7,7 @@ import math
 import pytest
 from fastapi.testclient import TestClient
 
+from camcal.schedule import Schedule
 from tests.server.conftest import TOKEN
 
 
@@ -163,3 +164,17 @@ def test_plotly_is_served_locally_and_compressed(client: TestClient) -> None:
         client.get("/docs").status_code == 200
         and client.get("/openapi.json").json()["info"]["title"] == "camcal"
     )
+
+
+def test_presets_estimate_one_pass_as_the_preview_does(client) -> None:
+    presets = client.get("/api/schedules/presets").json()
+    assert {"trex", "linearity-scan"} <= set(presets)
+    for name, p in presets.items():
+        schedule = {k: v for k, v in p.items() if k not in ("n_frames", "pass_duration_s")}
+        preview = client.post("/api/schedules/preview", json={"schedule": schedule}).json()
+        assert (p["n_frames"], p["pass_duration_s"]) == (preview["n_frames"], preview["pass_duration_s"]), (
+            name
+        )
+        waits_for_colours = len(schedule["wavelengths_nm"]) > 1
+        bare = Schedule.model_validate(schedule).pass_duration_s()  # exposures and readout only
+        assert p["pass_duration_s"] > bare if waits_for_colours else p["pass_duration_s"] == round(bare, 1)

@@ -18,7 +18,7 @@ from typing import Annotated, Any, Literal
 import zmq
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, field_validator
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION: Literal[1] = 1
 #: Largest header accepted (bytes of JSON).
 MAX_HEADER_BYTES = 64 * 1024
 #: Largest payload accepted by default: a 5 MP PNG is ~2 MB, an uncompressed one 5 MB.

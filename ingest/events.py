@@ -79,6 +79,8 @@ class EventBus:
         return ids
 
     def _send(self, kind: str, body: bytes) -> None:
+        if self.pub is None:
+            return
         try:
             self.pub.send_multipart([kind.encode(), body], flags=zmq.NOBLOCK)
             self.published += 1

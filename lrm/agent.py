@@ -213,8 +213,10 @@ class Agent:
         rows: list[list[float | None]] = []
         batch_start = self.clock.monotonic()
         next_t = self.clock.monotonic()
+        sensors = self.sensors
+        assert sensors is not None  # this loop runs only for a module with sensors
         while not self._produce_stop.is_set():
-            s = self.sensors.read()
+            s = sensors.read()
             acc, gyro = s.acc_m_s2, s.gyro_dps
             rows.append(
                 [

@@ -234,15 +234,14 @@ class LiveHub:
     def ingest_state(self, stale_after_s: float) -> dict[str, Any]:
         """Up when every ingest heard from is still beating: a silent one is the deck's business."""
         now = time.time()
-        ingests = [
-            {"id": key, "up": now - at <= stale_after_s, "age_s": round(now - at, 2)}
-            for key, (_, at) in sorted(self._heartbeats.items())
-        ]
+        ages = {key: now - at for key, (_, at) in sorted(self._heartbeats.items())}
         return {
             "connected": bool(self.endpoints),
-            "up": bool(ingests) and all(i["up"] for i in ingests),
-            "age_s": max((i["age_s"] for i in ingests), default=None),
-            "ingests": ingests,
+            "up": bool(ages) and all(age <= stale_after_s for age in ages.values()),
+            "age_s": round(max(ages.values()), 2) if ages else None,
+            "ingests": [
+                {"id": key, "up": age <= stale_after_s, "age_s": round(age, 2)} for key, age in ages.items()
+            ],
         }
 
     def phase(self, module: str) -> str | None:

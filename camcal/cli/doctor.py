@@ -99,7 +99,7 @@ def check_ingest(s: Settings, wait_s: float) -> tuple[list[tuple[str, str, str]]
     elif port:
         out.append(("ingest port", FAIL, f"nothing listens on {port[1]}: start `camcal ingest`"))
     health = None
-    ctx = zmq.Context.instance()
+    ctx: Any = zmq.Context.instance()
     sub = ctx.socket(zmq.SUB)
     sub.setsockopt(zmq.SUBSCRIBE, b"health")
     sub.setsockopt(zmq.LINGER, 0)

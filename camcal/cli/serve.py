@@ -148,6 +148,10 @@ def up(
         Store.open(data_dir, s.database_url).close()  # create or migrate the database before anyone uses it
     except Exception as exc:
         raise fail(f"cannot open the store in {data_dir}: {exc}") from None
+    # SIGTERM (docker stop, systemd, kill) must stop the children too. uvicorn handles the signal,
+    # shuts down, then raises it again: with the default action this process would die before the
+    # `finally` below stops the ingest and the modules.
+    signal.signal(signal.SIGTERM, _exit_on_sigterm)
     children: list[tuple[str, subprocess.Popen[bytes]]] = [
         (
             "ingest",
@@ -165,60 +169,65 @@ def up(
             ),
         ),
     ]
-    if simulate:
-        epoch = time.time() + 3.0
-        for m in ("A", "B"):
-            children.append(
-                (
-                    f"module {m}",
-                    _spawn(
-                        [
-                            "lrm",
-                            "simulate",
-                            "--camera",
-                            m,
-                            "--connect",
-                            f"tcp://127.0.0.1:{ingest_port}",
-                            "--outbox",
-                            str(data_dir / f"outbox-{m}"),
-                            "--speed",
-                            str(speed),
-                            "--frame-scale",
-                            str(frame_scale),
-                            "--schedule",
-                            schedule,
-                            "--seed",
-                            str(seed),
-                            "--epoch",
-                            str(epoch),
-                            "--deck-s",
-                            str(deck_s),
-                            "--winch-m-per-s",
-                            str(winch_m_per_s),
-                            "--test-stop-s",
-                            str(test_stop_s),
-                            "--station-s",
-                            str(station_s),
-                        ],
-                        logs / f"module-{m}.log",
-                    ),
-                )
-            )
-    console.print(
-        f"[bold]camcal is up:[/] dashboard http://{s.http_host}:{s.http_port}  (review: /review, API: /docs)"
-    )
-    console.print(f"data: {data_dir}   logs: {logs}   modules connect to tcp://<this host>:{ingest_port}")
-    for name, token in tokens.items():
-        console.print(f"operator token for {name}: {token}")
-    console.print("stop with Ctrl-C")
-    if simulate and s.station_depth_m is None:  # the simulated dive's plan
-        from lrm.dive import DiveProfile
-
-        s = s.model_copy(update={"station_depth_m": DiveProfile().station_depth_m})
     try:
+        if simulate:
+            epoch = time.time() + 3.0
+            for m in ("A", "B"):
+                children.append(
+                    (
+                        f"module {m}",
+                        _spawn(
+                            [
+                                "lrm",
+                                "simulate",
+                                "--camera",
+                                m,
+                                "--connect",
+                                f"tcp://127.0.0.1:{ingest_port}",
+                                "--outbox",
+                                str(data_dir / f"outbox-{m}"),
+                                "--speed",
+                                str(speed),
+                                "--frame-scale",
+                                str(frame_scale),
+                                "--schedule",
+                                schedule,
+                                "--seed",
+                                str(seed),
+                                "--epoch",
+                                str(epoch),
+                                "--deck-s",
+                                str(deck_s),
+                                "--winch-m-per-s",
+                                str(winch_m_per_s),
+                                "--test-stop-s",
+                                str(test_stop_s),
+                                "--station-s",
+                                str(station_s),
+                            ],
+                            logs / f"module-{m}.log",
+                        ),
+                    )
+                )
+        console.print(
+            f"[bold]camcal is up:[/] dashboard http://{s.http_host}:{s.http_port}  "
+            "(review: /review, API: /docs)"
+        )
+        console.print(f"data: {data_dir}   logs: {logs}   modules connect to tcp://<this host>:{ingest_port}")
+        for name, token in tokens.items():
+            console.print(f"operator token for {name}: {token}")
+        console.print("stop with Ctrl-C")
+        if simulate and s.station_depth_m is None:  # the simulated dive's plan
+            from lrm.dive import DiveProfile
+
+            s = s.model_copy(update={"station_depth_m": DiveProfile().station_depth_m})
         run_server(s, tokens, events)
     finally:
         stop_children(children)
+
+
+def _exit_on_sigterm(signum: int, _frame: object) -> None:
+    raise SystemExit(0)
 
 
 def stop_children(children: list[tuple[str, subprocess.Popen[bytes]]]) -> None:

@@ -44,7 +44,7 @@ class LinearityLab(LabBase):
     def shots(self) -> list[LabShot]:
         settings = [(e, self.gain_db) for e in self.exposures_s]
         settings += [(self.gain_sweep_exposure_s, g) for g in self.gains_db if g != self.gain_db]
-        out = []
+        out: list[LabShot] = []
         for exposure, gain in settings:
             for _ in range(self.repeats):
                 out.append(
@@ -117,7 +117,7 @@ class EmissionRatioLab(LabBase):
 
     def shots(self) -> list[LabShot]:
         rng = self._plan_rng()
-        out = []
+        out: list[LabShot] = []
         for t in self.temperatures_c:
             for wl in self.wavelengths_nm:
                 # One setting per wavelength at every temperature, as the lab kept it.
@@ -204,7 +204,7 @@ class PSFLab(LabBase):
         fx = np.linspace(-0.5, 0.5, side) * self.field_fraction * cam.width_px if side > 1 else np.zeros(1)
         fy = np.linspace(-0.5, 0.5, side) * self.field_fraction * cam.height_px if side > 1 else np.zeros(1)
         grid = [(x, y) for y in fy for x in fx][: self.n_positions]
-        out = []
+        out: list[LabShot] = []
         cx, cy = cam.center_xy
         for gx, gy in grid:
             for _ in range(self.repeats):

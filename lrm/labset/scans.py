@@ -39,7 +39,7 @@ class AirScanLab(LabBase):
         rng = self._plan_rng()
         true = {d: float(d + rng.normal(0.0, self.distance_err_m)) for d in self.distances_m}
         offsets = {d: pointing_offset(rng, self.pointing_err_px) for d in self.distances_m}
-        out = []
+        out: list[LabShot] = []
         for wl in self.wavelengths_nm:
             rate = self.lem.radiance_e_per_s[wl]
             exposure = exposure_for(self.target_gray, rate, self.camera, self.gain_db)
@@ -124,7 +124,7 @@ class TankScanLab(LabBase):
 
     def shots(self) -> list[LabShot]:
         rng = self._plan_rng()
-        out = []
+        out: list[LabShot] = []
         for medium in self.media:
             true = {d: float(d + rng.normal(0.0, self.distance_err_m)) for d in self.distances_m}
             for wl in self.wavelengths_nm:

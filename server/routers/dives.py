@@ -176,11 +176,13 @@ async def create_reanalysis(
     """
     dive_or_404(store, dive_id)
     _, base = run_setup(store, dive_id, None)
+    label = body.label or f"re-analysis by {who}"
     if body.calibration_id is not None:
         record = store.calibration(body.calibration_id)
         if record is None:
             raise NotFound(f"no calibration {body.calibration_id}")
         base = setup_of(record)
+        label = body.label or f"calibration {record['name']} v{record['version']}"
     data = base.model_dump()
     if body.cameras:
         for cam, d in body.cameras.items():
@@ -194,9 +196,6 @@ async def create_reanalysis(
         setup = parse_setup(data, "re-analysis")
     except Exception as exc:
         raise Invalid(str(exc)) from None
-    label = body.label or f"re-analysis by {who}"
-    if body.calibration_id is not None and not body.label:
-        label = f"calibration {record['name']} v{record['version']}"
     run_id = start_run(store, dive_id, setup, label, body.calibration_id)
     store.audit(
         who,

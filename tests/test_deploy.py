@@ -15,6 +15,7 @@ from typer.testing import CliRunner
 
 from camcal.cli import app
 from camcal.settings import Settings, field_names, load_settings
+from tests.utils.system import free_ports
 
 ROOT = Path(__file__).resolve().parents[1]
 runner = CliRunner()
@@ -138,6 +139,10 @@ def test_dockerfile_copies_every_package_and_runs_camcal() -> None:
 def test_doctor_reports_what_to_fix(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("CAMCAL_DATA_DIR", str(tmp_path / "nowhere"))
     monkeypatch.setenv("CAMCAL_HTTP_PORT", "1")
+    # ports nothing listens on, whatever else runs on this machine (a `make run` on 5555, say)
+    ingest_port, events_port = free_ports(2)
+    monkeypatch.setenv("CAMCAL_INGEST_BIND", f"tcp://*:{ingest_port}")
+    monkeypatch.setenv("CAMCAL_EVENTS_CONNECT", f"tcp://127.0.0.1:{events_port}")
     monkeypatch.setenv("COLUMNS", "300")  # one table row per line
     res = runner.invoke(app, ["doctor", "--wait", "0.2"])
     assert res.exit_code == 1

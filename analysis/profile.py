@@ -6,7 +6,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 #: The crop of the T-REX analysis: 300 x 300 pixels around the centroid.
 DEFAULT_CROP_PX = 300
@@ -168,7 +167,7 @@ def fit_background(profile: RadialProfile, r_min_px: float) -> BackgroundFit:
 
     The model is linear in amplitude and constant for a fixed decay scale, so
     the fit profiles them out: a grid over the scale finds the best region
-    and `scipy.optimize.minimize_scalar` refines it. The amplitude is kept
+    and a finer grid with a parabolic step refines it. The amplitude is kept
     >= 0 (scattered light adds, never removes) and the scale within the
     fitted span: a longer scale would make the exponential indistinguishable
     from the constant and the constant meaningless. Errors come from the
@@ -193,16 +192,20 @@ def fit_background(profile: RadialProfile, r_min_px: float) -> BackgroundFit:
     _, _, chi2_grid = _linear_solve(np.exp(-x[None, :] / np.exp(grid)[:, None]), y, w)
     k = int(np.argmin(chi2_grid))
     lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
-
-    def chi2_at(log_scale: float) -> float:
-        return float(_linear_solve(np.exp(-x / math.exp(log_scale)), y, w)[2])
-
-    best = (
-        minimize_scalar(chi2_at, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3})
-        if hi > lo
-        else None
-    )
-    log_scale = float(best.x) if best is not None and best.fun <= chi2_grid[k] else float(grid[k])
+    # Refine: a fine grid across the two coarse cells around the minimum (one vectorised solve),
+    # then the vertex of the parabola through the best fine point and its neighbours.
+    fine = np.linspace(lo, hi, 33)
+    _, _, chi2_fine = _linear_solve(np.exp(-x[None, :] / np.exp(fine)[:, None]), y, w)
+    j = int(np.argmin(chi2_fine))
+    log_scale = float(fine[j])
+    if 0 < j < len(fine) - 1:
+        c_lo, c_mid, c_hi = chi2_fine[j - 1], chi2_fine[j], chi2_fine[j + 1]
+        curvature = c_lo - 2.0 * c_mid + c_hi
+        if curvature > 0:
+            step = float(fine[1] - fine[0])
+            vertex = log_scale + 0.5 * step * float(c_lo - c_hi) / float(curvature)
+            if float(_linear_solve(np.exp(-x / math.exp(vertex)), y, w)[2]) <= c_mid:
+                log_scale = vertex
     scale = math.exp(log_scale)
     e = np.exp(-x / scale)
     amp_a, const_a, chi2_a = _linear_solve(e, y, w)

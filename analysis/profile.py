@@ -188,14 +188,18 @@ def fit_background(profile: RadialProfile, r_min_px: float) -> BackgroundFit:
     x = r - r[0]
     span = max(float(x[-1]), 2.0)
     log_lo, log_hi = math.log(0.5), math.log(span)
+
+    def chi2_at(log_scales: np.ndarray) -> np.ndarray:
+        return _linear_solve(np.exp(-x[None, :] / np.exp(log_scales)[:, None]), y, w)[2]
+
     grid = np.linspace(log_lo, log_hi, 32)
-    _, _, chi2_grid = _linear_solve(np.exp(-x[None, :] / np.exp(grid)[:, None]), y, w)
+    chi2_grid = chi2_at(grid)
     k = int(np.argmin(chi2_grid))
     lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
     # Refine: a fine grid across the two coarse cells around the minimum (one vectorised solve),
     # then the vertex of the parabola through the best fine point and its neighbours.
     fine = np.linspace(lo, hi, 33)
-    _, _, chi2_fine = _linear_solve(np.exp(-x[None, :] / np.exp(fine)[:, None]), y, w)
+    chi2_fine = chi2_at(fine)
     j = int(np.argmin(chi2_fine))
     log_scale = float(fine[j])
     if 0 < j < len(fine) - 1:
@@ -204,7 +208,7 @@ def fit_background(profile: RadialProfile, r_min_px: float) -> BackgroundFit:
         if curvature > 0:
             step = float(fine[1] - fine[0])
             vertex = log_scale + 0.5 * step * float(c_lo - c_hi) / float(curvature)
-            if float(_linear_solve(np.exp(-x / math.exp(vertex)), y, w)[2]) <= c_mid:
+            if float(chi2_at(np.array([vertex]))[0]) <= c_mid:
                 log_scale = vertex
     scale = math.exp(log_scale)
     e = np.exp(-x / scale)

@@ -390,7 +390,7 @@ def encode_png(frame: np.ndarray) -> bytes:
     return buf.tobytes()
 
 
-def write_atomic(path: Path, data: bytes, *, fsync: bool = True) -> None:
+def write_atomic(path: Path, data: bytes | memoryview, *, fsync: bool = True) -> None:
     """Write ``data`` to a temporary name, fsync, then rename over ``path``.
 
     A reader (or a crash) never sees a half-written file under ``path``.

@@ -175,6 +175,11 @@ def load_settings(config: Path | None = None, **overrides: Any) -> Settings:
     return Settings(**{k: v for k, v in overrides.items() if v is not None})
 
 
+def endpoint_list(text: str | None) -> list[str]:
+    """ZeroMQ endpoints from a setting that may name several, comma-separated (``events_connect``)."""
+    return [e.strip() for e in (text or "").split(",") if e.strip()]
+
+
 def field_names(model: type[BaseModel], prefix: str = "") -> list[str]:
     """Every setting's dotted name, nested models included (for the documentation check)."""
     names = []

@@ -291,7 +291,7 @@ def dive_phase(
         return "ascent"
     if station_depth_m is not None:
         return "station" if abs(depth - station_depth_m) <= STATION_TOLERANCE_M else "stop"
-    deepest = max(max_depth_m, float(d.max())) if max_depth_m is not None else float(d.max())
+    deepest = max(float(d.max()), max_depth_m or 0.0)
     return "station" if depth >= deepest - STATION_TOLERANCE_M else "stop"
 
 

@@ -22,6 +22,7 @@ from typing import Any
 
 import zmq
 
+from camcal.settings import endpoint_list
 from ingest.derived import dive_phase
 from storage import queries
 from storage.store import Store
@@ -75,10 +76,9 @@ class LiveHub:
         station_depth_m: float | None = None,
     ) -> None:
         self.store = store
-        self.endpoint = events_endpoint
         # Several ingests (one per group of modules, sharing the database): their publishers,
         # comma-separated. One SUB socket connects to them all; heartbeats are kept per ingest.
-        self.endpoints = [e.strip() for e in (events_endpoint or "").split(",") if e.strip()]
+        self.endpoints = endpoint_list(events_endpoint)
         self.client_queue = client_queue
         self.ctx = ctx or zmq.Context.instance()
         self.clients: set[Client] = set()
@@ -104,7 +104,7 @@ class LiveHub:
     # ------------------------------------------------------------ lifecycle
     def start(self, loop: asyncio.AbstractEventLoop) -> None:
         self._loop = loop
-        if self.endpoint:
+        if self.endpoints:
             self._thread = threading.Thread(target=self._run, name="live-hub", daemon=True)
             self._thread.start()
 

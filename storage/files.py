@@ -67,7 +67,7 @@ class FrameFiles:
             folder.mkdir(parents=True, exist_ok=True)
 
         def one(job: tuple[Path, bytes | memoryview]) -> None:
-            write_atomic(job[0], bytes(job[1]) if isinstance(job[1], memoryview) else job[1], fsync=fsync)
+            write_atomic(*job, fsync=fsync)
 
         jobs = list(zip(paths, unique.values(), strict=True))
         if fsync and len(jobs) > 1:

@@ -16,7 +16,7 @@ from rich.table import Table
 
 from camcal.cli.common import console
 from camcal.cli.config import settings_or_fail
-from camcal.settings import Settings
+from camcal.settings import Settings, endpoint_list
 
 OK, WARN, FAIL = "ok", "warn", "FAIL"
 
@@ -103,8 +103,8 @@ def check_ingest(s: Settings, wait_s: float) -> tuple[list[tuple[str, str, str]]
     sub = ctx.socket(zmq.SUB)
     sub.setsockopt(zmq.SUBSCRIBE, b"health")
     sub.setsockopt(zmq.LINGER, 0)
-    for endpoint in s.events_connect.split(","):  # several ingests: any one's heartbeat will do here
-        sub.connect(endpoint.strip())
+    for endpoint in endpoint_list(s.events_connect):  # several ingests: any one's heartbeat will do
+        sub.connect(endpoint)
     try:
         if sub.poll(int(wait_s * 1000)):
             _, body = sub.recv_multipart()

@@ -119,11 +119,8 @@ async function load() {
         },
         el("td", {}, el("img", { class: "mini", src: fr.thumbnail_url, alt: "", loading: "lazy", width: 62, height: 52 })),
         el("td", { class: "r" }, fr.id),
-        el(
-          "td",
-          { title: utc(fr.captured_unix_s) },
-          el("span", { class: "date" }, `${utc(fr.captured_unix_s).slice(0, 10)} `),
-          utc(fr.captured_unix_s, { date: false }),
+        ((stamp) => el("td", { title: stamp }, el("span", { class: "date" }, `${stamp.slice(0, 10)} `), stamp.slice(11)))(
+          utc(fr.captured_unix_s),
         ),
         el("td", {}, fr.module),
         el("td", { class: "r" }, `${fr.wavelength_nm} nm`),

@@ -101,6 +101,9 @@ class Settings(BaseSettings):
     operator_tokens: dict[str, SecretStr] = Field(default_factory=dict, description="operator name -> token")
     workers: int = Field(0, ge=0, le=256, description="analysis processes (0: one per core)")
     window: int = Field(8, ge=1, le=1024, description="credit: unacknowledged messages per module")
+    max_payload_mb: float = Field(
+        32.0, gt=0, le=1024, description="largest frame or sensor payload a module may send (MiB)"
+    )
     fsync: bool = Field(True, description="fsync frame files before acknowledging them")
     sqlite_synchronous: str = Field(
         "FULL", pattern="^(OFF|NORMAL|FULL|EXTRA)$", description="SQLite durability"

@@ -8,6 +8,7 @@ verdict on old values, not a rule here.)
 
 from __future__ import annotations
 
+import time
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
 
@@ -28,6 +29,7 @@ class AlarmLimits:
     reject_fraction: float = 0.8
     gap_age_s: float = 30.0
     disk_min_free_gb: float = 5.0
+    conflict_hold_s: float = 900.0
 
 
 @dataclass(frozen=True)
@@ -44,7 +46,9 @@ class Condition:
 @dataclass
 class _ModuleState:
     linked: bool = False
+    signed_off: bool = False
     last_seen_unix_s: float | None = None
+    conflicts: deque[tuple[float, str, int]] = field(default_factory=lambda: deque(maxlen=1000))
     humidity: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=4000))
     tilt_deg: float | None = None
     outcomes: deque[str] = field(default_factory=deque)
@@ -61,9 +65,16 @@ class AlarmEvaluator:
         self._disk_free_gb: float | None = None
 
     # -- observations ----------------------------------------------------
-    def observe_link(self, module: str, linked: bool, last_seen_unix_s: float | None) -> None:
+    def observe_link(
+        self, module: str, linked: bool, last_seen_unix_s: float | None, signed_off: bool = False
+    ) -> None:
+        """``signed_off``: the module said ``bye`` (shown as INFO, not as a lost link)."""
         st = self._m[module]
-        st.linked, st.last_seen_unix_s = linked, last_seen_unix_s
+        st.linked, st.last_seen_unix_s, st.signed_off = linked, last_seen_unix_s, signed_off and not linked
+
+    def observe_conflict(self, module: str, boot: str, seq: int, t_unix_s: float) -> None:
+        """A message resent with other content than the stored copy."""
+        self._m[module].conflicts.append((t_unix_s, boot, seq))
 
     def observe_humidity(self, module: str, t_unix_s: float, humidity_pct: float) -> None:
         self._m[module].humidity.append((t_unix_s, humidity_pct))
@@ -123,13 +134,29 @@ class AlarmEvaluator:
         for module, st in self._m.items():
             if st.last_seen_unix_s is not None:
                 age = now_unix_s - st.last_seen_unix_s
-                if not st.linked or age > lim.link_timeout_s:
+                # Messages name times, not ages: an alarm's row and event change when its state does,
+                # not every second.
+                since = _hms(st.last_seen_unix_s)
+                if st.signed_off:
+                    add("signed_off", module, "INFO", f"module {module} signed off at {since} UTC")
+                elif not st.linked or age > lim.link_timeout_s:
                     add(
                         "link_lost",
                         module,
                         "MAJOR",
-                        f"module {module}: no packet for {age:.0f} s; check the fibre link and power",
+                        f"module {module}: no packet since {since} UTC; check the fibre link and power",
                     )
+            recent = [c for c in st.conflicts if now_unix_s - c[0] <= lim.conflict_hold_s]
+            if recent:
+                _, boot, seq = recent[-1]
+                add(
+                    "conflict",
+                    module,
+                    "MAJOR",
+                    f"module {module}: {len(recent)} message(s) resent with other content than the stored "
+                    f"copy since {_hms(recent[0][0])} UTC (latest {boot}/{seq}); the ship keeps the first: "
+                    "compare the module's SD card with `camcal import`",
+                )
             if st.humidity:
                 t_last, h_last = st.humidity[-1]
                 recent = [(t, h) for t, h in st.humidity if t >= t_last - lim.humidity_trend_s]
@@ -200,3 +227,7 @@ class AlarmEvaluator:
                     "they will arrive when the link recovers, or import the SD card",
                 )
         return out
+
+
+def _hms(t_unix_s: float) -> str:
+    return time.strftime("%H:%M:%S", time.gmtime(t_unix_s))

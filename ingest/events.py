@@ -14,6 +14,7 @@ from typing import Any
 
 import zmq
 
+from storage.jsonsafe import finite_json
 from storage.store import Store
 
 
@@ -32,10 +33,11 @@ def event_json(
             "t": t_unix_s,
             "module": module,
             "dive_id": dive_id,
-            "payload": payload,
+            "payload": finite_json(payload),
         },
         separators=(",", ":"),
         default=str,
+        allow_nan=False,
     ).encode()
 
 
@@ -77,6 +79,14 @@ class EventBus:
                     event_json(eid, e["kind"], e["t_unix_s"], e["module_id"], e["dive_id"], e["payload"]),
                 )
         return ids
+
+    def published_stored(self, events: list[dict[str, Any]]) -> None:
+        """Publish events the store has already written (with their ``id``), e.g. with their frames."""
+        for e in events:
+            self._send(
+                e["kind"],
+                event_json(e["id"], e["kind"], e["t_unix_s"], e["module_id"], e["dive_id"], e["payload"]),
+            )
 
     def _send(self, kind: str, body: bytes) -> None:
         if self.pub is None:

@@ -12,11 +12,14 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime
+from functools import partial
 from pathlib import Path
 
 from analysis import FrameConfig
 from camcal.frameset import FrameReadError, ManifestRow, Setup, decode_frame, parse_manifest, parse_setup
 from camcal.parallel import process_pool
+from camcal.wire.sensors import check_columns, check_rows
+from ingest.seqtrack import SeqTracker
 from ingest.worker import analyse_stored_frame
 from storage.files import RemoteFolder, UnsafePath
 from storage.store import FrameRow, SensorBatchRow, Store
@@ -177,9 +180,13 @@ def import_frame_set(
         for line in root.read_bytes("sensors.jsonl").decode("utf-8", "replace").splitlines():
             try:
                 obj = json.loads(line)
-                samples = [dict(zip(obj["columns"], r, strict=True)) for r in obj["rows"]]
-            except (json.JSONDecodeError, KeyError, ValueError, TypeError):
-                report.problems.append(("sensors.jsonl", "an unreadable line was skipped"))
+                columns = tuple(obj["columns"])
+                problem = check_columns(columns)
+                if problem:
+                    raise ValueError(problem)
+                samples = check_rows(columns, obj["rows"], len(obj["rows"]))  # the link's checks
+            except (json.JSONDecodeError, KeyError, ValueError, TypeError) as exc:
+                report.problems.append(("sensors.jsonl", f"a line was skipped: {str(exc)[:200]}"))
                 continue
             if module:
                 batches.append(SensorBatchRow(module, obj["boot"], int(obj["seq"]), time.time(), samples))
@@ -188,7 +195,9 @@ def import_frame_set(
             out = store.commit_batch(dive_id, [], batches)
             report.sensor_batches = len(out.new_sensor_batches)
     for module, boot in touched:
-        report.gaps_filled += len(store.fill_gaps(module, boot, store.known_seqs(module, boot)))
+        seqs = SeqTracker()
+        seqs.seed(module, boot, store.known_seqs(module, boot))
+        report.gaps_filled += len(store.fill_gaps(module, boot, partial(seqs.covers, module, boot)))
     if analyse and new and run_id is not None:
         report.analysed = analyse_frames(store, run_id, new, workers=workers)
     return report

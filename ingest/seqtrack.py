@@ -1,15 +1,55 @@
-"""Per-module sequence numbers: duplicates, order, and the gaps a broken link leaves."""
+"""Per-module sequence numbers: duplicates, order, and the gaps a broken link leaves.
+
+What has arrived is kept as sorted, disjoint ranges, so every operation
+costs in proportion to the number of gaps, never to the size of a jump: a
+module whose ``seq`` leaps to 2^63 - 1 opens one gap of that size, recorded
+as one range.
+"""
 
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass, field
 
 
 @dataclass
 class _BootSeqs:
-    upto: int = 0  # every seq <= upto has arrived
-    ahead: set[int] = field(default_factory=set)
+    starts: list[int] = field(default_factory=list)  # arrived ranges [starts[i], ends[i]], sorted, disjoint
+    ends: list[int] = field(default_factory=list)
     max_seen: int = 0
+
+    def add(self, seq: int) -> bool:
+        """Record ``seq``; False if it had arrived already."""
+        i = bisect.bisect_right(self.starts, seq) - 1  # the range starting at or before seq
+        if i >= 0 and self.ends[i] >= seq:
+            return False
+        joins_left = i >= 0 and self.ends[i] == seq - 1
+        joins_right = i + 1 < len(self.starts) and self.starts[i + 1] == seq + 1
+        if joins_left and joins_right:
+            self.ends[i] = self.ends[i + 1]
+            del self.starts[i + 1], self.ends[i + 1]
+        elif joins_left:
+            self.ends[i] = seq
+        elif joins_right:
+            self.starts[i + 1] = seq
+        else:
+            self.starts.insert(i + 1, seq)
+            self.ends.insert(i + 1, seq)
+        return True
+
+    def covers(self, first: int, last: int) -> bool:
+        i = bisect.bisect_right(self.starts, first) - 1
+        return i >= 0 and self.ends[i] >= last
+
+    def missing(self) -> list[tuple[int, int]]:
+        out, nxt = [], 1
+        for a, b in zip(self.starts, self.ends, strict=True):
+            if a > nxt:
+                out.append((nxt, a - 1))
+            nxt = b + 1
+        if nxt <= self.max_seen:
+            out.append((nxt, self.max_seen))
+        return out
 
 
 class SeqTracker:
@@ -30,27 +70,16 @@ class SeqTracker:
         """Start from what the store already holds (after a restart)."""
         st = _BootSeqs()
         for q in sorted(seqs):
-            self._add(st, q)
+            st.add(q)
+        st.max_seen = max(seqs, default=0)
         self._boots[(module, boot)] = st
 
     def add(self, module: str, boot: str, seq: int) -> tuple[int, int] | None:
         """Record an arrival; returns a newly opened gap ``(first, last)`` or None."""
         st = self._boots.setdefault((module, boot), _BootSeqs())
-        return self._add(st, seq)
-
-    @staticmethod
-    def _add(st: _BootSeqs, seq: int) -> tuple[int, int] | None:
-        gap = None
-        if seq > st.max_seen + 1:
-            gap = (st.max_seen + 1, seq - 1)
+        gap = (st.max_seen + 1, seq - 1) if seq > st.max_seen + 1 else None
         st.max_seen = max(st.max_seen, seq)
-        if seq == st.upto + 1:
-            st.upto = seq
-            while st.upto + 1 in st.ahead:
-                st.upto += 1
-                st.ahead.discard(st.upto)
-        elif seq > st.upto:
-            st.ahead.add(seq)
+        st.add(seq)
         return gap
 
     def expect(self, module: str, boot: str, last_seq: int) -> tuple[int, int] | None:
@@ -66,23 +95,13 @@ class SeqTracker:
     def missing(self, module: str, boot: str) -> list[tuple[int, int]]:
         """Ranges not yet arrived below the highest number seen."""
         st = self._boots.get((module, boot))
-        if st is None:
-            return []
-        out = []
-        start = None
-        for q in range(st.upto + 1, st.max_seen + 1):
-            if q not in st.ahead:
-                if start is None:
-                    start = q
-            elif start is not None:
-                out.append((start, q - 1))
-                start = None
-        if start is not None:
-            out.append((start, st.max_seen))
-        return out
+        return st.missing() if st is not None else []
 
-    def arrived(self, module: str, boot: str) -> set[int]:
+    def covers(self, module: str, boot: str, first: int, last: int) -> bool:
+        """Whether every number from ``first`` to ``last`` has arrived."""
         st = self._boots.get((module, boot))
-        if st is None:
-            return set()
-        return set(range(1, st.upto + 1)) | st.ahead
+        return st is not None and st.covers(first, last)
+
+    def arrived_ranges(self, module: str, boot: str) -> list[tuple[int, int]]:
+        st = self._boots.get((module, boot))
+        return list(zip(st.starts, st.ends, strict=True)) if st is not None else []

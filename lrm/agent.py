@@ -41,6 +41,10 @@ def new_boot_id(now: datetime | None = None) -> str:
     return f"{t}-{secrets.token_hex(3)}"
 
 
+#: Resends of a message the ship refused with ``retry``, before the module gives up on it.
+MAX_RESENDS = 5
+
+
 @dataclass(frozen=True)
 class AgentConfig:
     module: str
@@ -252,6 +256,8 @@ class Agent:
         send_q: deque[tuple[str, int]] = deque((e.boot, e.seq) for e in self.outbox.pending())
         queued = set(send_q)
         in_flight: dict[tuple[str, int], float] = {}
+        retry_at: dict[tuple[str, int], float] = {}  # nacked with retry: resend after a back-off
+        tries: Counter[tuple[str, int]] = Counter()
         window = cfg.initial_window
         welcomed = False
         last_ship = last_hello = last_beat = 0.0
@@ -303,8 +309,11 @@ class Agent:
                                     if in_flight.pop((boot, q), None) is not None:
                                         self.counters["acked"] += 1
                         elif msg.type == "nack":
-                            self.counters["nacked"] += 1
-                            requeue([(msg.boot, msg.seq)])
+                            self._on_nack(msg, in_flight, retry_at, tries)
+                            if msg.reason == "not_served":  # the wrong ingest: say hello until the right one
+                                welcomed = False
+                                self.linked.clear()
+                                requeue(list(in_flight))
                         elif msg.type == "ship_heartbeat":
                             window = msg.window
                         elif msg.type == "command":
@@ -344,6 +353,11 @@ class Agent:
                 late = [k for k, t in in_flight.items() if now - t > cfg.ack_timeout_s]
                 if late:
                     requeue(late)
+                due = [k for k, t in retry_at.items() if t <= now]
+                for k in due:
+                    del retry_at[k]
+                if due:
+                    requeue(due)
                 while True:
                     try:
                         status = self._status_out.get_nowait()
@@ -376,6 +390,35 @@ class Agent:
                 time.sleep(0.05)
         finally:
             sock.close(0)
+
+    def _on_nack(
+        self,
+        msg: wire.Nack,
+        in_flight: dict[tuple[str, int], float],
+        retry_at: dict[tuple[str, int], float],
+        tries: Counter[tuple[str, int]],
+    ) -> None:
+        """The ship refused a message: resend later if that can help, else settle it as refused.
+
+        A resend backs off (1, 2, 4 ... 30 s) and gives up after `MAX_RESENDS`
+        tries: an SD copy that is damaged would otherwise be sent for ever.
+        A refused entry stays on the card (``refused.jsonl`` says why).
+        """
+        self.counters["nacked"] += 1
+        self.counters[f"nacked_{msg.reason}"] += 1
+        if msg.boot is None or msg.seq is None:  # not one of our data messages (a hello, a heartbeat...)
+            log.warning("ship refused a %s: %s: %s", msg.of or "message", msg.reason, msg.detail)
+            return
+        key = (msg.boot, msg.seq)
+        in_flight.pop(key, None)
+        tries[key] += 1
+        if msg.retry and tries[key] <= MAX_RESENDS:
+            retry_at[key] = time.monotonic() + min(2.0 ** (tries[key] - 1), 30.0)
+            return
+        log.error("ship refused %s/%d for good: %s: %s (kept on the card)", *key, msg.reason, msg.detail)
+        self.outbox.refuse(msg.boot, msg.seq, msg.reason, msg.detail)
+        self.counters["refused"] += 1
+        retry_at.pop(key, None)
 
     def _send(self, sock: Any, msg: Any) -> None:
         try:

@@ -93,12 +93,13 @@ class Outbox:
         self.root.mkdir(parents=True, exist_ok=True)
         self._lock = threading.RLock()
         frames_dir = self.root / "frames"
-        for name in (f"frames/{MANIFEST}", "sensors.jsonl", "acked.log", "commands.jsonl"):
+        for name in (f"frames/{MANIFEST}", "sensors.jsonl", "acked.log", "refused.jsonl", "commands.jsonl"):
             drop_cut_line(self.root / name)
         fresh = not (frames_dir / MANIFEST).exists()
         self._writer = FrameSetWriter(frames_dir, setup if fresh else None, fsync=fsync)
         self._sensors = (self.root / "sensors.jsonl").open("a", encoding="utf-8")
         self._acked_fh = (self.root / "acked.log").open("a", encoding="utf-8")
+        self._refused_fh = (self.root / "refused.jsonl").open("a", encoding="utf-8")
         self._acked: set[tuple[str, int]] = set()
         self._pending: dict[tuple[str, int], Entry] = {}
         self._last_seq: dict[str, int] = {}
@@ -112,6 +113,12 @@ class Outbox:
             if len(parts) == 3:
                 boot, first, last = parts[0], int(parts[1]), int(parts[2])
                 self._acked.update((boot, q) for q in range(first, last + 1))
+        for line in (self.root / "refused.jsonl").read_text(encoding="utf-8").splitlines():
+            try:
+                obj = json.loads(line)
+                self._acked.add((obj["boot"], int(obj["seq"])))  # settled: never offered again
+            except (json.JSONDecodeError, KeyError, TypeError, ValueError):
+                continue
         for row in read_manifest(self.root / "frames"):
             if row.boot and row.seq is not None:
                 self._index(Entry("frame", row.boot, row.seq, row))
@@ -192,6 +199,23 @@ class Outbox:
             if self.fsync:
                 os.fsync(self._acked_fh.fileno())
             return settled
+
+    def refuse(self, boot: str, seq: int, reason: str, detail: str = "") -> bool:
+        """The ship refused an entry for good (a ``nack`` that resending cannot help).
+
+        It stays on the card (``camcal import`` still reads it) and is written
+        to ``refused.jsonl`` with the reason, so it is not offered again, even
+        after a reboot. Returns whether it was pending.
+        """
+        with self._lock:
+            was = self._pending.pop((boot, seq), None) is not None
+            self._acked.add((boot, seq))
+            line = {"boot": boot, "seq": seq, "reason": reason, "detail": detail[:500]}
+            self._refused_fh.write(json.dumps(line) + "\n")
+            self._refused_fh.flush()
+            if self.fsync:
+                os.fsync(self._refused_fh.fileno())
+            return was
 
     def discard(self, boot: str, seq: int) -> None:
         """Stop offering an entry that cannot be sent (its image is gone or damaged).
@@ -297,3 +321,4 @@ class Outbox:
             self._writer.close()
             self._sensors.close()
             self._acked_fh.close()
+            self._refused_fh.close()

@@ -51,6 +51,18 @@ class Invalid(ApiError):
     status, code = 422, "invalid"
 
 
+class Gone(ApiError):
+    """A stored thing whose file is no longer there (removed by retention, or never readable)."""
+
+    status, code = 410, "gone"
+
+
+class Unreadable(ApiError):
+    """A stored file that cannot be decoded as what it claims to be."""
+
+    status, code = 422, "unreadable"
+
+
 class Unavailable(ApiError):
     status, code = 503, "unavailable"
 

@@ -260,7 +260,7 @@ def merge_health(payloads: list[dict[str, Any]]) -> dict[str, Any]:
         return payloads[0]
     out: dict[str, Any] = {"ingest_id": ", ".join(str(p.get("ingest_id")) for p in payloads)}
     out["modules"] = {m: h for p in payloads for m, h in (p.get("modules") or {}).items()}
-    for key in ("queues", "counters", "malformed", "refused"):
+    for key in ("queues", "counters", "malformed", "nacked", "refused"):
         total: dict[str, float] = {}
         for p in payloads:
             for k, v in (p.get(key) or {}).items():

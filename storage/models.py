@@ -200,6 +200,7 @@ class SensorBatch(Base):
     seq: Mapped[int] = mapped_column(BigInteger)
     count: Mapped[int] = mapped_column(Integer)
     received_unix_s: Mapped[float] = mapped_column(Float)
+    sha256: Mapped[str | None] = mapped_column(String(64))  # of the payload; None before migration 0004
 
 
 class SensorSample(Base):
@@ -349,3 +350,13 @@ class Calibration(Base):
     valid_to_unix_s: Mapped[float | None] = mapped_column(Float)
     values: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
     created_unix_s: Mapped[float] = mapped_column(Float)
+
+
+class IngestCounter(Base):
+    """An ingest's counters (messages received, stored, refused by reason...), kept across restarts."""
+
+    __tablename__ = "ingest_counters"
+    ingest_id: Mapped[str] = mapped_column(String(200), primary_key=True)
+    name: Mapped[str] = mapped_column(String(120), primary_key=True)
+    value: Mapped[int] = mapped_column(BigInteger, default=0)
+    updated_unix_s: Mapped[float] = mapped_column(Float)

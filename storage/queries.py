@@ -418,7 +418,7 @@ def runs(s: Session, dive_id: int) -> list[dict[str, Any]]:
             "id": r.id,
             "kind": r.kind,
             "label": r.label,
-            "calibration": r.calibration,
+            "calibration": r.calibration if isinstance(r.calibration, dict) else {},
             "calibration_id": r.calibration_id,
             "software_version": r.software_version,
             "created_unix_s": r.created_unix_s,

@@ -7,7 +7,7 @@ readers (the server). Batches are written in one transaction each.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,6 +19,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from storage.db import DataPaths, make_engine, migrate
 from storage.files import FrameFiles
+from storage.jsonsafe import finite_json
 from storage.models import (
     Alarm,
     AnalysisRun,
@@ -33,6 +34,7 @@ from storage.models import (
     Frame,
     FrameResult,
     Gap,
+    IngestCounter,
     LinearityCheck,
     Module,
     SensorBatch,
@@ -116,6 +118,7 @@ class SensorBatchRow:
     seq: int
     received_unix_s: float
     samples: list[dict[str, Any]] = field(default_factory=list)
+    sha256: str | None = None
 
 
 @dataclass
@@ -126,6 +129,7 @@ class BatchOutcome:
     duplicate_frames: list[tuple[str, str, int]]
     new_sensor_batches: list[tuple[str, str, int]]
     duplicate_sensor_batches: list[tuple[str, str, int]]
+    events: list[dict[str, Any]] = field(default_factory=list)  # stored with the frames, ``id`` set
 
 
 class Store:
@@ -267,12 +271,19 @@ class Store:
 
     # ------------------------------------------------------------ ingest
     def commit_batch(
-        self, dive_id: int, frames: Sequence[FrameRow], sensors: Sequence[SensorBatchRow] = ()
+        self,
+        dive_id: int,
+        frames: Sequence[FrameRow],
+        sensors: Sequence[SensorBatchRow] = (),
+        frame_event: Callable[[FrameRow, int], dict[str, Any]] | None = None,
     ) -> BatchOutcome:
         """Insert frames and sensor batches in one transaction, skipping any already stored.
 
         (module, boot, seq) is unique for frames and for sensor batches, so a
-        resend after a lost acknowledgement changes nothing.
+        resend after a lost acknowledgement changes nothing. ``frame_event``
+        makes the event of each new frame (given the row and its id); the
+        events are written in the same transaction, so a crash can never
+        leave a stored frame without its event.
         """
         t = now_unix_s()
         new_frames: dict[tuple[str, str, int], int] = {}
@@ -302,6 +313,7 @@ class Store:
                         seq=b.seq,
                         count=len(b.samples),
                         received_unix_s=b.received_unix_s,
+                        sha256=b.sha256,
                     )
                     .on_conflict_do_nothing(index_elements=["module_id", "boot", "seq"])
                     .returning(SensorBatch.id)
@@ -314,6 +326,13 @@ class Store:
                         SensorSample.__table__.insert(),
                         [{**smp, "module_id": b.module_id, "dive_id": dive_id} for smp in b.samples],
                     )
+            events: list[dict[str, Any]] = []
+            if frame_event is not None and new_frames:
+                for f in frames:
+                    fid = new_frames.get((f.module_id, f.boot, f.seq))
+                    if fid is not None:
+                        events.append(frame_event(f, fid))
+                self._insert_events(s, events)
         keys = [(f.module_id, f.boot, f.seq) for f in frames]
         skeys = [(b.module_id, b.boot, b.seq) for b in sensors]
         return BatchOutcome(
@@ -321,7 +340,29 @@ class Store:
             duplicate_frames=[k for k in keys if k not in new_frames],
             new_sensor_batches=new_sensors,
             duplicate_sensor_batches=[k for k in skeys if k not in new_sensors],
+            events=events,
         )
+
+    def stored_checksums(
+        self, frame_keys: Sequence[tuple[str, str, int]], sensor_keys: Sequence[tuple[str, str, int]]
+    ) -> tuple[dict[tuple[str, str, int], str], dict[tuple[str, str, int], str | None]]:
+        """The sha256 of frames and sensor batches already stored under these keys (module, boot, seq)."""
+        frames: dict[tuple[str, str, int], str] = {}
+        sensors: dict[tuple[str, str, int], str | None] = {}
+        with self.read() as s:
+            for table, keys, out in (
+                (Frame, frame_keys, frames),
+                (SensorBatch, sensor_keys, sensors),
+            ):
+                for chunk in _chunks(sorted(set(keys)), 300):
+                    rows = s.execute(
+                        select(table.module_id, table.boot, table.seq, table.sha256).where(
+                            tuple_(table.module_id, table.boot, table.seq).in_(chunk)
+                        )
+                    )
+                    for mid, boot, seq, sha in rows:
+                        out[(mid, boot, int(seq))] = sha
+        return frames, sensors
 
     def known_seqs(self, module_id: str, boot: str) -> set[int]:
         """Every sequence number of a module's boot that is stored (frames and sensor batches)."""
@@ -345,16 +386,15 @@ class Store:
             s.flush()
             return gap.id
 
-    def fill_gaps(self, module_id: str, boot: str, seqs: Iterable[int]) -> list[int]:
-        """Mark open gaps as filled when every sequence number in them has arrived."""
-        seqs = set(seqs)
+    def fill_gaps(self, module_id: str, boot: str, covers: Callable[[int, int], bool]) -> list[int]:
+        """Mark open gaps filled once every number in them has arrived (``covers(first, last)``)."""
         filled = []
         with self.session() as s:
             gaps = s.scalars(
                 select(Gap).where(Gap.module_id == module_id, Gap.boot == boot, Gap.filled_unix_s.is_(None))
             ).all()
             for g in gaps:
-                if all(q in seqs for q in range(g.first_seq, g.last_seq + 1)):
+                if covers(g.first_seq, g.last_seq):
                     g.filled_unix_s = now_unix_s()
                     filled.append(g.id)
         return filled
@@ -590,10 +630,46 @@ class Store:
         if not events:
             return []
         with self.session() as s:
-            objs = [Event(**e) for e in events]
-            s.add_all(objs)
-            s.flush()
-            return [o.id for o in objs]
+            return self._insert_events(s, events)
+
+    @staticmethod
+    def _insert_events(s: Session, events: Sequence[dict[str, Any]]) -> list[int]:
+        """Add event rows in ``s`` (payloads made valid JSON: no NaN, no infinities); sets each ``id``."""
+        objs = []
+        for e in events:
+            e["payload"] = finite_json(e["payload"])
+            objs.append(Event(**{k: v for k, v in e.items() if k != "id"}))
+        s.add_all(objs)
+        s.flush()
+        for e, o in zip(events, objs, strict=True):
+            e["id"] = o.id
+        return [o.id for o in objs]
+
+    # ------------------------------------------------------------ counters
+    def load_counters(self, ingest_id: str) -> dict[str, int]:
+        """The counters an ingest saved before (``group.name`` -> value)."""
+        with self.read() as s:
+            rows = s.execute(
+                select(IngestCounter.name, IngestCounter.value).where(IngestCounter.ingest_id == ingest_id)
+            )
+            return {name: int(value) for name, value in rows}
+
+    def save_counters(self, ingest_id: str, values: dict[str, int]) -> None:
+        """Write an ingest's counters (one upsert)."""
+        if not values:
+            return
+        t = now_unix_s()
+        rows = [
+            {"ingest_id": ingest_id, "name": k[:120], "value": int(v), "updated_unix_s": t}
+            for k, v in values.items()
+        ]
+        stmt = self._insert(IngestCounter.__table__).values(rows)
+        stmt = stmt.on_conflict_do_update(
+            index_elements=["ingest_id", "name"],
+            set_={"value": stmt.excluded.value, "updated_unix_s": stmt.excluded.updated_unix_s},
+        )
+        with self.session() as s:
+            s.execute(stmt)
 
     def events_after(self, after_id: int, limit: int = 1000) -> list[Event]:
         with self.read() as s:
@@ -898,3 +974,8 @@ class Store:
             return "ok"
         with self.engine.connect() as conn:
             return str(conn.exec_driver_sql("PRAGMA integrity_check").scalar())
+
+
+def _chunks(items: Sequence[Any], n: int) -> Iterator[Sequence[Any]]:
+    for i in range(0, len(items), n):
+        yield items[i : i + n]

@@ -114,6 +114,7 @@ def ingest(
         dive_name=dive,
         workers=s.workers,
         window=s.window,
+        max_payload_bytes=int(s.max_payload_mb * 1024 * 1024),
         fsync=s.fsync,
         sqlite_synchronous=s.sqlite_synchronous,
         rolling_window_s=s.rolling_window_s,

@@ -12,7 +12,7 @@ from fastapi.responses import FileResponse, Response
 from camcal.frameset import FrameReadError, read_frame, write_atomic
 from ingest.worker import thumbnail_jpeg
 from server.deps import FloatQuery, IdPath, IdQuery, StoreDep, WavelengthQuery
-from server.errors import NotFound, Unavailable
+from server.errors import Gone, NotFound, Unreadable
 from server.schemas import FramePage
 from storage import queries
 from storage.files import UnsafePath
@@ -110,6 +110,13 @@ async def frame_analysis(frame_id: IdPath, store: StoreDep, run: IdQuery = None)
     return {k: f.get(k) for k in keys}
 
 
+def _file_there(path: Path) -> bool:
+    try:
+        return path.is_file()
+    except OSError:  # a name the file system cannot hold
+        return False
+
+
 def _stored_path(store: Any, frame_id: IdPath) -> tuple[Path, Path]:
     with store.read() as s:
         found = queries.frame_with_result(s, frame_id, None)
@@ -145,10 +152,12 @@ async def thumbnail(frame_id: IdPath, store: StoreDep) -> Response:
         image, thumb = _stored_path(store, frame_id)
         if thumb.exists():
             return thumb.read_bytes()
+        if not _file_there(image):
+            raise Gone(f"frame {frame_id}: its file is no longer in the data folder (removed by retention?)")
         try:
             data = thumbnail_jpeg(read_frame(image))
         except FrameReadError as exc:
-            raise Unavailable(f"frame {frame_id}: {exc.detail}") from None
+            raise Unreadable(f"frame {frame_id}: {exc.detail}") from None
         thumb.parent.mkdir(parents=True, exist_ok=True)
         write_atomic(thumb, data, fsync=False)
         return data
@@ -165,9 +174,7 @@ async def thumbnail(frame_id: IdPath, store: StoreDep) -> Response:
 async def image(frame_id: IdPath, store: StoreDep) -> FileResponse:
     """The full frame as stored (lossless PNG, exactly the module's bytes)."""
     path, _ = await run_in_threadpool(_stored_path, store, frame_id)
-    if not path.exists():
-        raise Unavailable(
-            f"frame {frame_id}: its file is no longer in the data folder (removed by retention?)"
-        )
+    if not _file_there(path):
+        raise Gone(f"frame {frame_id}: its file is no longer in the data folder (removed by retention?)")
     media = "image/tiff" if path.suffix == ".tif" else "image/png"
     return FileResponse(path, media_type=media, headers={"Cache-Control": "public, max-age=86400, immutable"})

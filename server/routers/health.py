@@ -55,5 +55,6 @@ async def health(hub: HubDep, store: StoreDep, settings: SettingsDep) -> dict[st
         "queues": (health or {}).get("queues"),
         "counters": (health or {}).get("counters"),
         "malformed": (health or {}).get("malformed"),
+        "nacked": (health or {}).get("nacked"),
         "latency_p95_s": (health or {}).get("latency_p95_s"),
     }

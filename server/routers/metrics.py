@@ -64,6 +64,12 @@ class _Snapshot:
         for kind, value in (h.get("malformed") or {}).items():
             malformed.add_metric([kind], float(value))
         yield malformed
+        nacked = CounterMetricFamily(
+            "camcal_refused_messages", "messages refused with a nack, by reason", labels=["reason"]
+        )
+        for reason, value in (h.get("nacked") or {}).items():
+            nacked.add_metric([reason], float(value))
+        yield nacked
         queues = GaugeMetricFamily("camcal_queue_depth", "items waiting in the ingest", labels=["queue"])
         for q, value in (h.get("queues") or {}).items():
             queues.add_metric([q], float(value))
@@ -91,7 +97,7 @@ class _Snapshot:
             pending.add_metric([m], float(st.get("outbox_pending") or 0))
         yield from (link, age, fps, pending)
         active = GaugeMetricFamily("camcal_alarms_active", "active alarms by severity", labels=["severity"])
-        for sev in ("MINOR", "MAJOR"):
+        for sev in ("INFO", "MINOR", "MAJOR"):
             active.add_metric([sev], float(sum(1 for a in self.alarms if a["severity"] == sev)))
         yield active
         yield GaugeMetricFamily(

@@ -14,7 +14,7 @@ import pytest
 from sqlalchemy import func, select
 
 from camcal.frameset import read_manifest
-from storage.models import Frame, FrameResult
+from storage.models import Event, Frame, FrameResult
 from storage.store import Store
 from tests.live.test_ingest import wait_for
 from tests.utils.live import make_agent, start_ingest
@@ -79,6 +79,10 @@ def test_sigkill_the_ingest_repeatedly_and_every_frame_is_stored_exactly_once(tm
             stored = store.files.resolve(r.path).read_bytes()
             original = (a.config.outbox / "frames" / sent[(r.boot, r.seq)].file).read_bytes()
             assert hashlib.sha256(stored).hexdigest() == r.sha256 == hashlib.sha256(original).hexdigest()
+    with store.read() as s:  # written in the frame's own transaction: no SIGKILL can part them
+        framed = {int(e.payload["frame_id"]) for e in s.scalars(select(Event).where(Event.kind == "frame"))}
+        all_ids = set(s.scalars(select(Frame.id)))
+    assert all_ids <= framed, f"{len(all_ids - framed)} stored frames have no frame event"
     assert store.integrity_check() == "ok"
     store.close()
 

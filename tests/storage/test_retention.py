@@ -56,6 +56,6 @@ def test_retention_deletes_old_frame_files_but_keeps_rows(tmp_path: Path) -> Non
     with TestClient(app) as client:
         old = ids[("A", "b", 1)]
         r = client.get(f"/api/frames/{old}/image")
-        assert r.status_code == 503 and "retention" in r.json()["error"]["message"]
+        assert r.status_code == 410 and "retention" in r.json()["error"]["message"]
         assert client.get(f"/api/frames/{old}").status_code == 200
     store.close()

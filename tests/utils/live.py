@@ -265,6 +265,8 @@ class FakeShip:
         self.heartbeats: list[wire.ModuleHeartbeat] = []
         self.hellos: list[wire.Hello] = []
         self.data: list[tuple[str, str, int]] = []
+        #: How to answer a data message (default: acknowledge it); None from it: say nothing.
+        self.answer: Any = None
 
     def pump(self, until: Any = lambda: False, timeout: float = 10.0) -> bool:
         end = time.monotonic() + timeout
@@ -281,7 +283,13 @@ class FakeShip:
                 self.send(wire.Welcome(module="ship", window=self.window))
             elif msg.type in ("frame", "sensors"):
                 self.data.append((msg.type, msg.boot, msg.seq))
-                self.send(wire.Ack(module="ship", ranges=((msg.boot, msg.seq, msg.seq),), window=self.window))
+                reply = (
+                    self.answer(msg)
+                    if self.answer
+                    else wire.Ack(module="ship", ranges=((msg.boot, msg.seq, msg.seq),), window=self.window)
+                )
+                if reply is not None:
+                    self.send(reply)
             elif msg.type == "command_status":
                 self.statuses.append(msg)
             elif msg.type == "heartbeat":

@@ -2,8 +2,9 @@
 
 export const WAVELENGTHS = [405, 460, 525];
 
-/** How bad a state is: MAJOR outranks INVALID (stale data), which outranks MINOR. */
-export const SEVERITY_RANK = { OK: 0, MINOR: 1, INVALID: 2, MAJOR: 3 };
+/** How bad a state is: MAJOR outranks INVALID (stale data), which outranks MINOR; INFO (a module that
+ * signed off) is news, not a fault. */
+export const SEVERITY_RANK = { OK: 0, INFO: 0, MINOR: 1, INVALID: 2, MAJOR: 3 };
 
 /** The CSS colour of a wavelength (the theme's --wl-NNN variable). */
 export function wlColor(nm) {

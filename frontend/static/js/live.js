@@ -300,7 +300,9 @@ function requestRender() {
 function moduleSeverity(m, now) {
   let sev = "OK";
   for (const a of state.alarms.values()) {
-    if (a.active && a.module === m.id && RANK[a.severity] > RANK[sev]) sev = a.severity;
+    if (!a.active || a.module !== m.id) continue;
+    if (a.kind === "signed_off") return "INFO"; // said bye: switched off on purpose, not stale
+    if (RANK[a.severity] > RANK[sev]) sev = a.severity;
   }
   const age = m.lastPacketAt === null ? Infinity : (now - m.lastPacketAt) / 1000;
   if (age > state.staleAfter && RANK.INVALID > RANK[sev]) sev = "INVALID";

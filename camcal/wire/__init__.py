@@ -1,0 +1,91 @@
+"""The wire protocol between the modules (LRMs) and the ship: one home for both sides.
+
+ZeroMQ DEALER (module) to ROUTER (ship) over TCP. Every message is a
+multipart message of one UTF-8 JSON header and at most one binary payload.
+``docs/protocol.md`` describes it for someone writing a module in another
+language, ``docs/protocol-v1.schema.json`` is its JSON Schema (generated
+from `camcal.wire.models`); this package is the reference implementation.
+JSON headers and raw bytes only: never pickle.
+
+* `dialect`: the JSON dialect (limits on numbers and depth, no NaN);
+* `models`: every message as a strict model;
+* `sensors`: the sensor columns, their units and ranges;
+* `image`: what a frame payload's first bytes say it is;
+* `reasons`: why a message is refused (``nack``), and whether to resend;
+* `codec`: `encode` and `decode`;
+* `sockets`: the ship's and a module's socket;
+* `schema`: the JSON Schema of the protocol.
+"""
+
+from camcal.wire.codec import (
+    ADAPTER,
+    Message,
+    ProtocolError,
+    decode,
+    encode,
+    parse_sensor_rows,
+    sensors_payload,
+    sha256_hex,
+)
+from camcal.wire.limits import MAX_HEADER_BYTES, MAX_PAYLOAD_BYTES, MAX_SENSOR_ROWS
+from camcal.wire.models import (
+    DATA_TYPES,
+    MODULE_TYPES,
+    PROTOCOL_VERSION,
+    SHIP_TYPES,
+    Ack,
+    Bye,
+    Command,
+    CommandStatus,
+    FrameMsg,
+    Hello,
+    ModuleHeartbeat,
+    Nack,
+    ScheduleState,
+    SensorsMsg,
+    ShipHeartbeat,
+    Welcome,
+    is_id,
+    utc_now,
+)
+from camcal.wire.reasons import REASONS, Reason
+from camcal.wire.sensors import SENSOR_COLUMNS, SENSOR_SPEC
+from camcal.wire.sockets import module_socket, ship_socket
+
+__all__ = [
+    "ADAPTER",
+    "DATA_TYPES",
+    "MAX_HEADER_BYTES",
+    "MAX_PAYLOAD_BYTES",
+    "MAX_SENSOR_ROWS",
+    "MODULE_TYPES",
+    "PROTOCOL_VERSION",
+    "REASONS",
+    "SENSOR_COLUMNS",
+    "SENSOR_SPEC",
+    "SHIP_TYPES",
+    "Ack",
+    "Bye",
+    "Command",
+    "CommandStatus",
+    "FrameMsg",
+    "Hello",
+    "Message",
+    "ModuleHeartbeat",
+    "Nack",
+    "ProtocolError",
+    "Reason",
+    "ScheduleState",
+    "SensorsMsg",
+    "ShipHeartbeat",
+    "Welcome",
+    "decode",
+    "encode",
+    "is_id",
+    "module_socket",
+    "parse_sensor_rows",
+    "sensors_payload",
+    "sha256_hex",
+    "ship_socket",
+    "utc_now",
+]

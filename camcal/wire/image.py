@@ -1,0 +1,96 @@
+"""What a frame payload claims to be, read from its first bytes (no pixels decoded).
+
+The ship refuses at the door a frame whose image is not what its header
+says: not a PNG or TIFF, not 8-bit single-channel, or of another width or
+height. Pixels are decoded later, by the analysis; a file whose header is
+right but whose pixels are damaged is stored as sent (it is the module's
+record) and its analysis says ``unreadable``.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_COLOURS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}  # colour type -> channels (3: palette)
+_TIFF_TAGS = {256: "width", 257: "height", 258: "bits", 277: "channels"}
+_TIFF_TYPE_SIZES = {3: 2, 4: 4}  # SHORT, LONG: the types these tags use
+
+
+class ImageHeaderError(ValueError):
+    """A payload that is not the image it claims to be."""
+
+
+@dataclass(frozen=True)
+class ImageHeader:
+    width_px: int
+    height_px: int
+    bits: int
+    channels: int
+    palette: bool = False
+
+
+def read_header(data: bytes | memoryview, encoding: str) -> ImageHeader:
+    """Width, height, bit depth and channels of a PNG or TIFF payload."""
+    head = bytes(memoryview(data)[: 64 * 1024] if encoding == "tiff" else memoryview(data)[:33])
+    if encoding == "png":
+        return _png(head)
+    if encoding == "tiff":
+        return _tiff(head)
+    raise ImageHeaderError(f"unknown encoding {encoding!r}")
+
+
+def check_frame(data: bytes | memoryview, encoding: str, width_px: int, height_px: int) -> None:
+    """Raise `ImageHeaderError` unless the payload is an 8-bit grey image of the stated size."""
+    h = read_header(data, encoding)
+    if h.bits != 8 or h.channels != 1 or h.palette:
+        kind = "palette" if h.palette else f"{h.bits}-bit, {h.channels}-channel"
+        raise ImageHeaderError(f"{encoding.upper()} is {kind}; frames must be 8-bit grayscale")
+    if (h.width_px, h.height_px) != (width_px, height_px):
+        raise ImageHeaderError(
+            f"image is {h.width_px} x {h.height_px} px, header says {width_px} x {height_px}"
+        )
+
+
+def _png(head: bytes) -> ImageHeader:
+    if len(head) < 33 or head[:8] != _PNG_SIGNATURE:
+        raise ImageHeaderError("not a PNG (no PNG signature)")
+    length, kind = struct.unpack_from(">I4s", head, 8)
+    if kind != b"IHDR" or length != 13:
+        raise ImageHeaderError("PNG does not start with its IHDR chunk")
+    width, height, bits, colour = struct.unpack_from(">IIBB", head, 16)
+    if colour not in _PNG_COLOURS or not width or not height:
+        raise ImageHeaderError("PNG header is invalid")
+    return ImageHeader(width, height, bits, _PNG_COLOURS[colour], palette=colour == 3)
+
+
+def _tiff(head: bytes) -> ImageHeader:
+    if head[:4] == b"II*\x00":
+        order = "<"
+    elif head[:4] == b"MM\x00*":
+        order = ">"
+    else:
+        raise ImageHeaderError("not a TIFF (no TIFF signature)")
+    try:
+        (ifd,) = struct.unpack_from(order + "I", head, 4)
+        (n,) = struct.unpack_from(order + "H", head, ifd)
+        found: dict[str, int] = {"bits": 1, "channels": 1}
+        for i in range(min(n, 512)):
+            tag, kind, count, _ = struct.unpack_from(order + "HHI4s", head, ifd + 2 + 12 * i)
+            if tag not in _TIFF_TAGS or kind not in _TIFF_TYPE_SIZES:
+                continue
+            fmt = "H" if kind == 3 else "I"
+            if count * _TIFF_TYPE_SIZES[kind] <= 4:
+                (value,) = struct.unpack_from(order + fmt, head, ifd + 2 + 12 * i + 8)
+            else:  # several values elsewhere (bits per sample of a colour image): the first says enough
+                (offset,) = struct.unpack_from(order + "I", head, ifd + 2 + 12 * i + 8)
+                (value,) = struct.unpack_from(order + fmt, head, offset)
+            found[_TIFF_TAGS[tag]] = value
+    except struct.error:
+        raise ImageHeaderError(
+            "TIFF header is truncated or its first directory is not in the first 64 KiB"
+        ) from None
+    if "width" not in found or "height" not in found:
+        raise ImageHeaderError("TIFF has no width or height")
+    return ImageHeader(found["width"], found["height"], found["bits"], found["channels"])

@@ -1,0 +1,237 @@
+"""Every message of the module protocol as a strict model: types, units, ranges, lengths.
+
+The models are the protocol: ``docs/protocol-v1.schema.json`` is generated
+from them (`camcal.wire.schema`) and ``docs/protocol.md`` explains them. A
+header field that is missing, of another JSON type, out of its range or too
+long makes the message ``invalid_field``. Unknown fields are ignored, so a
+later minor version can add fields without breaking older ships.
+"""
+
+from __future__ import annotations
+
+import re
+from datetime import UTC, datetime
+from typing import Annotated, Any, Literal
+
+from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, Strict
+
+from camcal.wire.limits import (
+    INT_MAX,
+    MAX_SENSOR_ROWS,
+    TIME_MAX,
+    TIME_MIN,
+)
+from camcal.wire.sensors import SENSOR_COLUMNS
+
+PROTOCOL_VERSION: Literal[1] = 1
+ID_PATTERN = r"^[A-Za-z0-9_.-]*[A-Za-z0-9_-][A-Za-z0-9_.-]*$"  # at least one character not a dot
+_ID_RE = re.compile(ID_PATTERN)
+_SEGMENT = r"[^/\\\x00]*[^/\\\x00.][^/\\\x00]*"  # a path segment that is not only dots
+#: A frame's file inside the module's frame set: relative, ``/``-separated, no ``.``/``..`` segments.
+FILE_PATTERN = rf"^{_SEGMENT}(?:/{_SEGMENT})*$"
+
+
+def is_id(v: object) -> bool:
+    """Whether ``v`` is a valid identifier (module, boot, camera, command)."""
+    return isinstance(v, str) and 1 <= len(v) <= 64 and _ID_RE.match(v) is not None
+
+
+def utc_now() -> datetime:
+    return datetime.now(UTC)
+
+
+def _number(v: Any) -> Any:
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        raise ValueError("must be a JSON number")
+    return v
+
+
+def _timestamp(v: Any) -> Any:
+    if isinstance(v, datetime):
+        return v
+    if not isinstance(v, str) or len(v) > 40:
+        raise ValueError("must be an ISO-8601 date and time string, e.g. 2026-11-25T02:16:37.5Z")
+    return v
+
+
+def _in_window(v: datetime) -> datetime:
+    if v.tzinfo is None:  # no offset: UTC, as the protocol says
+        v = v.replace(tzinfo=UTC)
+    if not TIME_MIN <= v < TIME_MAX:
+        raise ValueError(f"must be between {TIME_MIN:%Y-%m-%d} and {TIME_MAX:%Y-%m-%d} (UTC)")
+    return v.astimezone(UTC)
+
+
+#: An identifier: 1-64 letters, digits, ``_``, ``.``, ``-``, and not only dots.
+Id = Annotated[str, Strict(), Field(min_length=1, max_length=64, pattern=ID_PATTERN)]
+#: A sequence number of a boot: 1 .. 2^63-1.
+Seq = Annotated[int, Strict(), Field(ge=1, le=INT_MAX)]
+#: A count: 0 .. 2^63-1.
+Count = Annotated[int, Strict(), Field(ge=0, le=INT_MAX)]
+#: A schedule version: 0 .. 2^31-1 (operators number them 1, 2, 3, ...).
+Version = Annotated[int, Strict(), Field(ge=0, le=2**31 - 1)]
+#: Time as ISO-8601 text (UTC; an offset is converted, none means UTC), 2000-01-01 .. 2100-01-01.
+Timestamp = Annotated[
+    datetime,
+    Field(
+        description="ISO-8601 date and time, UTC (Z or an offset; none means UTC), 2000-01-01 to 2100-01-01"
+    ),
+    BeforeValidator(_timestamp),
+    AfterValidator(_in_window),
+]
+#: A finite JSON number (integer or fraction); each field adds its bounds.
+_NUMBER = BeforeValidator(_number)
+
+
+class _Header(BaseModel):
+    model_config = ConfigDict(extra="ignore", frozen=True)
+    v: Literal[1] = PROTOCOL_VERSION
+    module: Id
+    sent_at: Timestamp = Field(default_factory=utc_now)
+
+
+class ScheduleState(BaseModel):
+    """Which schedule a module runs, and whether it is running."""
+
+    model_config = ConfigDict(extra="ignore", frozen=True)
+    name: Annotated[str, Strict(), Field(max_length=80)] = ""
+    version: Version = 0
+    state: Literal["running", "paused", "stopped", "idle"] = "idle"
+
+
+# ------------------------------------------------------------ module -> ship
+class Hello(_Header):
+    """First message after (re)connecting; repeated until the ship answers ``welcome``."""
+
+    type: Literal["hello"] = "hello"
+    boot: Id
+    software: Annotated[str, Strict(), Field(max_length=120)] = ""
+    schedule: ScheduleState = ScheduleState()
+    outbox_pending: Count = 0
+    last_seq: Count = 0
+
+
+class FrameMsg(_Header):
+    """One camera frame; the payload is the encoded image (8-bit grayscale PNG or TIFF)."""
+
+    type: Literal["frame"] = "frame"
+    boot: Id
+    seq: Seq
+    captured_at: Timestamp
+    camera: Id
+    wavelength_nm: Annotated[int, Strict(), Field(ge=200, le=2000)]
+    exposure_s: Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False), _NUMBER]
+    gain_db: Annotated[float, Field(ge=-100, le=100, allow_inf_nan=False), _NUMBER]
+    depth_m: Annotated[float, Field(ge=-1000, le=12000, allow_inf_nan=False), _NUMBER] | None = None
+    width_px: Annotated[int, Strict(), Field(ge=1, le=65535)]
+    height_px: Annotated[int, Strict(), Field(ge=1, le=65535)]
+    encoding: Literal["png", "tiff"] = "png"
+    size: Annotated[int, Strict(), Field(ge=1, le=INT_MAX)]
+    sha256: Annotated[str, Strict(), Field(pattern=r"^[0-9a-f]{64}$")]
+    schedule_version: Version = 0
+    file: Annotated[str, Strict(), Field(min_length=1, max_length=255, pattern=FILE_PATTERN)] | None = None
+
+
+class SensorsMsg(_Header):
+    """A batch of sensor samples; the payload is a JSON array of rows in ``columns`` order."""
+
+    type: Literal["sensors"] = "sensors"
+    boot: Id
+    seq: Seq
+    columns: Annotated[
+        tuple[Annotated[str, Strict(), Field(max_length=64)], ...], Field(min_length=1, max_length=64)
+    ] = SENSOR_COLUMNS
+    count: Annotated[int, Strict(), Field(ge=0, le=MAX_SENSOR_ROWS)]
+    size: Annotated[int, Strict(), Field(ge=1, le=INT_MAX)]
+    sha256: Annotated[str, Strict(), Field(pattern=r"^[0-9a-f]{64}$")]
+
+
+class ModuleHeartbeat(_Header):
+    """Sent every second or so; tells the ship the module lives and what it runs."""
+
+    type: Literal["heartbeat"] = "heartbeat"
+    boot: Id
+    schedule: ScheduleState = ScheduleState()
+    outbox_pending: Count = 0
+    in_flight: Count = 0
+    last_seq: Count = 0
+
+
+class CommandStatus(_Header):
+    """The module's answer to a command."""
+
+    type: Literal["command_status"] = "command_status"
+    boot: Id
+    command_id: Id
+    state: Literal["accepted", "rejected", "in_progress", "done"]
+    reason: Annotated[str, Strict(), Field(max_length=500)] | None = None
+    schedule: ScheduleState = ScheduleState()
+
+
+class Bye(_Header):
+    """The module shuts down cleanly (the ship shows it as signed off, not as a lost link)."""
+
+    type: Literal["bye"] = "bye"
+    boot: Id
+
+
+# ------------------------------------------------------------ ship -> module
+class Welcome(_Header):
+    """The ship's answer to ``hello``: its clock and the initial window."""
+
+    type: Literal["welcome"] = "welcome"
+    ship_time: Timestamp = Field(default_factory=utc_now)
+    window: Annotated[int, Strict(), Field(ge=1, le=65535)]
+    heartbeat_s: Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False), _NUMBER] = 1.0
+
+
+class Ack(_Header):
+    """Data messages now committed on the ship: ranges ``[boot, first_seq, last_seq]``."""
+
+    type: Literal["ack"] = "ack"
+    ranges: tuple[tuple[Id, Seq, Seq], ...]
+    window: Annotated[int, Strict(), Field(ge=1, le=65535)]
+
+
+class Nack(_Header):
+    """A message the ship refused, with why (`camcal.wire.reasons`) and whether resending can help.
+
+    ``boot`` and ``seq`` identify the refused data message where the ship
+    could read them; ``of`` is the refused message's type where known.
+    """
+
+    type: Literal["nack"] = "nack"
+    boot: Id | None = None
+    seq: Seq | None = None
+    of: Annotated[str, Strict(), Field(max_length=40)] | None = None
+    reason: Annotated[str, Strict(), Field(pattern=r"^[a-z_]{1,40}$")]
+    retry: bool = False
+    detail: Annotated[str, Strict(), Field(max_length=500)] = ""
+
+
+class ShipHeartbeat(_Header):
+    """The ship lives; ``window`` is the current credit."""
+
+    type: Literal["ship_heartbeat"] = "ship_heartbeat"
+    ship_time: Timestamp = Field(default_factory=utc_now)
+    window: Annotated[int, Strict(), Field(ge=1, le=65535)]
+
+
+class Command(_Header):
+    """An operator's command to a module (see ``docs/protocol.md``)."""
+
+    type: Literal["command"] = "command"
+    command_id: Id
+    action: Literal["set_schedule", "start", "pause", "resume", "stop"]
+    target_version: Version = 0
+    schedule: dict[str, Any] | None = None
+    apply: Literal["now", "end_of_setting"] = "now"
+    issued_by: Annotated[str, Strict(), Field(max_length=120)] = ""
+    issued_at: Timestamp = Field(default_factory=utc_now)
+
+
+MODULE_MESSAGES = (Hello, FrameMsg, SensorsMsg, ModuleHeartbeat, CommandStatus, Bye)
+SHIP_MESSAGES = (Welcome, Ack, Nack, ShipHeartbeat, Command)
+DATA_TYPES = frozenset({"frame", "sensors"})
+MODULE_TYPES = frozenset(m.model_fields["type"].default for m in MODULE_MESSAGES)
+SHIP_TYPES = frozenset(m.model_fields["type"].default for m in SHIP_MESSAGES)

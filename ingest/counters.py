@@ -1,0 +1,112 @@
+"""The ingest's counters, and a log that says a thing once, not a thousand times.
+
+Counters come in groups: ``counters`` (messages received, stored,
+acknowledged...), ``malformed`` (refused while decoding, by reason),
+``nacked`` (every refusal, by reason: the malformed ones and those refused
+later, such as conflicts) and ``refused`` (messages of modules this ingest
+does not serve, by module). Totals are kept beside the groups so that
+``counters["malformed"] == sum(malformed.values())`` and ``counters["nacked"]
+== sum(nacked.values())`` always hold: both are changed together, under one
+lock. The store keeps them (`save`/`load`), so a restart continues the
+counts instead of zeroing them.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import Counter
+from typing import Any
+
+GROUPS = ("counters", "malformed", "nacked", "refused")
+
+
+class Counters:
+    """Thread-safe counters of one ingest, in `GROUPS`."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._groups: dict[str, Counter[str]] = {g: Counter() for g in GROUPS}
+        self._dirty = False
+
+    def inc(self, name: str, n: int = 1) -> None:
+        """Add to ``counters[name]``."""
+        with self._lock:
+            self._groups["counters"][name] += n
+            self._dirty = True
+
+    def refuse(self, reason: str, *, malformed: bool) -> None:
+        """Count one refused message (and, if ``malformed``, one refused while decoding)."""
+        with self._lock:
+            c = self._groups["counters"]
+            self._groups["nacked"][reason] += 1
+            c["nacked"] += 1
+            if malformed:
+                self._groups["malformed"][reason] += 1
+                c["malformed"] += 1
+            self._dirty = True
+
+    def not_served(self, module: str) -> int:
+        """Count a message of a module this ingest does not serve; returns how many so far."""
+        with self._lock:
+            self._groups["refused"][module] += 1
+            self._groups["counters"]["refused"] += 1
+            self._dirty = True
+            return self._groups["refused"][module]
+
+    def __getitem__(self, name: str) -> int:
+        return self.get(name)
+
+    def get(self, name: str, group: str = "counters") -> int:
+        with self._lock:
+            return self._groups[group][name]
+
+    def snapshot(self) -> dict[str, dict[str, int]]:
+        with self._lock:
+            return {g: dict(c) for g, c in self._groups.items()}
+
+    # -- persistence -----------------------------------------------------
+    def restore(self, saved: dict[str, int]) -> None:
+        """Start from saved values (``group.name`` -> value)."""
+        with self._lock:
+            for key, value in saved.items():
+                group, _, name = key.partition(".")
+                if group in self._groups and name:
+                    self._groups[group][name] += value
+
+    def flat_if_changed(self) -> dict[str, int] | None:
+        """Every counter as ``group.name`` -> value, or None if nothing changed since the last call."""
+        with self._lock:
+            if not self._dirty:
+                return None
+            self._dirty = False
+            return {f"{g}.{k}": v for g, c in self._groups.items() for k, v in c.items()}
+
+
+class RateLimitedLog:
+    """Logs the first occurrence of each key at once, then at most one line per ``interval_s``.
+
+    The line after a quiet spell says how many similar ones were suppressed,
+    so a flood of bad messages costs a few log lines, not a full disk.
+    """
+
+    def __init__(self, logger: logging.Logger, interval_s: float = 10.0) -> None:
+        self.log = logger
+        self.interval_s = interval_s
+        self._last: dict[str, float] = {}
+        self._suppressed: Counter[str] = Counter()
+        self._lock = threading.Lock()
+
+    def __call__(self, level: int, key: str, msg: str, *args: Any, exc_info: bool = False) -> None:
+        now = time.monotonic()
+        with self._lock:
+            last = self._last.get(key)
+            if last is not None and now - last < self.interval_s:
+                self._suppressed[key] += 1
+                return
+            self._last[key] = now
+            n = self._suppressed.pop(key, 0)
+        if n:
+            msg += f" ({n} similar suppressed in the last {self.interval_s:g} s)"
+        self.log.log(level, msg, *args, exc_info=exc_info)

@@ -1,0 +1,278 @@
+"""The store thread's once-a-second work and module bookkeeping.
+
+Links and module state, attitude from the sensor samples, alarms (raised
+once, changed when their state changes, cleared when the condition ends),
+disk and retention, operator commands (delivered oldest first, repeated
+until the module answers; a status counts only from the command's own
+module), the credit window, and the counters (saved every few seconds, so
+a restart continues them).
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import time
+from collections import defaultdict
+from typing import TYPE_CHECKING, Any
+
+from analysis.attitude import attitude_from_samples
+from camcal import wire
+from ingest.network import Incoming, nack
+
+if TYPE_CHECKING:
+    from ingest.storeloop import StoreState
+
+log = logging.getLogger("camcal.ingest")
+
+#: Seconds of sensor samples the attitude (tilt, rotation, heave period) is estimated from.
+ATTITUDE_WINDOW_S = 120.0
+#: How often the counters are written to the store.
+COUNTERS_SAVE_S = 5.0
+
+
+class Housekeeping:
+    def __init__(self, state: StoreState) -> None:
+        self.st = state
+        self.svc = state.svc
+        self.store = state.store
+        cfg = self.svc.config
+        self.active_alarms = {
+            a.key for a in self.store.active_alarms() if a.module_id is None or cfg.serves(a.module_id)
+        }
+        self.attitude_t: dict[str, float] = {}
+        self.last_housekeeping = -1e18
+        self.last_purge = -1e18
+        self.last_counters_save = -1e18
+
+    # -- links and modules ----------------------------------------------
+    def link(self, it: Incoming) -> None:
+        info = it.msg
+        self.svc.events.emit(
+            "link",
+            {"state": "up" if info["up"] else "down", "reason": info.get("reason")},
+            module=it.module,
+            dive_id=self.svc.dive.id,
+        )
+        if not info["up"] and info.get("boot") and info.get("last_seq"):
+            self.st.gaps.link_down(it.module, info["boot"], int(info["last_seq"]))
+
+    def module_info(self, it: Incoming) -> None:
+        m = it.msg
+        sched = m.schedule
+        cameras = self.svc.config.setup.cameras
+        self.store.touch_module(
+            m.module,
+            seen_unix_s=it.received_unix_s,
+            boot=m.boot,
+            software=getattr(m, "software", None) or None,
+            schedule_name=sched.name,
+            schedule_version=sched.version,
+            schedule_state=sched.state,
+            distance_m=cameras[m.module].distance_m if m.module in cameras else None,
+        )
+
+    # -- commands --------------------------------------------------------
+    def command_status(self, it: Incoming) -> None:
+        m = it.msg
+        cmd = self.store.command(m.command_id)
+        if cmd is None or cmd["module"] != m.module:
+            self.svc.counters.refuse("invalid_field", malformed=False)
+            self.svc.send_to_module(
+                m.module,
+                nack(
+                    "invalid_field",
+                    f"command_status: no command {m.command_id!r} was sent to module {m.module}",
+                    {"type": m.type, "boot": m.boot},
+                ),
+            )
+            return
+        cmd = self.store.update_command(m.command_id, m.state, m.reason, actor=f"module:{m.module}")
+        self.module_info(it)
+        if cmd is not None:
+            self.svc.events.emit(
+                "command",
+                {
+                    "command_id": cmd["id"],
+                    "state": cmd["state"],
+                    "reason": cmd["reason"],
+                    "action": cmd["action"],
+                    "target_version": cmd["target_version"],
+                },
+                module=m.module,
+                dive_id=self.svc.dive.id,
+            )
+
+    def deliver_commands(self) -> None:
+        """Send queued commands to linked modules, oldest first; repeat until the module answers.
+
+        Oldest first: commands queued while a module was offline (pause, then
+        resume) must reach it in the order the operator issued them.
+        """
+        svc = self.svc
+        now = time.time()
+        links = svc.network.links if svc.network else {}
+        for cmd in reversed(self.store.commands(states=("pending", "sent", "accepted"))):
+            link = links.get(cmd["module"])
+            if link is None or not link.up:
+                continue  # stays pending: delivered when the module is back
+            if cmd["state"] == "accepted" or (
+                cmd["attempts"] and now - cmd["updated_unix_s"] < svc.config.command_retry_s
+            ):
+                continue
+            schedule = (cmd["payload"] or {}).get("schedule")
+            svc.send_to_module(
+                cmd["module"],
+                wire.Command(
+                    module="ship",
+                    command_id=cmd["id"],
+                    action=cmd["action"],
+                    target_version=cmd["target_version"],
+                    schedule=schedule,
+                    apply=cmd["apply"],
+                    issued_by=cmd["issued_by"],
+                ),
+            )
+            self.store.mark_command_sent(cmd["id"])
+            if not cmd["attempts"]:
+                svc.events.emit(
+                    "command",
+                    {
+                        "command_id": cmd["id"],
+                        "state": "sent",
+                        "action": cmd["action"],
+                        "target_version": cmd["target_version"],
+                    },
+                    module=cmd["module"],
+                    dive_id=svc.dive.id,
+                )
+
+    # -- once a second ---------------------------------------------------
+    def tick(self) -> None:
+        """Each step guarded apart: one that fails is logged and the others still run."""
+        g = self.st.guarded
+        now, mono = time.time(), time.monotonic()
+        g("attitude", self._attitude)
+        g("link alarms", self._observe_links, mono)
+        g("gap alarms", self._observe_gaps)
+        if mono - self.last_housekeeping >= 30.0:
+            self.last_housekeeping = mono
+            g("disk", self._disk, now)
+        g("alarms", self._apply_alarms, self.st.alarms.evaluate(now))
+        g("linearity", self.st.results.update_linearity)
+        g("commands", self.deliver_commands)
+        g("window", self._adapt_window)
+        if mono - self.last_counters_save >= COUNTERS_SAVE_S:
+            self.last_counters_save = mono
+            g("counters", self.save_counters)
+        g("health", lambda: self.svc.events.transient("health", self.svc.health()))
+
+    def save_counters(self) -> None:
+        values = self.svc.counters.flat_if_changed()
+        if values:
+            self.store.save_counters(self.svc.ingest_id, values)
+
+    def _attitude(self) -> None:
+        svc = self.svc
+        rows = []
+        for module, buf in self.st.sensors.items():
+            if len(buf) < 5 or self.attitude_t.get(module) == buf[-1][0]:
+                continue  # too few samples, or none new since the last tick
+            self.attitude_t[module] = buf[-1][0]
+            recent = self.st.sensor_tail(module, ATTITUDE_WINDOW_S)
+            est = attitude_from_samples(recent[:, 0], recent[:, 1:4], recent[:, 4:7])
+            self.st.alarms.observe_tilt(module, est.tilt_deg)
+            row = {
+                "module_id": module,
+                "dive_id": svc.dive.id,
+                "t_unix_s": float(recent[-1, 0]),
+                "tilt_deg": est.tilt_deg,
+                "tilt_x_deg": est.tilt_x_deg,
+                "tilt_y_deg": est.tilt_y_deg,
+                "rotation_rate_dps": est.rotation_rate_dps,
+                "heave_period_s": est.heave_period_s,
+                "heave_amplitude_m_s2": est.heave_amplitude_m_s2,
+            }
+            rows.append(row)
+            svc.events.transient(
+                "attitude", {k: v for k, v in row.items() if k != "module_id"}, module=module
+            )
+        self.store.add_attitude(rows)
+
+    def _observe_links(self, mono: float) -> None:
+        svc = self.svc
+        for link in list(svc.network.links.values()) if svc.network else []:
+            age_up = link.up and mono - link.last_seen_mono <= svc.config.link_timeout_s
+            self.st.alarms.observe_link(
+                link.module, age_up, link.last_seen_unix_s or None, signed_off=link.down_reason == "bye"
+            )
+
+    def _observe_gaps(self) -> None:
+        svc = self.svc
+        gaps: dict[str, list[tuple[int, int, float]]] = defaultdict(list)
+        for g in self.store.open_gaps():  # one query for every module, not one per module
+            if svc.config.serves(g.module_id):
+                gaps[g.module_id].append((g.first_seq, g.last_seq, g.detected_unix_s))
+        links = svc.network.links if svc.network else {}
+        for module in set(gaps) | set(links):
+            self.st.alarms.observe_gaps(module, gaps.get(module, []))
+
+    def _disk(self, now: float) -> None:
+        """Free disk (an alarm when it runs low) and, hourly, the retention of old frame files."""
+        svc = self.svc
+        free_gb = shutil.disk_usage(svc.store.files.root).free / 1e9
+        svc.disk_free_gb = round(free_gb, 2)
+        self.st.alarms.observe_disk(free_gb)
+        days = svc.config.retention_days
+        if days and time.monotonic() - self.last_purge >= 3600.0:
+            self.last_purge = time.monotonic()
+            n, freed = self.store.purge_frame_files(now - days * 86400.0, svc.config.modules)
+            if n:
+                log.info(
+                    "retention: deleted %d frame files older than %g days (%.1f MB)", n, days, freed / 1e6
+                )
+                svc.events.emit(
+                    "retention", {"files": n, "bytes": freed, "older_than_days": days}, dive_id=svc.dive.id
+                )
+
+    def _apply_alarms(self, conditions: dict[str, Any]) -> None:
+        svc = self.svc
+        for key, c in conditions.items():
+            alarm, changed = self.store.raise_alarm(key, c.kind, c.severity, c.message, c.module)
+            if changed or key not in self.active_alarms:
+                svc.events.emit(
+                    "alarm",
+                    {
+                        "alarm_id": alarm.id,
+                        "state": "raised",
+                        "kind": c.kind,
+                        "severity": c.severity,
+                        "message": c.message,
+                    },
+                    module=c.module,
+                    dive_id=svc.dive.id,
+                )
+            self.active_alarms.add(key)
+        for key in list(self.active_alarms - set(conditions)):
+            alarm = self.store.clear_alarm(key)
+            self.active_alarms.discard(key)
+            if alarm is not None:
+                svc.events.emit(
+                    "alarm",
+                    {
+                        "alarm_id": alarm.id,
+                        "state": "cleared",
+                        "kind": alarm.kind,
+                        "severity": alarm.severity,
+                        "message": alarm.message,
+                    },
+                    module=alarm.module_id,
+                    dive_id=svc.dive.id,
+                )
+
+    def _adapt_window(self) -> None:
+        """Credit: shrink the window while the store queue or analysis backlog is deep."""
+        svc = self.svc
+        backlog = svc.backlog()
+        base = svc.config.window
+        svc.window = base if backlog < 4 * base else max(1, base // 4)

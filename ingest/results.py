@@ -1,0 +1,162 @@
+"""Analysis results back from the pool: stored, published, turned into λ_att and linearity."""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import defaultdict
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ingest.derived import attenuation_point_row, geometry_and_ratios, linearity_rows
+from ingest.network import Incoming
+from ingest.rolling import RollingAttenuation, Sample
+
+if TYPE_CHECKING:
+    from ingest.storeloop import StoreState
+
+log = logging.getLogger("camcal.ingest")
+
+
+class Results:
+    def __init__(self, state: StoreState) -> None:
+        self.st = state
+        self.svc = state.svc
+        self.store = state.store
+        cfg = self.svc.config
+        gr = geometry_and_ratios(cfg.setup)
+        self.rolling: RollingAttenuation | None = None
+        if gr is not None:
+            self.rolling = RollingAttenuation(gr[0], gr[1], cfg.rolling_window_s, cfg.rolling_interval_s)
+        self.linearity: dict[tuple[str, int], dict[tuple[float, float], list[float]]] = defaultdict(
+            lambda: defaultdict(list)
+        )
+        self.linearity_dirty: set[tuple[str, int]] = set()
+
+    def handle(self, items: list[Incoming]) -> None:
+        svc = self.svc
+        rows = []
+        done = []
+        for it in items:
+            frame_id, meta, fut = it.msg
+            try:
+                row = fut.result()
+            except Exception as exc:  # the worker died or raised: record it, keep going
+                log.exception("analysis of frame %s failed", frame_id)
+                row = {"status": "rejected", "reason": "analysis_error", "detail": str(exc)[:500]}
+            analysis_s = row.pop("analysis_s", None)
+            row.pop("width_px", None)
+            row.pop("height_px", None)
+            rows.append({**row, "frame_id": frame_id, "analysed_unix_s": time.time()})
+            done.append((frame_id, meta, row, analysis_s))
+        self.store.save_results(svc.run.id, rows)
+        now_mono = time.monotonic()
+        points = []
+        for frame_id, meta, row, analysis_s in done:
+            module = meta["module"]
+            if meta.get("received_mono") is not None:
+                svc.latency_s.append(now_mono - meta["received_mono"])
+            svc.counters.inc("frames_analysed")
+            svc.counters.inc(f"result_{row['status'] if row['status'] == 'ok' else row['reason']}")
+            centroid = (
+                (row["centroid_x_px"], row["centroid_y_px"]) if row.get("centroid_x_px") is not None else None
+            )
+            self.st.alarms.observe_frame(
+                module,
+                row["status"],
+                row.get("reason"),
+                centroid,
+                row.get("radius_px"),
+                (meta.get("width_px") or 1, meta.get("height_px") or 1),
+            )
+            svc.events.emit(
+                "result",
+                {
+                    "frame_id": frame_id,
+                    "seq": meta["seq"],
+                    "wavelength_nm": meta["wavelength_nm"],
+                    "exposure_s": meta["exposure_s"],
+                    "gain_db": meta["gain_db"],
+                    "depth_m": meta["depth_m"],
+                    "captured_unix_s": meta["captured_unix_s"],
+                    "status": row["status"],
+                    "reason": row.get("reason"),
+                    "centroid_px": list(centroid) if centroid else None,
+                    "radius_px": row.get("radius_px"),
+                    "i_center_gray": row.get("i_center_gray"),
+                    "i_center_err_gray": row.get("i_center_err_gray"),
+                    "background_gray": row.get("background_gray"),
+                    "width_px": meta.get("width_px"),
+                    "height_px": meta.get("height_px"),
+                    "thumb": f"/api/frames/{frame_id}/thumbnail",
+                    "analysis_s": round(analysis_s, 4) if analysis_s else None,
+                },
+                module=module,
+                dive_id=svc.dive.id,
+            )
+            if row.get("center_gray") is not None:
+                key = (module, meta["wavelength_nm"])
+                self.linearity[key][(meta["exposure_s"], meta["gain_db"])].append(row["center_gray"])
+                self.linearity_dirty.add(key)
+            if row["status"] == "ok" and self.rolling is not None:
+                point = self.rolling.add(
+                    module,
+                    meta["wavelength_nm"],
+                    meta["exposure_s"],
+                    meta["gain_db"],
+                    Sample(
+                        meta["captured_unix_s"],
+                        row["i_center_gray"],
+                        row["i_center_err_gray"],
+                        meta["depth_m"],
+                    ),
+                )
+                if point is not None:
+                    points.append(point)
+        if points:
+            self._store_points(points)
+
+    def _store_points(self, points: list[Any]) -> None:
+        svc = self.svc
+        rows = [
+            attenuation_point_row(
+                res,
+                t,
+                depth,
+                run_id=svc.run.id,
+                dive_id=svc.dive.id,
+                window_s=svc.config.rolling_window_s,
+                details={
+                    "pairs": [
+                        [p.exposure_s, p.gain_db, p.n_near, p.n_far, p.lambda_att_m] for p in res.pairs
+                    ],
+                    "note": res.note,
+                },
+            )
+            for res, t, depth in points
+        ]
+        ids = self.store.add_attenuation_points(rows)
+        for pid, r in zip(ids, rows, strict=True):
+            svc.events.emit(
+                "attenuation",
+                {"point_id": pid, **{k: v for k, v in r.items() if k != "details"}},
+                dive_id=svc.dive.id,
+            )
+
+    def update_linearity(self) -> None:
+        svc = self.svc
+        lr = tuple(svc.config.setup.linear_range)
+        for module, wl in list(self.linearity_dirty):
+            points = {k: float(np.mean(v)) for k, v in self.linearity[(module, wl)].items()}
+            for row in linearity_rows(points, lr):  # type: ignore[arg-type]
+                self.store.upsert_linearity(
+                    {
+                        **row,
+                        "run_id": svc.run.id,
+                        "module_id": module,
+                        "wavelength_nm": wl,
+                        "updated_unix_s": time.time(),
+                    }
+                )
+        self.linearity_dirty.clear()

@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 DATA   ?= camcal-data
 PORT   ?= 8000
 
-.PHONY: run test test-browser lint bench bench-dashboard demo clean
+.PHONY: run test test-browser fuzz lint bench bench-dashboard demo clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -24,6 +24,10 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest
+
+# The protocol fuzzer's slow lane: 10 000 generated messages against a real ingest (make test sends 800).
+fuzz: $(STAMP)
+	CAMCAL_FUZZ_MESSAGES=10000 $(BIN)/python -m pytest tests/live/test_fuzz_ingest.py -q -s
 
 test-browser: $(STAMP)
 	$(BIN)/python -m pytest -m browser tests/browser

@@ -146,16 +146,16 @@ class AlarmEvaluator:
                         "MAJOR",
                         f"module {module}: no packet since {since} UTC; check the fibre link and power",
                     )
-            recent = [c for c in st.conflicts if now_unix_s - c[0] <= lim.conflict_hold_s]
-            if recent:
-                _, boot, seq = recent[-1]
+            conflicts = [c for c in st.conflicts if now_unix_s - c[0] <= lim.conflict_hold_s]
+            if conflicts:
+                _, boot, seq = conflicts[-1]
                 add(
                     "conflict",
                     module,
                     "MAJOR",
-                    f"module {module}: {len(recent)} message(s) resent with other content than the stored "
-                    f"copy since {_hms(recent[0][0])} UTC (latest {boot}/{seq}); the ship keeps the first: "
-                    "compare the module's SD card with `camcal import`",
+                    f"module {module}: {len(conflicts)} message(s) resent with other content than the "
+                    f"stored copy since {_hms(conflicts[0][0])} UTC (latest {boot}/{seq}); the ship keeps "
+                    "the first: compare the module's SD card with `camcal import`",
                 )
             if st.humidity:
                 t_last, h_last = st.humidity[-1]

@@ -254,19 +254,19 @@ class Housekeeping:
                 )
             self.active_alarms.add(key)
         for key in list(self.active_alarms - set(conditions)):
-            alarm = self.store.clear_alarm(key)
+            cleared = self.store.clear_alarm(key)
             self.active_alarms.discard(key)
-            if alarm is not None:
+            if cleared is not None:
                 svc.events.emit(
                     "alarm",
                     {
-                        "alarm_id": alarm.id,
+                        "alarm_id": cleared.id,
                         "state": "cleared",
-                        "kind": alarm.kind,
-                        "severity": alarm.severity,
-                        "message": alarm.message,
+                        "kind": cleared.kind,
+                        "severity": cleared.severity,
+                        "message": cleared.message,
                     },
-                    module=alarm.module_id,
+                    module=cleared.module_id,
                     dive_id=svc.dive.id,
                 )
 

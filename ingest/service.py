@@ -122,7 +122,7 @@ class IngestService:
         self.events_endpoint = ""
         self.pub: Any = None
         self.push: Any = None
-        self.events: EventBus | None = None
+        self.events = EventBus(self.store, None)  # publishes once `start` has bound its socket
         self._threads: list[threading.Thread] = []
         self._pool: Any = None
         self._analysis_inflight = 0

@@ -25,7 +25,6 @@ import zmq
 from ingest.alarms import AlarmEvaluator
 from ingest.commit import Committer
 from ingest.counters import RateLimitedLog
-from ingest.events import EventBus
 from ingest.gaps import Gaps
 from ingest.housekeeping import Housekeeping
 from ingest.network import Incoming
@@ -140,7 +139,7 @@ def run_store_loop(svc: IngestService, q: queue.Queue[Incoming], stop: Any) -> N
     push.setsockopt(zmq.LINGER, 1000)
     push.connect(svc.out_endpoint)
     svc.push = push
-    svc.events = EventBus(svc.store, svc.pub)
+    svc.events.pub = svc.pub
     st = StoreState(svc)
     svc.recover_unanalysed()
     last_tick = 0.0

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -46,11 +47,12 @@ def dive_tables(store: Store, dive_id: int, run_id: int | None = None) -> dict[s
         names = [c.name for c in fcols] + [c.name for c in rcols]
         rows = s.execute(q.where(Frame.dive_id == dive_id).order_by(Frame.captured_unix_s)).all()
         out["frames"] = _table(names, rows)
-        for name, model, where in (
+        tables: tuple[tuple[str, Any, Any], ...] = (
             ("sensor_samples", SensorSample, SensorSample.dive_id == dive_id),
             ("attitude", AttitudeSample, AttitudeSample.dive_id == dive_id),
             ("attenuation", AttenuationPoint, AttenuationPoint.dive_id == dive_id),
-        ):
+        )
+        for name, model, where in tables:
             cols = _columns(model)
             rows = s.execute(select(*cols).where(where).order_by(model.id)).all()
             out[name] = _table([c.name for c in cols], rows)
@@ -58,14 +60,15 @@ def dive_tables(store: Store, dive_id: int, run_id: int | None = None) -> dict[s
             cols = _columns(LinearityCheck)
             rows = s.execute(select(*cols).where(LinearityCheck.run_id == run_id)).all()
             out["linearity"] = _table([c.name for c in cols], rows)
-        for name, model in (("alarms", Alarm), ("audit_log", AuditEntry)):
+        logs: tuple[tuple[str, Any], ...] = (("alarms", Alarm), ("audit_log", AuditEntry))
+        for name, model in logs:
             cols = _columns(model)
             out[name] = _table([c.name for c in cols], s.execute(select(*cols).order_by(model.id)).all())
     return out
 
 
-def _table(names: list[str], rows: list[Any]) -> pa.Table:
-    columns = list(zip(*rows, strict=True)) if rows else [[] for _ in names]
+def _table(names: list[str], rows: Sequence[Any]) -> pa.Table:
+    columns: list[Sequence[Any]] = list(zip(*rows, strict=True)) if rows else [[] for _ in names]
     return pa.table({n: pa.array(list(col)) for n, col in zip(names, columns, strict=True)})
 
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import Engine, func, literal, select, text, tuple_, update
+from sqlalchemy import Engine, func, insert, literal, select, text, tuple_, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -323,7 +323,7 @@ class Store:
                 new_sensors.append((b.module_id, b.boot, b.seq))
                 if b.samples:
                     s.execute(
-                        SensorSample.__table__.insert(),
+                        insert(SensorSample),
                         [{**smp, "module_id": b.module_id, "dive_id": dive_id} for smp in b.samples],
                     )
             events: list[dict[str, Any]] = []
@@ -345,9 +345,9 @@ class Store:
 
     def stored_checksums(
         self, frame_keys: Sequence[tuple[str, str, int]], sensor_keys: Sequence[tuple[str, str, int]]
-    ) -> tuple[dict[tuple[str, str, int], str], dict[tuple[str, str, int], str | None]]:
+    ) -> tuple[dict[tuple[str, str, int], str | None], dict[tuple[str, str, int], str | None]]:
         """The sha256 of frames and sensor batches already stored under these keys (module, boot, seq)."""
-        frames: dict[tuple[str, str, int], str] = {}
+        frames: dict[tuple[str, str, int], str | None] = {}
         sensors: dict[tuple[str, str, int], str | None] = {}
         with self.read() as s:
             for table, keys, out in (
@@ -491,8 +491,7 @@ class Store:
             )
             if t_from is not None or t_to is not None:
                 src = src.where(FrameResult.frame_id.in_(self._frames_in(None, t_from, t_to)))
-            table = FrameResult.__table__
-            stmt = table.insert().from_select([*cols, "run_id"], src).returning(table.c.id)
+            stmt = insert(FrameResult).from_select([*cols, "run_id"], src).returning(FrameResult.id)
             return len(s.execute(stmt).all())
 
     @staticmethod
@@ -585,7 +584,7 @@ class Store:
     def add_attitude(self, samples: Sequence[dict[str, Any]]) -> None:
         if samples:
             with self.session() as s:
-                s.execute(AttitudeSample.__table__.insert(), list(samples))
+                s.execute(insert(AttitudeSample), list(samples))
 
     def upsert_linearity(self, row: dict[str, Any]) -> None:
         """Insert or replace the linearity fit of (run, module, wavelength, sweep)."""

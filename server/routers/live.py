@@ -54,6 +54,8 @@ def build_snapshot(store: Store, hub: LiveHub, settings: ServerSettings) -> dict
             "last_packet_age_s": h["last_packet_age_s"] if h else None,
             "last_seen_unix_s": m["last_seen_unix_s"],
             "frames_per_s": h["frames_per_s"] if h else None,
+            "frames_last_min": h.get("frames_last_min") if h else None,
+            "last_frame_age_s": h.get("last_frame_age_s") if h else None,
             "schedule": h["schedule"] if h else m["schedule"],
             "latest_frame": frame,
             "sensors": hub.sensors.get(mid) or sensors.get(mid),

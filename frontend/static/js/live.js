@@ -53,6 +53,8 @@ function moduleState(mid) {
       id: mid,
       link: "unknown",
       lastPacketAt: null,
+      lastFrameAt: null,
+      frames_last_min: null,
       setting: null,
       shown: null,
       pending: null,
@@ -87,6 +89,7 @@ function onSnapshot(d) {
       distance_m: sm.distance_m,
       link: sm.link,
       frames_per_s: sm.frames_per_s,
+      frames_last_min: sm.frames_last_min,
       schedule: sm.schedule,
       sensors: sm.sensors,
       attitude: sm.attitude,
@@ -95,6 +98,7 @@ function onSnapshot(d) {
     });
     const age = sm.last_packet_age_s ?? (sm.last_seen_unix_s ? d.server_time_unix_s - sm.last_seen_unix_s : null);
     m.lastPacketAt = age === null ? null : now - age * 1000;
+    m.lastFrameAt = sm.last_frame_age_s === null || sm.last_frame_age_s === undefined ? null : now - sm.last_frame_age_s * 1000;
     m.sensorsAt = sm.sensors ? m.lastPacketAt : null;
     m.maxDepth = Math.max(m.maxDepth, d.dive?.max_depth_m || 0);
     const lf = sm.latest_frame;
@@ -173,6 +177,8 @@ function onEvent(msg) {
         const hm = moduleState(mid);
         hm.link = h.link;
         hm.frames_per_s = h.frames_per_s;
+        hm.frames_last_min = h.frames_last_min;
+        if (h.last_frame_age_s !== null && h.last_frame_age_s !== undefined) hm.lastFrameAt = now - h.last_frame_age_s * 1000;
         hm.schedule = h.schedule;
         // The ingest's own count is the truth; packets seen since (sensors, frames) refine it.
         if (h.last_packet_age_s !== null && h.last_packet_age_s !== undefined) {
@@ -198,6 +204,7 @@ function onEvent(msg) {
     case "frame":
       m.setting = p;
       m.lastPacketAt = now;
+      m.lastFrameAt = now;
       break;
     case "result": {
       const frame = { ...p, id: p.frame_id };

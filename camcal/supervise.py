@@ -363,35 +363,33 @@ class Supervisor:
         """Children that have ended."""
         return [c for c in self.children if not c.alive()]
 
-    def stop(self, stages: list[list[Child]] | None = None, timeout_s: float = 8.0) -> None:
-        """SIGTERM each stage in turn (default: the last started first), waiting for it to end;
-        whatever is left after ``timeout_s`` in all is killed with its process group."""
+    def stop(self, stages: list[list[Child]] | None = None, timeout_s: float = 4.0) -> None:
+        """SIGTERM each stage in turn (default: the last started first) and wait for it to end, each
+        stage taking its share of ``timeout_s``; then kill whatever is left with its process group
+        (its fork server, workers, resource tracker). Everything is gone half a second after
+        ``timeout_s`` at the latest."""
         stages = stages if stages is not None else [[c] for c in reversed(self.children)]
         end = time.monotonic() + timeout_s
         for i, stage in enumerate(stages):
             for c in stage:
                 if c.alive():
                     c.proc.send_signal(signal.SIGTERM)
-            # each stage may use its share of what is left, the last one all of it
             stage_end = time.monotonic() + (end - time.monotonic()) / (len(stages) - i)
             for c in stage:
                 with contextlib.suppress(subprocess.TimeoutExpired):
                     c.proc.wait(max(0.0, stage_end - time.monotonic()))
         for c in self.children:
-            self._reap_group(c, kill=c.alive())
+            if c.alive():
+                with contextlib.suppress(ProcessLookupError, PermissionError):
+                    os.killpg(c.pid, signal.SIGKILL)
+        # A child's helpers end on their own once it is gone (their pipes close); give them a moment.
+        groups_end = max(end, time.monotonic()) + 0.5
+        for c in self.children:
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                c.proc.wait(max(0.05, groups_end - time.monotonic()))
+            while procinfo.group(c.pid) and time.monotonic() < groups_end:
+                time.sleep(0.02)
+            if procinfo.group(c.pid):
+                with contextlib.suppress(ProcessLookupError, PermissionError):
+                    os.killpg(c.pid, signal.SIGKILL)
             c.channel.close()
-
-    @staticmethod
-    def _reap_group(child: Child, *, kill: bool) -> None:
-        """End the child's process group: its own helpers (fork server, workers) go with it."""
-        if kill:
-            with contextlib.suppress(ProcessLookupError, PermissionError):
-                os.killpg(child.pid, signal.SIGKILL)
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            child.proc.wait(2.0)
-        end = time.monotonic() + 1.5  # helpers end on their own once the child is gone
-        while procinfo.group(child.pid) and time.monotonic() < end:
-            time.sleep(0.05)
-        if procinfo.group(child.pid):
-            with contextlib.suppress(ProcessLookupError, PermissionError):
-                os.killpg(child.pid, signal.SIGKILL)

@@ -169,7 +169,7 @@ def ingest(
     while not done.wait(0.5):
         if svc.error is not None:
             break
-    svc.stop()
+    svc.stop(timeout=4.0)  # what did not finish by then is safe: modules resend what was not acknowledged
     if svc.error is not None:
         raise fail(f"ingest stopped after an error: {svc.error}", code=supervise.EXIT_FAILED)
     logging.getLogger("camcal.ingest").info("ingest stopped cleanly")

@@ -35,7 +35,7 @@ BEGINNINGS = ("deck", "first-stop", "station")
 INGEST_READY_S = 20.0
 HTTP_READY_S = 15.0
 MODULES_LINKED_S = 20.0
-STOP_S = 8.0  # modules, then the ingest; what is left after this is killed
+STOP_S = 3.5  # modules, then the ingest: what is left after this is killed (their data is safe on disk)
 
 
 def register(app: typer.Typer) -> None:
@@ -116,13 +116,21 @@ def up(
     http: HttpServer | None = None
     modules: list[supervise.Child] = []
     code = supervise.EXIT_OK
+    parts = "the ingest, the dashboard" + (f" and modules {' and '.join(MODULES)}" if profile else "")
+    console.print(f"starting {parts} (data in {data_dir}) ...")
     try:
         ingest = sup.spawn("ingest", ingest_args(data_dir, ingest_bind, events), logs / "ingest.log")
+        http = HttpServer(s, tokens, events)  # the dashboard starts while the ingest does
+        http.start(http_sock)
+        t_spawn = time.monotonic()
         if sup.wait_ready(ingest, INGEST_READY_S, stop) is None:
             raise Interrupted
         if profile is not None:
             begin_s = _begin_s(profile, begin)
-            epoch = time.time() + 1.0  # both modules begin the dive together
+            # Both modules begin the dive together, at `begin_s` once they have started: as long, about,
+            # as the ingest took (the same imports; a busy machine shows there). Until then they are
+            # still on the way down, so a short test stop is not half over before their first frame.
+            epoch = time.time() + min(max(time.monotonic() - t_spawn, 1.0), 10.0)
             for m in MODULES:
                 args = module_args(
                     m, ingest_bind, data_dir / f"outbox-{m}", speed=speed, frame_scale=frame_scale,
@@ -130,8 +138,6 @@ def up(
                     winch_m_per_s=winch_m_per_s, test_stop_s=test_stop_s, station_s=station_s,
                 )  # fmt: skip
                 modules.append(sup.spawn(f"module {m}", args, logs / f"module-{m}.log"))
-        http = HttpServer(s, tokens, events)
-        http.start(http_sock)
         http.wait_healthy(HTTP_READY_S, stop)
         wait_linked(events, MODULES if modules else (), sup, stop, MODULES_LINKED_S)
         if stop.is_set():
@@ -150,9 +156,10 @@ def up(
             http.server.should_exit = True  # the dashboard winds down while the children stop
         else:
             http_sock.close()
+        t_stop = time.monotonic()
         sup.stop([modules, [c for c in sup.children if c not in modules]], STOP_S)
-        if http is not None:
-            http.stop(3.0)
+        if http is not None:  # whatever is left of it ends with this process
+            http.stop(max(0.1, STOP_S + 1.0 - (time.monotonic() - t_stop)))
         console.print("stopped: " + ", ".join(f"{c.name} ({c.proc.returncode})" for c in sup.children))
     raise typer.Exit(code)
 

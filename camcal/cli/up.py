@@ -14,6 +14,7 @@ the part, the port and the setting).
 from __future__ import annotations
 
 import json
+import os
 import secrets
 import threading
 import time
@@ -51,6 +52,9 @@ def up(
     port: Annotated[int | None, typer.Option(help="Dashboard port [CAMCAL_HTTP_PORT].")] = None,
     host: Annotated[str | None, typer.Option(help="Dashboard address [CAMCAL_HTTP_HOST].")] = None,
     ingest_port: Annotated[int, typer.Option(help="Port modules connect to.")] = 5555,
+    ingest_host: Annotated[
+        str, typer.Option(help="Address the ingest listens on; 0.0.0.0 for modules on the ship's network.")
+    ] = "127.0.0.1",
     events_port: Annotated[int, typer.Option(help="Port of the ingest's event publisher.")] = 5556,
     simulate: Annotated[bool, typer.Option(help="Run two simulated modules (A and B).")] = True,
     speed: Annotated[float, typer.Option(help="Speed of the simulated dive.")] = 10.0,
@@ -86,7 +90,8 @@ def up(
         raise fail(f"--begin: one of {', '.join(BEGINNINGS)}, got {begin!r}")
     profile = _dive_profile(deck_s, winch_m_per_s, test_stop_s, station_s) if simulate else None
     tokens = operator_tokens(operator_token, s) or {"operator": secrets.token_urlsafe(12)}
-    ingest_bind = f"tcp://127.0.0.1:{ingest_port}"
+    ingest_bind = f"tcp://{ingest_host}:{ingest_port}"
+    connect = f"tcp://{'127.0.0.1' if ingest_host in ('0.0.0.0', '*') else ingest_host}:{ingest_port}"
     events = f"tcp://127.0.0.1:{events_port}"
     # Every port first: a taken one is one line naming who holds it, before anything starts.
     try:
@@ -133,7 +138,7 @@ def up(
             epoch = time.time() + min(max(time.monotonic() - t_spawn, 1.0), 10.0)
             for m in MODULES:
                 args = module_args(
-                    m, ingest_bind, data_dir / f"outbox-{m}", speed=speed, frame_scale=frame_scale,
+                    m, connect, data_dir / f"outbox-{m}", speed=speed, frame_scale=frame_scale,
                     schedule=schedule, seed=seed, epoch=epoch, begin_s=begin_s, deck_s=deck_s,
                     winch_m_per_s=winch_m_per_s, test_stop_s=test_stop_s, station_s=station_s,
                 )  # fmt: skip
@@ -280,9 +285,15 @@ def _not_linked(
 
 
 def watch(sup: supervise.Supervisor, http: HttpServer, stop: threading.Event) -> int:
-    """Run until SIGINT/SIGTERM (0) or a part fails (1); a module that finished its dive is no failure."""
+    """Run until SIGINT/SIGTERM (0) or a part fails (1); a module that finished its dive is no failure.
+
+    Under systemd with ``WatchdogSec=``, each round tells it that camcal up still watches its parts.
+    """
     finished: set[str] = set()
+    watchdog = bool(os.environ.get("WATCHDOG_USEC"))
     while not stop.wait(0.5):
+        if watchdog:
+            supervise.sd_notify("WATCHDOG=1")
         if not http.alive():
             err_console.print(f"[bold red]error:[/] the dashboard stopped ({http.error!r}); stopping camcal")
             return supervise.EXIT_FAILED

@@ -10,9 +10,6 @@ from __future__ import annotations
 import os
 import re
 import signal
-import socket
-import subprocess
-import sys
 import time
 import uuid
 from pathlib import Path
@@ -22,62 +19,23 @@ import pytest
 
 from tests.utils.system import (
     System,
+    assert_ports_free,
     camcal_up,
     free_ports,
-    marked_env,
+    gone_within,
+    holding,
     module_pid,
+    run_camcal,
     tree,
     wait_until,
 )
-
-
-def gone_within(mark: str, timeout_s: float) -> float:
-    """Seconds until no process of the tree ``mark`` is left; fails naming the survivors."""
-    t0 = time.monotonic()
-    while tree(mark):
-        if time.monotonic() - t0 >= timeout_s:
-            left = {pid: Path(f"/proc/{pid}/cmdline").read_bytes()[:120] for pid in tree(mark)}
-            raise AssertionError(f"still running {timeout_s} s later: {left}")
-        time.sleep(0.05)
-    return time.monotonic() - t0
-
-
-def assert_ports_free(*ports: int) -> None:
-    """Each port can be bound again at once, as the services bind them (SO_REUSEADDR)."""
-    for port in ports:
-        with socket.socket() as s:
-            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            s.bind(("127.0.0.1", port))
-
-
-def holding(port: int) -> socket.socket:
-    """A plain listening socket on ``port``: somebody else's service."""
-    s = socket.socket()
-    s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    s.bind(("127.0.0.1", port))
-    s.listen()
-    return s
-
-
-def camcal(args: list[str], mark: str, cwd: Path, timeout_s: float = 60) -> tuple[int, str, float]:
-    """Run ``camcal ARGS`` to its end: exit status, output, seconds it took."""
-    t0 = time.monotonic()
-    proc = subprocess.run(
-        [sys.executable, "-c", "from camcal.cli import main; main()", *args],
-        cwd=cwd,
-        env={**marked_env(mark), "COLUMNS": "400"},
-        capture_output=True,
-        text=True,
-        timeout=timeout_s,
-    )
-    return proc.returncode, proc.stdout + proc.stderr, time.monotonic() - t0
 
 
 def test_a_port_in_use_stops_camcal_up_at_once_naming_the_holder_and_the_option(tmp_path: Path) -> None:
     http, ingest, events = free_ports(3)
     mark = uuid.uuid4().hex
     with holding(ingest):
-        code, out, took_s = camcal(
+        code, out, took_s = run_camcal(
             ["up", "--data", str(tmp_path / "data"), "--port", str(http), "--ingest-port", str(ingest),
              "--events-port", str(events)],
             mark,
@@ -98,7 +56,7 @@ def test_a_part_that_fails_to_start_stops_every_part_started(tmp_path: Path) -> 
     """The modules cannot start (an unknown schedule): the ingest and dashboard already run, and stop."""
     http, ingest, events = free_ports(3)
     mark = uuid.uuid4().hex
-    code, out, took_s = camcal(
+    code, out, took_s = run_camcal(
         ["up", "--data", str(tmp_path / "data"), "--port", str(http), "--ingest-port", str(ingest),
          "--events-port", str(events), "--schedule", "no-such-schedule"],
         mark,

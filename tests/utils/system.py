@@ -107,6 +107,48 @@ def kill_tree(mark: str) -> None:
             os.kill(pid, signal.SIGKILL)
 
 
+def gone_within(mark: str, timeout_s: float) -> float:
+    """Seconds until no process of the tree ``mark`` is left; fails naming the survivors."""
+    t0 = time.monotonic()
+    while tree(mark):
+        if time.monotonic() - t0 >= timeout_s:
+            left = {pid: Path(f"/proc/{pid}/cmdline").read_bytes()[:120] for pid in tree(mark)}
+            raise AssertionError(f"still running {timeout_s} s later: {left}")
+        time.sleep(0.05)
+    return time.monotonic() - t0
+
+
+def assert_ports_free(*ports: int) -> None:
+    """Each port can be bound again at once, as the services bind them (SO_REUSEADDR)."""
+    for port in ports:
+        with socket.socket() as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            s.bind(("127.0.0.1", port))
+
+
+def holding(port: int) -> socket.socket:
+    """A plain listening socket on ``port``: somebody else's service."""
+    s = socket.socket()
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    s.bind(("127.0.0.1", port))
+    s.listen()
+    return s
+
+
+def run_camcal(args: list[str], mark: str, cwd: Path, timeout_s: float = 60) -> tuple[int, str, float]:
+    """Run ``camcal ARGS`` to its end: exit status, output, seconds it took."""
+    t0 = time.monotonic()
+    proc = subprocess.run(
+        [sys.executable, "-c", "from camcal.cli import main; main()", *args],
+        cwd=cwd,
+        env={**marked_env(mark), "COLUMNS": "400"},
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+    )
+    return proc.returncode, proc.stdout + proc.stderr, time.monotonic() - t0
+
+
 def wait_until(check: Callable[[], Any], timeout_s: float, what: str, every_s: float = 0.5) -> Any:
     """Poll ``check`` until it returns something truthy; raise naming ``what`` after ``timeout_s``."""
     deadline = time.monotonic() + timeout_s

@@ -175,8 +175,9 @@ class IngestService:
         self._pool = process_pool(self.config.n_workers)
         # Start the fork server and the workers now: started by the first frame, they would make
         # the first results of a dive wait a second or more (the fork server imports the analysis).
-        for _ in range(self.config.n_workers):
-            self._pool.submit(warm_up)
+        # In a thread: each start waits for the fork server's imports, and the ingest is ready
+        # (bound, storing) without them.
+        threading.Thread(target=self._warm_pool, name="ingest-pool-start", daemon=True).start()
         self.network = Network(self, router, pull, self._q)
         threads: list[tuple[str, Callable[[], None]]] = [
             ("ingest-net", lambda: self.network.run(self._stop, self.started)),  # type: ignore[union-attr]
@@ -193,6 +194,13 @@ class IngestService:
             self.events_endpoint,
             self.dive.name,
         )
+
+    def _warm_pool(self) -> None:
+        try:
+            for _ in range(self.config.n_workers):
+                self._pool.submit(warm_up)
+        except RuntimeError:  # stopped before the pool was up
+            pass
 
     def _guard(self, fn: Callable[[], None]) -> Callable[[], None]:
         def run() -> None:

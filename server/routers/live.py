@@ -70,6 +70,7 @@ def build_snapshot(store: Store, hub: LiveHub, settings: ServerSettings) -> dict
         "run_id": run_id,
         "ingest": ingest,
         "stale_after_s": settings.stale_after_s,
+        "station_depth_m": settings.station_depth_m,
         "modules": out_modules,
         "attenuation": {str(k): v[-300:] for k, v in attenuation.items()},
         "alarms": alarms,

@@ -18,6 +18,7 @@ const state = {
   dive: null,
   runId: null,
   staleAfter: 5,
+  stationDepth: null,
   modules: new Map(),
   attenuation: {},
   alarms: new Map(),
@@ -78,6 +79,7 @@ function onSnapshot(d) {
   state.dive = d.dive;
   state.runId = d.run_id;
   state.staleAfter = d.stale_after_s ?? 5;
+  state.stationDepth = d.station_depth_m ?? null;
   state.ingestUp = Boolean(d.ingest?.up);
   state.healthAt = state.ingestUp ? now - (d.ingest.age_s || 0) * 1000 : null;
   state.lastLiveAt = now;
@@ -281,6 +283,8 @@ function trackDepth(m, s) {
   const rate = den ? num / den : 0;
   if (rate > 0.2) m.phase = "descent";
   else if (rate < -0.2) m.phase = "ascent";
+  // With the dive plan a stop is the station only at its depth; without, the deepest stop so far is.
+  else if (state.stationDepth !== null) m.phase = Math.abs(s.depth_m - state.stationDepth) <= 50 ? "station" : "stop";
   else m.phase = s.depth_m >= m.maxDepth - 50 ? "station" : "stop";
 }
 
@@ -328,8 +332,9 @@ function render() {
     let card = cards.get(mid);
     if (!card) {
       card = createCard(mid);
+      const after = [...cards.keys()].sort().find((k) => k > mid); // A before B, whoever spoke first
+      box.insertBefore(card, after ? cards.get(after) : null);
       cards.set(mid, card);
-      box.append(card);
       if (m.shown) {
         m.pending ??= { frame: m.shown, tEvent: null };
         loadThumbnail(m);

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
 import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -42,6 +43,8 @@ def _get_context() -> Any:
 
 def _init_worker(owner_pid: int, initializer: Callable[..., None] | None, initargs: tuple[Any, ...]) -> None:
     exit_when_gone(owner_pid)  # a worker holds nothing worth saving: its task is done again
+    # Ctrl-C in a terminal reaches the whole process group: the owner stops the pool in order.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     import cv2
 
     cv2.setNumThreads(1)  # one process per core already

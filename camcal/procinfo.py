@@ -79,7 +79,7 @@ def port_uses(port: int | None = None) -> list[PortUse]:
 
 
 def _socket_inodes(pid: int) -> set[int]:
-    out = set()
+    out: set[int] = set()
     try:
         fds = os.listdir(PROC / str(pid) / "fd")
     except OSError:

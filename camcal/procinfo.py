@@ -15,17 +15,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 PROC = Path("/proc")
-#: /proc/net/tcp states of a socket that owns a local port without a peer: listening, or bound only.
-_LISTEN, _BOUND = "0A", "07"
+#: /proc/net/tcp state of a listening socket (a socket only bound is not listed there at all).
+_LISTEN = "0A"
 
 
 @dataclass(frozen=True)
 class PortUse:
-    """A local TCP port held by a socket (listening, or bound without listening)."""
+    """A local TCP port held by a listening socket."""
 
     port: int
     address: str
-    listening: bool
     uid: int
     inode: int
 
@@ -59,7 +58,7 @@ def _hex_address(text: str) -> tuple[str, int]:
 
 
 def port_uses(port: int | None = None) -> list[PortUse]:
-    """Sockets holding a local TCP port (all ports, or ``port``), from /proc/net/tcp and tcp6."""
+    """Listening sockets on a local TCP port (all ports, or ``port``), from /proc/net/tcp and tcp6."""
     out = []
     for name in ("tcp", "tcp6"):
         try:
@@ -68,13 +67,13 @@ def port_uses(port: int | None = None) -> list[PortUse]:
             continue
         for line in lines:
             cols = line.split()
-            if len(cols) < 10 or cols[3] not in (_LISTEN, _BOUND):
+            if len(cols) < 10 or cols[3] != _LISTEN:
                 continue
             host, local = _hex_address(cols[1])
             _, remote = _hex_address(cols[2])
             if remote != 0 or (port is not None and local != port):
                 continue
-            out.append(PortUse(local, host, cols[3] == _LISTEN, int(cols[7]), int(cols[9])))
+            out.append(PortUse(local, host, int(cols[7]), int(cols[9])))
     return out
 
 
@@ -158,7 +157,7 @@ def group(pgid: int) -> list[int]:
 
 
 def with_ports(procs: list[Process]) -> list[Process]:
-    """``procs`` with the ports their sockets listen on (or hold bound) filled in."""
+    """``procs`` with the ports their sockets listen on filled in."""
     uses = {u.inode: u.port for u in port_uses()}
     for p in procs:
         p.ports = sorted({uses[i] for i in _socket_inodes(p.pid) if i in uses})

@@ -62,10 +62,16 @@ def test_a_part_that_fails_to_start_stops_every_part_started(tmp_path: Path) -> 
         mark,
         tmp_path,
     )  # fmt: skip
+    ended = time.time()
     print(f"camcal up whose modules cannot start: exit {code} after {took_s:.1f} s")
     assert code == 3, out
     line = " ".join(out.split())
-    assert re.search(r"camcal could not start: module [AB] exited with status 2 while starting", line), out
+    failed = re.search(r"camcal could not start: module ([AB]) exited with status 2 while starting", line)
+    assert failed, out
+    # it ended within 10 s of the module's failure (the module's last word in its log)
+    failed_at = (tmp_path / "data" / "logs" / f"module-{failed.group(1)}.log").stat().st_mtime
+    print(f"... {ended - failed_at:.1f} s after module {failed.group(1)} failed")
+    assert ended - failed_at < 10
     assert "'no-such-schedule' is neither a preset" in line, out  # its log's last lines
     # the other module failed too, or was stopped while it started
     assert re.search(r"stopped: ingest \(0\), module A \((2|-15)\), module B \((2|-15)\)", line), out

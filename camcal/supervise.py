@@ -73,7 +73,7 @@ class PortInUse(Exception):
         by = f" by {holder}{leftover}" if holder else ""
         super().__init__(
             f"the {part} cannot listen on {host}:{port}: the port is in use{by}. "
-            f"Stop that process, or choose another port with {setting}."
+            f"{'Stop that process' if holder else 'Free it'}, or choose another port with {setting}."
         )
         self.part, self.host, self.port, self.setting, self.holder = part, host, port, setting, holder
 
@@ -108,8 +108,16 @@ def bind_tcp(host: str, port: int, *, part: str, setting: str) -> socket.socket:
 
 
 def check_port(host: str, port: int, *, part: str, setting: str) -> None:
-    """Raise `PortInUse` if ``host:port`` cannot be bound now (a free port is left free)."""
-    bind_tcp(host, port, part=part, setting=setting).close()
+    """Raise `PortInUse` if ``host:port`` cannot be bound now (a free port is left free).
+
+    A host this check cannot resolve (a ZeroMQ interface name such as ``eth0``) is left to the service.
+    """
+    try:
+        bind_tcp(host, port, part=part, setting=setting).close()
+    except PortInUse:
+        raise
+    except OSError:
+        return
 
 
 def check_endpoint(endpoint: str, *, part: str, setting: str) -> None:

@@ -124,10 +124,10 @@ def up(
     parts = "the ingest, the dashboard" + (f" and modules {' and '.join(MODULES)}" if profile else "")
     console.print(f"starting {parts} (data in {data_dir}) ...")
     try:
+        t_spawn = time.monotonic()
         ingest = sup.spawn("ingest", ingest_args(data_dir, ingest_bind, events), logs / "ingest.log")
         http = HttpServer(s, tokens, events)  # the dashboard starts while the ingest does
         http.start(http_sock)
-        t_spawn = time.monotonic()
         if sup.wait_ready(ingest, INGEST_READY_S, stop) is None:
             raise Interrupted
         if profile is not None:

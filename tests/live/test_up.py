@@ -104,10 +104,9 @@ def test_nothing_of_camcal_up_outlives_it_and_its_ports_are_free_at_once(
     starts at once where the last one ended.
     """
     dive = {"--speed": "20", "--frame-scale": "0.25", "--test-stop-s": "600"}  # at the first stop
+    t_start = time.monotonic()
     with camcal_up(tmp_path / "data", dive=dive, ports=up_ports) as system:
-        t_up = time.monotonic()
-        wait_until(lambda: "camcal is up" in system.log.read_text(), 60, "camcal is up", every_s=0.1)
-        print(f"{ending}: camcal up said it was up {time.monotonic() - t_up:.1f} s after its API answered")
+        print(f"{ending}: camcal up said it was up {time.monotonic() - t_start:.1f} s after its start")
         wait_until(lambda: streaming(system), 60, "frames from both modules")
         members = tree(system.mark)
         # camcal up, the ingest, its fork server, resource tracker and worker(s), two modules

@@ -4,15 +4,26 @@ Forking a process that already runs threads (OpenCV's pool, a web server,
 a ZeroMQ context) can leave a child waiting forever on a lock some thread
 held at the moment of the fork. Pools here start their workers from a clean
 fork server instead, which has the heavy modules already imported.
+
+Nothing outlives the process that made the pool, however it ends (even
+SIGKILL): each worker leaves as soon as that process is gone
+(`camcal.supervise.exit_when_gone`) — it would otherwise wait forever on its
+task queue, whose writing end it holds itself, and keep the fork server
+alive, which serves as long as any of its clients lives. The fork server and
+the resource tracker then see their pipes close and exit.
 """
 
 from __future__ import annotations
 
 import multiprocessing
+import os
+import signal
 import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any, TypeVar
+
+from camcal.supervise import exit_when_gone
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -30,7 +41,10 @@ def _get_context() -> Any:
     return _context
 
 
-def _init_worker(initializer: Callable[..., None] | None, initargs: tuple[Any, ...]) -> None:
+def _init_worker(owner_pid: int, initializer: Callable[..., None] | None, initargs: tuple[Any, ...]) -> None:
+    exit_when_gone(owner_pid)  # a worker holds nothing worth saving: its task is done again
+    # Ctrl-C in a terminal reaches the whole process group: the owner stops the pool in order.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     import cv2
 
     cv2.setNumThreads(1)  # one process per core already
@@ -46,7 +60,7 @@ def process_pool(
         max_workers=workers,
         mp_context=_get_context(),
         initializer=_init_worker,
-        initargs=(initializer, initargs),
+        initargs=(os.getpid(), initializer, initargs),
     )
 
 

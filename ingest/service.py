@@ -175,8 +175,9 @@ class IngestService:
         self._pool = process_pool(self.config.n_workers)
         # Start the fork server and the workers now: started by the first frame, they would make
         # the first results of a dive wait a second or more (the fork server imports the analysis).
-        for _ in range(self.config.n_workers):
-            self._pool.submit(warm_up)
+        # In a thread: each start waits for the fork server's imports, and the ingest is ready
+        # (bound, storing) without them.
+        threading.Thread(target=self._warm_pool, name="ingest-pool-start", daemon=True).start()
         self.network = Network(self, router, pull, self._q)
         threads: list[tuple[str, Callable[[], None]]] = [
             ("ingest-net", lambda: self.network.run(self._stop, self.started)),  # type: ignore[union-attr]
@@ -193,6 +194,13 @@ class IngestService:
             self.events_endpoint,
             self.dive.name,
         )
+
+    def _warm_pool(self) -> None:
+        try:
+            for _ in range(self.config.n_workers):
+                self._pool.submit(warm_up)
+        except RuntimeError:  # stopped before the pool was up
+            pass
 
     def _guard(self, fn: Callable[[], None]) -> Callable[[], None]:
         def run() -> None:
@@ -287,15 +295,23 @@ class IngestService:
         )
 
     def health(self) -> dict[str, Any]:
-        """Per-module link state, last packet age, frames/s, queue depths, counters."""
+        """Per-module link state, last packet age, frame rates, queue depths, counters.
+
+        ``frames_per_s`` counts the last 10 s; ``frames_last_min`` the last 60 s (between test stops the
+        first reads 0 long before the second); ``last_frame_age_s`` is the ship's time since the last frame.
+        """
         now = time.monotonic()
+        now_unix = time.time()
         modules = {}
         for m, link in sorted(self.links.items()):
             recent = [t for t in link.frames if now - t <= 10.0]
+            last_frame = link.last_frame_unix_s
             modules[m] = {
                 "link": "up" if link.up else ("signed_off" if link.down_reason == "bye" else "down"),
                 "last_packet_age_s": round(now - link.last_seen_mono, 2) if link.last_seen_mono else None,
                 "frames_per_s": round(len(recent) / 10.0, 2),
+                "frames_last_min": sum(1 for t in link.frames if now - t <= 60.0),
+                "last_frame_age_s": round(now_unix - last_frame, 1) if last_frame is not None else None,
                 "boot": link.boot,
                 "schedule": link.schedule,
                 "outbox_pending": link.outbox_pending,

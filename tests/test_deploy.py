@@ -152,3 +152,43 @@ def test_doctor_reports_what_to_fix(tmp_path: Path, monkeypatch: pytest.MonkeyPa
     res = runner.invoke(app, ["doctor", "--check", "data"])
     assert res.exit_code == 0 and "writable" in res.output
     assert json.loads(json.dumps(Settings().masked()))  # serialisable
+
+
+def _unit() -> dict[str, str]:
+    text = (ROOT / "deploy" / "camcal.service").read_text().replace("\\\n", " ")
+    return {
+        k.strip(): v.strip()
+        for k, _, v in (line.partition("=") for line in text.splitlines())
+        if v and not k.startswith(("#", "["))
+    }
+
+
+def test_systemd_unit_runs_a_real_camcal_command_and_uses_its_readiness() -> None:
+    unit = _unit()
+    words = unit["ExecStart"].split()
+    assert words[0].endswith("/camcal") and words[1] == "up"
+    res = runner.invoke(app, ["up", "--help"])
+    helptext = re.sub(r"\s+", " ", res.output)
+    for opt in (w for w in words if w.startswith("--")):
+        assert opt in helptext, f"ExecStart: {opt} is not an option of `camcal up`"
+    # camcal up notifies READY=1 once healthy and pings the watchdog; exit 2 is a configuration error
+    assert unit["Type"] == "notify" and unit["NotifyAccess"] == "main" and "WatchdogSec" in unit
+    from camcal import supervise
+
+    assert unit["RestartPreventExitStatus"] == str(supervise.EXIT_USAGE)
+
+
+@pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze is not installed")
+def test_systemd_accepts_the_unit(tmp_path: Path) -> None:
+    """`systemd-analyze verify` on the unit, its camcal pointed at this installation's."""
+    camcal = Path(sys.executable).with_name("camcal")
+    text = (ROOT / "deploy" / "camcal.service").read_text()
+    text = text.replace("/opt/camcal/.venv/bin/camcal", str(camcal))
+    (tmp_path / "camcal.service").write_text(text)
+    proc = subprocess.run(
+        ["systemd-analyze", "verify", str(tmp_path / "camcal.service")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 0 and not proc.stderr.strip(), proc.stderr

@@ -7,6 +7,7 @@ import sys
 
 import typer
 
+from camcal import supervise
 from camcal.cli import (
     analyze,
     calibrate,
@@ -24,6 +25,7 @@ from camcal.cli import (
     simulate,
     simulate_lab,
     transport,
+    up,
 )
 
 app = typer.Typer(
@@ -44,6 +46,7 @@ report.register(app)
 ingest.register(app)
 lrm.register(app)
 serve.register(app)
+up.register(app)
 data.register(app)
 # Calibrations and operations.
 simulate_lab.register(app)
@@ -55,6 +58,7 @@ reanalyze.register(app)
 
 
 def main() -> None:
+    supervise.attach()  # started by `camcal up`: end with it, however it ends
     _workers_skip_the_entry_script()
     app()
 

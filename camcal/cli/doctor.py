@@ -180,18 +180,49 @@ def check_http(s: Settings) -> list[tuple[str, str, str]]:
         ]
 
 
+def check_processes(s: Settings) -> list[tuple[str, str, str]]:
+    """camcal's processes on this machine and the ports they hold; those left behind are a warning."""
+    from camcal import procinfo
+
+    wanted = {p for p in (_port_of(s.ingest_bind), _port_of(s.events_connect.split(",")[0])) if p}
+    configured = {port for _, port in wanted} | {s.http_port}
+    rows = []
+    for c in procinfo.camcal_processes():
+        p = c.process
+        age = procinfo.age_s(p)
+        ports = f"; holds port {', '.join(str(n) for n in p.ports)}" if p.ports else ""
+        clash = sorted(set(p.ports) & configured)
+        running = f", running {age / 60:.0f} min" if age is not None else ""
+        command = f": {procinfo.short(c.args, 70)}" if c.args else ""
+        detail = f"{c.kind} (parent {p.ppid}{running}){ports}{command}"
+        if c.leftover:
+            fix = f"; it holds the configured port {', '.join(map(str, clash))}" if clash else ""
+            rows.append(
+                (f"process {p.pid}", WARN, f"left behind: {c.leftover}{fix}; stop it: kill {p.pid}. {detail}")
+            )
+        else:
+            rows.append((f"process {p.pid}", OK, detail))
+    if not rows:
+        rows.append(("processes", OK, "no camcal process runs on this machine"))
+    return rows
+
+
 def doctor(
     config: Annotated[Path | None, typer.Option(help="A TOML configuration file [CAMCAL_CONFIG].")] = None,
     wait: Annotated[float, typer.Option(help="Seconds to wait for the ingest's heartbeat.")] = 3.0,
     check: Annotated[
         list[str] | None,
-        typer.Option(help="Only these checks (repeat): data, database, ingest, modules, dashboard."),
+        typer.Option(
+            help="Only these checks (repeat): data, database, ingest, modules, dashboard, processes."
+        ),
     ] = None,
 ) -> None:
-    """Check the configuration, data folder, disk, database, ingest, modules and dashboard."""
+    """Check the configuration, data folder, disk, database, ingest, modules, dashboard, and list camcal's
+    processes (with the ports they hold; those left behind by a camcal that ended are a warning)."""
     s = settings_or_fail(config)
-    wanted = set(check or ("data", "database", "ingest", "modules", "dashboard"))
-    unknown = wanted - {"data", "database", "ingest", "modules", "dashboard"}
+    checks = ("data", "database", "ingest", "modules", "dashboard", "processes")
+    wanted = set(check or checks)
+    unknown = wanted - set(checks)
     if unknown:
         console.print(f"[red]unknown check(s): {', '.join(sorted(unknown))}[/]")
         raise typer.Exit(2)
@@ -208,6 +239,8 @@ def doctor(
         rows += check_modules(s, health)
     if "dashboard" in wanted:
         rows += check_http(s)
+    if "processes" in wanted:
+        rows += check_processes(s)
     if not s.operator_tokens and check is None:
         rows.append(
             ("operator tokens", WARN, "none configured: nobody can send commands (CAMCAL_OPERATOR_TOKENS)")

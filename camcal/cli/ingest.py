@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import re
 import signal
 import threading
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
+from camcal import supervise
 from camcal.cli.common import console, fail
 from camcal.cli.config import settings_or_fail
 from camcal.frameset import FrameSetError, Setup, parse_setup, read_setup
@@ -57,6 +59,30 @@ def parse_modules(text: str | None) -> tuple[str, ...]:
     return out
 
 
+def start_service(cfg: Any) -> Any:
+    """Check the ports, then start an `IngestService`; a failure is one line (and exit status 3),
+    told to a supervising `camcal up` too, with nothing left running."""
+    from ingest.service import IngestService
+
+    svc = None
+    try:
+        supervise.check_endpoint(cfg.bind, part="ingest", setting="--bind (CAMCAL_INGEST_BIND)")
+        if cfg.events_bind:
+            supervise.check_endpoint(
+                cfg.events_bind, part="ingest's event publisher", setting="--events (CAMCAL_EVENTS_BIND)"
+            )
+        svc = IngestService(cfg)
+        svc.start()
+        return svc
+    except Exception as exc:  # bad URL, port in use, unwritable folder: say so in one line
+        message = str(exc) if isinstance(exc, supervise.PortInUse) else f"cannot start the ingest: {exc}"
+        supervise.notify_error(message)
+        if svc is not None:
+            with contextlib.suppress(Exception):
+                svc.stop(timeout=2.0)
+        raise fail(message, code=supervise.EXIT_NOT_STARTED) from None
+
+
 def ingest(
     data: Annotated[Path | None, typer.Option(help="Data folder [CAMCAL_DATA_DIR].")] = None,
     bind: Annotated[
@@ -90,7 +116,7 @@ def ingest(
     log_level: Annotated[str | None, typer.Option(help="debug, info, warning [CAMCAL_LOG_LEVEL].")] = None,
 ) -> None:
     """Receive frames and sensor packets from the modules, store, analyse and publish them."""
-    from ingest.service import IngestConfig, IngestService
+    from ingest.service import IngestConfig
 
     served = parse_modules(modules)
     s = settings_or_fail(
@@ -122,27 +148,29 @@ def ingest(
         retention_days=s.retention_days,
         modules=served,
     )
-    try:
-        svc = IngestService(cfg)
-        svc.start()
-    except Exception as exc:  # bad URL, port in use, unwritable folder: say so in one line
-        raise fail(f"cannot start the ingest: {exc}") from None
-    console.print(
-        f"ingest: modules connect to {svc.endpoint}; events on {svc.events_endpoint}; "
-        f"dive {svc.dive.name}; data in {s.data_dir}" + (f"; serving {', '.join(served)}" if served else "")
-    )
-    done = threading.Event()
+    done = threading.Event()  # SIGTERM or Ctrl-C, even while starting: stop in order, exit 0
 
     def on_signal(signum: int, _frame: object) -> None:
         done.set()
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
+    svc = start_service(cfg)
+    console.print(
+        f"ingest: modules connect to {svc.endpoint}; events on {svc.events_endpoint}; "
+        f"dive {svc.dive.name}; data in {s.data_dir}" + (f"; serving {', '.join(served)}" if served else "")
+    )
+    supervise.notify_ready(
+        f"dive {svc.dive.name}, modules connect to {svc.endpoint}",
+        endpoint=svc.endpoint,
+        events=svc.events_endpoint,
+        dive=svc.dive.name,
+    )
     while not done.wait(0.5):
         if svc.error is not None:
             break
-    svc.stop()
+    svc.stop(timeout=4.0)  # what did not finish by then is safe: modules resend what was not acknowledged
     if svc.error is not None:
-        raise fail(f"ingest stopped after an error: {svc.error}", code=1)
+        raise fail(f"ingest stopped after an error: {svc.error}", code=supervise.EXIT_FAILED)
     logging.getLogger("camcal.ingest").info("ingest stopped cleanly")
     console.print("ingest stopped cleanly")

@@ -47,16 +47,22 @@ def load_schedule(name: str) -> Schedule:
 
 
 def _run_module(agent: Any, finished: Callable[[], bool]) -> None:
-    """Run a started module agent until SIGTERM/SIGINT or ``finished()``; stop it and say what is left."""
-    _run_until_signal(agent, finished)
+    """Run a started module agent until SIGTERM/SIGINT or ``finished()``; stop it and say what is left.
+
+    Exit status 0 when stopped or finished, 1 when the agent stopped after a failure.
+    """
+    failed = _run_until_signal(agent, finished)
     agent.stop()
     console.print(
         f"module {agent.config.module}: stopped; {agent.counters['frames_captured']} frames captured, "
         f"{agent.outbox.pending_count()} not yet acknowledged (kept in {agent.config.outbox})"
     )
+    if failed:
+        raise fail(f"module {agent.config.module} stopped after a failure (see the log above)", code=1)
 
 
-def _run_until_signal(agent: object, finished: object) -> None:
+def _run_until_signal(agent: object, finished: object) -> bool:
+    """Wait for SIGTERM/SIGINT or ``finished()``; True if the agent stopped by itself (a failure)."""
     done = threading.Event()
 
     def on_signal(signum: int, _frame: object) -> None:
@@ -65,8 +71,11 @@ def _run_until_signal(agent: object, finished: object) -> None:
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
     while not done.wait(0.5):
-        if agent.stopped or finished():  # type: ignore[attr-defined]
+        if agent.stopped:  # type: ignore[attr-defined]
+            return True
+        if finished():  # type: ignore[operator]
             break
+    return False
 
 
 @app.command("simulate")
@@ -90,8 +99,13 @@ def simulate(
     winch_m_per_s: Annotated[float, typer.Option(help="Descent and ascent speed [m/s].")] = 1.0,
     readout_s: Annotated[float, typer.Option(help="Camera readout and transfer time per frame [s].")] = 0.8,
     epoch: Annotated[
-        float | None, typer.Option(help="Wall-clock UNIX time of dive time 0 (shared by modules).")
+        float | None,
+        typer.Option(help="Wall-clock UNIX time at which the simulation begins (shared by modules)."),
     ] = None,
+    begin_s: Annotated[
+        float,
+        typer.Option(help="Dive time at which the simulation begins [s]; 0: on deck, before the descent."),
+    ] = 0.0,
     tilt_scale: Annotated[float, typer.Option(help="Factor on this module's tilt (alarm tests).")] = 1.0,
     leak_at_s: Annotated[
         float | None, typer.Option(help="Dive time at which the housing starts leaking.")
@@ -118,8 +132,12 @@ def simulate(
             test_stop_s=test_stop_s,
             station_s=station_s,
         )
+        if not 0 <= begin_s < profile.duration_s:
+            raise ValueError(f"--begin-s must be between 0 and the dive's {profile.duration_s:.0f} s")
         epoch_s = epoch if epoch is not None else time.time()
-        start = datetime.fromtimestamp(epoch_s, UTC)
+        # Dive time 0 lies begin_s before the epoch: at the epoch the dive is at begin_s, and the
+        # simulated wall clock reads the real one (it runs `speed` times faster from there).
+        start = datetime.fromtimestamp(epoch_s - begin_s, UTC)
         sim = DiveSimulation(
             profile,
             water_column=WaterColumn.with_station_drift(profile, 0.04),
@@ -131,7 +149,7 @@ def simulate(
         )
         if camera not in sim.module_ids:
             raise ValueError(f"--camera must be one of {', '.join(sim.module_ids)}, got {camera!r}")
-        clock = SimClock.synced(start, speed, epoch_s)
+        clock = SimClock.synced(start, speed, epoch_s - begin_s / speed)
     except ValueError as exc:
         raise fail(str(exc)) from None
     cam = SimulatedCamera(sim, camera, clock, readout_s=readout_s)
@@ -153,7 +171,9 @@ def simulate(
     agent.start()
     console.print(
         f"module {camera}: dive of {profile.duration_s / 60:.0f} min at {speed:g}x "
-        f"({profile.duration_s / speed / 60:.1f} min real), schedule {sched.name} v{sched.version}, "
+        f"({(profile.duration_s - begin_s) / speed / 60:.1f} min real"
+        + (f", begins {begin_s / 60:.1f} min in, {profile.phase_at(begin_s)}" if begin_s else "")
+        + f"), schedule {sched.name} v{sched.version}, "
         f"sending to {connect}, outbox {cfg.outbox}"
     )
 
@@ -196,13 +216,15 @@ def replay(
     agent = Agent(cfg, clock=clock, source=source)
     agent.start()
     console.print(f"replaying {len(source)} frames of camera {camera} from {folder} to {connect}")
-    _run_until_signal(agent, lambda: agent.capture_done() and agent.outbox.pending_count() == 0)
+    failed = _run_until_signal(agent, lambda: agent.capture_done() and agent.outbox.pending_count() == 0)
     agent.stop()
     for name, why in source.skipped:
         console.print(f"[yellow]skipped[/] {name}: {why}")
     console.print(
         f"sent {agent.counters['frames_captured']} frames; {agent.outbox.pending_count()} not acknowledged"
     )
+    if failed:
+        raise fail(f"replay of camera {camera} stopped after a failure (see the log above)", code=1)
 
 
 @app.command("camera")

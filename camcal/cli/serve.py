@@ -1,18 +1,19 @@
-"""``camcal serve`` (the web server) and ``camcal up`` (the whole system on one machine)."""
+"""``camcal serve``: the dashboard and the API. Exit status 0 when stopped, 1 after a failure,
+3 when it could not start (port in use: the message says who holds it)."""
 
 from __future__ import annotations
 
-import os
-import secrets
 import signal
-import subprocess
-import sys
+import socket
+import threading
 import time
+import urllib.request
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
+from camcal import supervise
 from camcal.cli.common import console, fail
 from camcal.cli.config import settings_or_fail
 from camcal.logs import configure_logging
@@ -21,7 +22,6 @@ from camcal.settings import Settings
 
 def register(app: typer.Typer) -> None:
     app.command("serve")(serve)
-    app.command("up")(up)
 
 
 def operator_tokens(items: list[str] | None, settings: Settings) -> dict[str, str]:
@@ -38,36 +38,103 @@ def operator_tokens(items: list[str] | None, settings: Settings) -> dict[str, st
     return out
 
 
-def run_server(settings: Settings, tokens: dict[str, str], events: str | None) -> None:
-    import uvicorn
+class HttpServer:
+    """The dashboard and API (uvicorn) in a thread of this process, on a socket bound beforehand.
 
-    from server.app import create_app
-    from server.settings import ServerSettings
+    Binding first (`bind_http`) makes a taken port one clear error before
+    anything runs; running in a thread leaves the main thread to handle
+    signals and, in ``camcal up``, to watch the other parts.
+    """
 
-    app = create_app(
-        ServerSettings(
-            data_dir=settings.data_dir,
-            db_url=settings.database_url,
-            events=events,
-            operator_tokens=tokens,
-            linear_range=settings.linear_range,
-            station_depth_m=settings.station_depth_m,
+    def __init__(self, settings: Settings, tokens: dict[str, str], events: str | None) -> None:
+        import uvicorn
+
+        from server.app import create_app
+        from server.settings import ServerSettings
+
+        app = create_app(
+            ServerSettings(
+                data_dir=settings.data_dir,
+                db_url=settings.database_url,
+                events=events,
+                operator_tokens=tokens,
+                linear_range=settings.linear_range,
+                station_depth_m=settings.station_depth_m,
+            )
         )
-    )
-    # No permessage-deflate: compressing every event once per browser costs the ship more CPU than
-    # the bytes it saves on its own network (events are a few hundred bytes of JSON).
-    config = uvicorn.Config(
-        app,
-        host=settings.http_host,
-        port=settings.http_port,
-        log_level="warning",
-        ws_ping_interval=20,
-        ws_per_message_deflate=False,
-    )
+        # No permessage-deflate: compressing every event once per browser costs the ship more CPU than
+        # the bytes it saves on its own network (events are a few hundred bytes of JSON).
+        config = uvicorn.Config(
+            app,
+            host=settings.http_host,
+            port=settings.http_port,
+            log_level="warning",
+            ws_ping_interval=20,
+            ws_per_message_deflate=False,
+            timeout_graceful_shutdown=3,  # open WebSockets (browsers) do not hold up a stop
+        )
+        self.server = uvicorn.Server(config)
+        host = {"0.0.0.0": "127.0.0.1", "::": "::1"}.get(settings.http_host, settings.http_host)
+        self.url = f"http://{f'[{host}]' if ':' in host else host}:{settings.http_port}"
+        self.error: BaseException | None = None
+        self._thread: threading.Thread | None = None
+
+    def start(self, sock: socket.socket) -> None:
+        def run() -> None:
+            try:
+                self.server.run(sockets=[sock])
+            except BaseException as exc:  # uvicorn exits (SystemExit) when the app's startup fails
+                self.error = exc
+
+        self._thread = threading.Thread(target=run, name="http", daemon=True)
+        self._thread.start()
+
+    def alive(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def wait_healthy(self, timeout_s: float, stop: threading.Event | None = None) -> None:
+        """Wait until ``/healthz`` answers 200; `RuntimeError` if the server ends or stays silent."""
+        end = time.monotonic() + timeout_s
+        while not (stop is not None and stop.is_set()):
+            if not self.alive():
+                raise RuntimeError(f"the dashboard stopped while starting ({self.error!r}); see the log")
+            if self.server.started:
+                try:
+                    with urllib.request.urlopen(self.url + "/healthz", timeout=2) as r:
+                        if r.status == 200:
+                            return
+                except OSError:
+                    pass
+            if time.monotonic() > end:
+                raise RuntimeError(f"the dashboard did not answer {self.url}/healthz within {timeout_s:g} s")
+            time.sleep(0.1)
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        self.server.should_exit = True
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+
+
+def bind_http(settings: Settings, setting: str = "--port (CAMCAL_HTTP_PORT)") -> socket.socket:
+    """The dashboard's socket, bound; a taken port exits with status 3 and says who holds it."""
     try:
-        uvicorn.Server(config).run()
+        return supervise.bind_tcp(settings.http_host, settings.http_port, part="dashboard", setting=setting)
+    except supervise.PortInUse as exc:
+        raise fail(str(exc), code=supervise.EXIT_NOT_STARTED) from None
     except OSError as exc:
-        raise fail(f"cannot serve on {settings.http_host}:{settings.http_port}: {exc}") from None
+        raise fail(str(exc), code=supervise.EXIT_NOT_STARTED) from None
+
+
+def stop_signals() -> threading.Event:
+    """An event set by SIGTERM (docker stop, systemd) or SIGINT (Ctrl-C): the main thread stops in order."""
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: object) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    return stop
 
 
 def serve(
@@ -91,152 +158,21 @@ def serve(
     )
     configure_logging(s.log_level, s.log_format)
     tokens = operator_tokens(operator_token, s)
+    sock = bind_http(s)
+    stop = stop_signals()
+    http = HttpServer(s, tokens, None if s.events_connect == "none" else s.events_connect)
+    http.start(sock)
+    try:
+        http.wait_healthy(30.0, stop)
+    except RuntimeError as exc:
+        http.stop()
+        raise fail(str(exc), code=supervise.EXIT_NOT_STARTED) from None
     console.print(
         f"camcal server: http://{s.http_host}:{s.http_port}  (API docs at /docs; data {s.data_dir})"
     )
-    run_server(s, tokens, None if s.events_connect == "none" else s.events_connect)
-
-
-def _spawn(args: list[str], log: Path) -> subprocess.Popen[bytes]:
-    with log.open("ab") as fh:
-        return subprocess.Popen(
-            [sys.executable, "-c", "from camcal.cli import main; main()", *args],
-            stdout=fh,
-            stderr=fh,
-            start_new_session=True,
-        )
-
-
-def up(
-    data: Annotated[Path | None, typer.Option(help="Data folder; an open dive there is continued.")] = None,
-    port: Annotated[int | None, typer.Option(help="Dashboard port [CAMCAL_HTTP_PORT].")] = None,
-    host: Annotated[str | None, typer.Option(help="Dashboard address [CAMCAL_HTTP_HOST].")] = None,
-    ingest_port: Annotated[int, typer.Option(help="Port modules connect to.")] = 5555,
-    events_port: Annotated[int, typer.Option(help="Port of the ingest's event publisher.")] = 5556,
-    simulate: Annotated[bool, typer.Option(help="Run two simulated modules (A and B).")] = True,
-    speed: Annotated[float, typer.Option(help="Speed of the simulated dive.")] = 10.0,
-    frame_scale: Annotated[float, typer.Option(help="Simulated sensor scale (1 = 5 MP).")] = 0.5,
-    schedule: Annotated[str, typer.Option(help="Schedule of the simulated modules.")] = "trex-subsampled",
-    seed: Annotated[int, typer.Option(help="Seed of the simulated dive.")] = 0,
-    deck_s: Annotated[
-        float, typer.Option(help="Simulated time on deck before the descent, in seconds.")
-    ] = 60.0,
-    winch_m_per_s: Annotated[float, typer.Option(help="Simulated descent and ascent speed, in m/s.")] = 1.0,
-    test_stop_s: Annotated[
-        float, typer.Option(help="Simulated time at each test stop (1200 m, 2021 m), in seconds.")
-    ] = 120.0,
-    station_s: Annotated[
-        float, typer.Option(help="Simulated time on station at 3420 m, in seconds.")
-    ] = 1800.0,
-    operator_token: Annotated[
-        list[str] | None, typer.Option(help="NAME=TOKEN of an operator (repeat).")
-    ] = None,
-    config: Annotated[Path | None, typer.Option(help="A TOML configuration file [CAMCAL_CONFIG].")] = None,
-) -> None:
-    """Start the whole system: ingest, two simulated modules on a simulated dive, and the dashboard."""
-    s = settings_or_fail(config, data_dir=data, http_host=host, http_port=port)
-    configure_logging(s.log_level, s.log_format)
-    data_dir = s.data_dir
-    data_dir.mkdir(parents=True, exist_ok=True)
-    logs = data_dir / "logs"
-    logs.mkdir(exist_ok=True)
-    tokens = operator_tokens(operator_token, s) or {"operator": secrets.token_urlsafe(12)}
-    events = f"tcp://127.0.0.1:{events_port}"
-    from storage.store import Store
-
-    try:
-        Store.open(data_dir, s.database_url).close()  # create or migrate the database before anyone uses it
-    except Exception as exc:
-        raise fail(f"cannot open the store in {data_dir}: {exc}") from None
-    # SIGTERM (docker stop, systemd, kill) must stop the children too. uvicorn handles the signal,
-    # shuts down, then raises it again: with the default action this process would die before the
-    # `finally` below stops the ingest and the modules.
-    signal.signal(signal.SIGTERM, _exit_on_sigterm)
-    children: list[tuple[str, subprocess.Popen[bytes]]] = [
-        (
-            "ingest",
-            _spawn(
-                [
-                    "ingest",
-                    "--data",
-                    str(data_dir),
-                    "--bind",
-                    f"tcp://127.0.0.1:{ingest_port}",
-                    "--events",
-                    events,
-                ],
-                logs / "ingest.log",
-            ),
-        ),
-    ]
-    try:
-        if simulate:
-            epoch = time.time() + 3.0
-            for m in ("A", "B"):
-                children.append(
-                    (
-                        f"module {m}",
-                        _spawn(
-                            [
-                                "lrm",
-                                "simulate",
-                                "--camera",
-                                m,
-                                "--connect",
-                                f"tcp://127.0.0.1:{ingest_port}",
-                                "--outbox",
-                                str(data_dir / f"outbox-{m}"),
-                                "--speed",
-                                str(speed),
-                                "--frame-scale",
-                                str(frame_scale),
-                                "--schedule",
-                                schedule,
-                                "--seed",
-                                str(seed),
-                                "--epoch",
-                                str(epoch),
-                                "--deck-s",
-                                str(deck_s),
-                                "--winch-m-per-s",
-                                str(winch_m_per_s),
-                                "--test-stop-s",
-                                str(test_stop_s),
-                                "--station-s",
-                                str(station_s),
-                            ],
-                            logs / f"module-{m}.log",
-                        ),
-                    )
-                )
-        console.print(
-            f"[bold]camcal is up:[/] dashboard http://{s.http_host}:{s.http_port}  "
-            "(review: /review, API: /docs)"
-        )
-        console.print(f"data: {data_dir}   logs: {logs}   modules connect to tcp://<this host>:{ingest_port}")
-        for name, token in tokens.items():
-            console.print(f"operator token for {name}: {token}")
-        console.print("stop with Ctrl-C")
-        if simulate and s.station_depth_m is None:  # the simulated dive's plan
-            from lrm.dive import DiveProfile
-
-            s = s.model_copy(update={"station_depth_m": DiveProfile().station_depth_m})
-        run_server(s, tokens, events)
-    finally:
-        stop_children(children)
-
-
-def _exit_on_sigterm(signum: int, _frame: object) -> None:
-    raise SystemExit(0)
-
-
-def stop_children(children: list[tuple[str, subprocess.Popen[bytes]]]) -> None:
-    """Modules first (they finish writing their outbox), then the ingest (it commits what it has)."""
-    for _name, proc in reversed(children):
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-    console.print("stopped: " + ", ".join(f"{n} ({p.returncode})" for n, p in children))
+    supervise.notify_ready(f"dashboard on {http.url}", url=http.url)
+    while not stop.wait(0.5) and http.alive():
+        pass
+    http.stop()
+    if not stop.is_set():
+        raise fail(f"the dashboard stopped by itself ({http.error!r}); see the log above", code=1)

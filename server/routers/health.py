@@ -1,4 +1,6 @@
-"""GET /api/health: are the modules alive, is the ingest running, how deep are the queues."""
+"""GET /api/health: are the modules alive, is the ingest running, how deep are the queues.
+
+GET /healthz: does this server answer (a liveness probe for ``camcal up``, Docker, systemd)."""
 
 from __future__ import annotations
 
@@ -13,6 +15,12 @@ from server.deps import HubDep, SettingsDep, StoreDep
 from storage import queries
 
 router = APIRouter(tags=["health"])
+
+
+@router.get("/healthz")
+async def healthz() -> dict[str, str]:
+    """200 while the server runs and its store is open; touches neither the ingest nor the database."""
+    return {"status": "ok", "version": __version__}
 
 
 @router.get("/api/health")
@@ -39,6 +47,8 @@ async def health(hub: HubDep, store: StoreDep, settings: SettingsDep) -> dict[st
             "link": h["link"] if h else "unknown",
             "last_packet_age_s": h["last_packet_age_s"] if h else round(now - m["last_seen_unix_s"], 1),
             "frames_per_s": h["frames_per_s"] if h else None,
+            "frames_last_min": h.get("frames_last_min") if h else None,
+            "last_frame_age_s": h.get("last_frame_age_s") if h else None,
             "schedule": h["schedule"] if h else m["schedule"],
             "outbox_pending": h.get("outbox_pending") if h else None,
             "boot": h["boot"] if h else m["boot"],

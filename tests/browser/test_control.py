@@ -22,7 +22,7 @@ import pytest
 from camcal.schedule import linearity_scan, trex_subsampled
 from storage.store import Store
 from tests.browser.conftest import camcal_page
-from tests.utils.system import System, camcal_up, module_pid, wait_until
+from tests.utils.system import SHORT_DIVE, System, camcal_up, module_pid, wait_until
 
 pytestmark = pytest.mark.browser
 
@@ -58,13 +58,8 @@ WATCH_TRACKER = """() => {
 
 @pytest.fixture(scope="module")
 def control_system(tmp_path_factory: pytest.TempPathFactory) -> Iterator[System]:
-    with camcal_up(
-        tmp_path_factory.mktemp("control") / "data",
-        speed=20,
-        winch_m_per_s=20,
-        test_stop_s=3000,
-        extra=["--deck-s", "5"],
-    ) as s:
+    dive = {**SHORT_DIVE, "--winch-m-per-s": "20", "--test-stop-s": "3000", "--deck-s": "5"}
+    with camcal_up(tmp_path_factory.mktemp("control") / "data", dive=dive) as s:
         yield s
 
 

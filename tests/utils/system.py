@@ -2,8 +2,10 @@
 
 ``camcal up`` starts the ingest and two simulated modules as its own children
 (each in its own session); stopping it with SIGINT stops them in order.
-If it does not stop in time, its children are found in /proc and killed by
-pid, so a failed test never leaves a simulated dive running.
+Every process of its tree carries a mark in its environment (``TREE_MARK``),
+which /proc shows whoever its parent is now: tests count what is left of a
+tree by it (`tree`), never by the command's own bookkeeping, and whatever is
+left after a test is killed, so a failed test never leaves a dive running.
 """
 
 from __future__ import annotations
@@ -15,12 +17,11 @@ import socket
 import subprocess
 import sys
 import time
+import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
-
-import httpx
 
 REPO = Path(__file__).resolve().parents[2]
 CHROMIUM = Path("/usr/bin/chromium")
@@ -67,6 +68,85 @@ def free_ports(n: int) -> list[int]:
             s.close()
 
 
+#: Environment variable marking every process a test started, with its children and theirs.
+TREE_MARK = "CAMCAL_TEST_TREE"
+
+
+def marked_env(mark: str) -> dict[str, str]:
+    """A clean environment (no CAMCAL_* setting of the caller's shell) with this checkout first on the
+    import path, marking the processes started with it (and their descendants) with ``mark``."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("CAMCAL_")}
+    env["PYTHONPATH"] = str(REPO)
+    env[TREE_MARK] = mark
+    return env
+
+
+def tree(mark: str) -> list[int]:
+    """Live processes (zombies left out) whose environment carries ``mark``, read from /proc."""
+    needle = f"{TREE_MARK}={mark}".encode()
+    out = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            if needle not in (entry / "environ").read_bytes().split(b"\0"):
+                continue
+            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            continue
+        if state != "Z":
+            out.append(int(entry.name))
+    return out
+
+
+def kill_tree(mark: str) -> None:
+    for pid in tree(mark):
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
+
+
+def gone_within(mark: str, timeout_s: float) -> float:
+    """Seconds until no process of the tree ``mark`` is left; fails naming the survivors."""
+    t0 = time.monotonic()
+    while tree(mark):
+        if time.monotonic() - t0 >= timeout_s:
+            left = {pid: Path(f"/proc/{pid}/cmdline").read_bytes()[:120] for pid in tree(mark)}
+            raise AssertionError(f"still running {timeout_s} s later: {left}")
+        time.sleep(0.05)
+    return time.monotonic() - t0
+
+
+def assert_ports_free(*ports: int) -> None:
+    """Each port can be bound again at once, as the services bind them (SO_REUSEADDR)."""
+    for port in ports:
+        with socket.socket() as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            s.bind(("127.0.0.1", port))
+
+
+def holding(port: int) -> socket.socket:
+    """A plain listening socket on ``port``: somebody else's service."""
+    s = socket.socket()
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    s.bind(("127.0.0.1", port))
+    s.listen()
+    return s
+
+
+def run_camcal(args: list[str], mark: str, cwd: Path, timeout_s: float = 60) -> tuple[int, str, float]:
+    """Run ``camcal ARGS`` to its end: exit status, output, seconds it took."""
+    t0 = time.monotonic()
+    proc = subprocess.run(
+        [sys.executable, "-c", "from camcal.cli import main; main()", *args],
+        cwd=cwd,
+        env={**marked_env(mark), "COLUMNS": "400"},
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+    )
+    return proc.returncode, proc.stdout + proc.stderr, time.monotonic() - t0
+
+
 def wait_until(check: Callable[[], Any], timeout_s: float, what: str, every_s: float = 0.5) -> Any:
     """Poll ``check`` until it returns something truthy; raise naming ``what`` after ``timeout_s``."""
     deadline = time.monotonic() + timeout_s
@@ -87,6 +167,8 @@ class System:
     operator: str
     process: subprocess.Popen[bytes]
     log: Path
+    mark: str = ""
+    ports: tuple[int, int, int] = (0, 0, 0)  # dashboard, ingest, events
 
     def url(self, path: str) -> str:
         return f"{self.base_url}{path}"
@@ -138,26 +220,37 @@ def stop_system(proc: subprocess.Popen[bytes], timeout_s: float = 40.0) -> None:
             os.kill(pid, signal.SIGKILL)
 
 
+#: A short simulated dive from the deck (the browser tests' timeline).
+SHORT_DIVE = {
+    "--speed": "20",
+    "--frame-scale": "0.25",
+    "--winch-m-per-s": "6",
+    "--test-stop-s": "200",
+    "--station-s": "600",
+    "--begin": "deck",
+}
+
+
 @contextlib.contextmanager
 def camcal_up(
     data: Path,
     *,
-    speed: float = 20.0,
-    frame_scale: float = 0.25,
-    winch_m_per_s: float = 6.0,
-    test_stop_s: float = 200.0,
-    station_s: float = 600.0,
+    dive: dict[str, str] | None = None,
     extra: list[str] | None = None,
-    ready_timeout_s: float = 60.0,
+    ports: tuple[int, int, int] | None = None,
+    ready_timeout_s: float = 90.0,
 ) -> Iterator[System]:
-    """Run ``camcal up`` on free ports with a short simulated dive; yield once the API answers."""
-    port, ingest_port, events_port = free_ports(3)
+    """Run ``camcal up`` on free ports (or ``ports``: dashboard, ingest, events) with a simulated dive
+    (``dive``: its options; default `SHORT_DIVE`, ``{}`` for `make run`'s); yield once it says it is up.
+
+    Afterwards (however the test ended) no process of its tree is left.
+    """
+    port, ingest_port, events_port = ports or free_ports(3)
     token = "browser-test-token-0123456789"
     data.mkdir(parents=True, exist_ok=True)
     log = data.parent / f"{data.name}-up.log"
-    # A clean configuration: no CAMCAL_* setting of the caller's shell leaks into the system under test.
-    env = {k: v for k, v in os.environ.items() if not k.startswith("CAMCAL_")}
-    env["PYTHONPATH"] = str(REPO)
+    mark = uuid.uuid4().hex
+    dive_options = SHORT_DIVE if dive is None else dive
     args = [
         sys.executable,
         "-c",
@@ -171,37 +264,30 @@ def camcal_up(
         str(ingest_port),
         "--events-port",
         str(events_port),
-        "--speed",
-        str(speed),
-        "--frame-scale",
-        str(frame_scale),
-        "--winch-m-per-s",
-        str(winch_m_per_s),
-        "--test-stop-s",
-        str(test_stop_s),
-        "--station-s",
-        str(station_s),
+        *(w for kv in dive_options.items() for w in kv),
         "--operator-token",
         f"tester={token}",
         *(extra or []),
     ]
     with log.open("wb") as fh:
-        proc = subprocess.Popen(args, cwd=data.parent, env=env, stdout=fh, stderr=subprocess.STDOUT)
-    system = System(f"http://127.0.0.1:{port}", data, token, "tester", proc, log)
+        proc = subprocess.Popen(
+            args, cwd=data.parent, env=marked_env(mark), stdout=fh, stderr=subprocess.STDOUT
+        )
+    system = System(
+        f"http://127.0.0.1:{port}", data, token, "tester", proc, log, mark, (port, ingest_port, events_port)
+    )
     try:
         deadline = time.monotonic() + ready_timeout_s
         while True:
             if proc.poll() is not None:
                 raise RuntimeError(f"camcal up exited with {proc.returncode}:\n{log.read_text()[-3000:]}")
-            try:
-                if httpx.get(system.url("/api/health"), timeout=2).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                pass
+            if "camcal is up" in log.read_text():  # every part healthy, both modules linked
+                break
             if time.monotonic() > deadline:
                 tail = log.read_text()[-3000:]
-                raise RuntimeError(f"camcal up did not answer in {ready_timeout_s} s:\n{tail}")
-            time.sleep(0.3)
+                raise RuntimeError(f"camcal up was not up in {ready_timeout_s} s:\n{tail}")
+            time.sleep(0.1)
         yield system
     finally:
         stop_system(proc)
+        kill_tree(mark)

@@ -91,11 +91,11 @@ export function createCard(mid) {
           "dl",
           { class: "kv" },
           el("dt", {}, "last frame"),
-          el("dd", { "data-field": "frame-status" }, "–"),
+          el("dd", {}, el("span", { "data-field": "frame-status" }, "–"), el("span", { class: "muted", "data-field": "frame-age" })),
           el("dt", {}, "I_center"),
           el("dd", { "data-field": "icenter" }, "–"),
-          el("dt", {}, "frames/s"),
-          el("dd", { "data-field": "fps" }, "–"),
+          el("dt", { title: "frames the ship received from this module in the last 60 s" }, "frames, last min"),
+          el("dd", { "data-field": "frames-min" }, "–"),
         ),
         el(
           "div",
@@ -173,7 +173,11 @@ export function updateCard(card, m, { now, staleAfter, severity }) {
     setText(fs, fr.status === "ok" ? "ok" : `${fr.status}${fr.reason ? ` (${fr.reason})` : ""}`);
     setText(f(card, "icenter"), fr.i_center_gray === null ? "–" : `${fmt(fr.i_center_gray, 1)} gray`);
   }
-  setText(f(card, "fps"), m.frames_per_s === null || m.frames_per_s === undefined ? "–" : fmt(m.frames_per_s, 2));
+  // Rates name their window: between test stops a 10 s rate reads 0 long before the minute does.
+  setText(f(card, "frame-age"), m.lastFrameAt === null ? "" : ` · ${fmtAge((now - m.lastFrameAt) / 1000)} ago`);
+  const perMin = f(card, "frames-min");
+  setText(perMin, m.frames_last_min === null || m.frames_last_min === undefined ? "–" : String(m.frames_last_min));
+  perMin.title = m.frames_per_s === null || m.frames_per_s === undefined ? "" : `${fmt(m.frames_per_s, 2)} frames/s over the last 10 s`;
 
   const a = m.attitude || {};
   setText(f(card, "tilt"), fmt(a.tilt_deg, 2));

@@ -18,6 +18,7 @@ const state = {
   dive: null,
   runId: null,
   staleAfter: 5,
+  stationDepth: null,
   modules: new Map(),
   attenuation: {},
   alarms: new Map(),
@@ -53,6 +54,8 @@ function moduleState(mid) {
       id: mid,
       link: "unknown",
       lastPacketAt: null,
+      lastFrameAt: null,
+      frames_last_min: null,
       setting: null,
       shown: null,
       pending: null,
@@ -76,6 +79,7 @@ function onSnapshot(d) {
   state.dive = d.dive;
   state.runId = d.run_id;
   state.staleAfter = d.stale_after_s ?? 5;
+  state.stationDepth = d.station_depth_m ?? null;
   state.ingestUp = Boolean(d.ingest?.up);
   state.healthAt = state.ingestUp ? now - (d.ingest.age_s || 0) * 1000 : null;
   state.lastLiveAt = now;
@@ -87,6 +91,7 @@ function onSnapshot(d) {
       distance_m: sm.distance_m,
       link: sm.link,
       frames_per_s: sm.frames_per_s,
+      frames_last_min: sm.frames_last_min,
       schedule: sm.schedule,
       sensors: sm.sensors,
       attitude: sm.attitude,
@@ -95,6 +100,7 @@ function onSnapshot(d) {
     });
     const age = sm.last_packet_age_s ?? (sm.last_seen_unix_s ? d.server_time_unix_s - sm.last_seen_unix_s : null);
     m.lastPacketAt = age === null ? null : now - age * 1000;
+    m.lastFrameAt = sm.last_frame_age_s === null || sm.last_frame_age_s === undefined ? null : now - sm.last_frame_age_s * 1000;
     m.sensorsAt = sm.sensors ? m.lastPacketAt : null;
     m.maxDepth = Math.max(m.maxDepth, d.dive?.max_depth_m || 0);
     const lf = sm.latest_frame;
@@ -173,6 +179,8 @@ function onEvent(msg) {
         const hm = moduleState(mid);
         hm.link = h.link;
         hm.frames_per_s = h.frames_per_s;
+        hm.frames_last_min = h.frames_last_min;
+        if (h.last_frame_age_s !== null && h.last_frame_age_s !== undefined) hm.lastFrameAt = now - h.last_frame_age_s * 1000;
         hm.schedule = h.schedule;
         // The ingest's own count is the truth; packets seen since (sensors, frames) refine it.
         if (h.last_packet_age_s !== null && h.last_packet_age_s !== undefined) {
@@ -198,6 +206,7 @@ function onEvent(msg) {
     case "frame":
       m.setting = p;
       m.lastPacketAt = now;
+      m.lastFrameAt = now;
       break;
     case "result": {
       const frame = { ...p, id: p.frame_id };
@@ -274,6 +283,8 @@ function trackDepth(m, s) {
   const rate = den ? num / den : 0;
   if (rate > 0.2) m.phase = "descent";
   else if (rate < -0.2) m.phase = "ascent";
+  // With the dive plan a stop is the station only at its depth; without, the deepest stop so far is.
+  else if (state.stationDepth !== null) m.phase = Math.abs(s.depth_m - state.stationDepth) <= 50 ? "station" : "stop";
   else m.phase = s.depth_m >= m.maxDepth - 50 ? "station" : "stop";
 }
 
@@ -321,8 +332,9 @@ function render() {
     let card = cards.get(mid);
     if (!card) {
       card = createCard(mid);
+      const after = [...cards.keys()].sort().find((k) => k > mid); // A before B, whoever spoke first
+      box.insertBefore(card, after ? cards.get(after) : null);
       cards.set(mid, card);
-      box.append(card);
       if (m.shown) {
         m.pending ??= { frame: m.shown, tEvent: null };
         loadThumbnail(m);

@@ -52,9 +52,9 @@ from camcal.calibrations import setup_of
 from camcal.frameset import Setup
 from camcal.parallel import process_pool
 from ingest.alarms import AlarmEvaluator, AlarmLimits
-from ingest.derived import attenuation_point_row, geometry_and_ratios, linearity_rows
+from ingest.derived import linearity_rows
 from ingest.events import EventBus
-from ingest.rolling import RollingAttenuation, Sample
+from ingest.rolling import Changes, Sample, VisitSeries
 from ingest.seqtrack import SeqTracker
 from ingest.worker import analyse_stored_frame, warm_up
 from storage.models import AnalysisRun, Dive
@@ -81,8 +81,7 @@ class IngestConfig:
     sqlite_synchronous: str = "FULL"
     dive_name: str | None = None
     setup: Setup = field(default_factory=Setup)
-    rolling_window_s: float = 300.0
-    rolling_interval_s: float = 10.0
+    visit_idle_close_s: float = 60.0  # no frame result for this long: the open λ_att visits are final
     command_retry_s: float = 3.0
     retention_days: float | None = None
     calibration: str | None = None
@@ -423,18 +422,17 @@ class IngestService:
         self._push.send_multipart([module.encode(), *wire.encode(msg)])
 
     # -- analysis pool ---------------------------------------------------
-    def _analysis_config(self) -> FrameConfig:
-        lo, hi = self.config.setup.linear_range
-        return FrameConfig(linear_range_gray=(lo, hi))
+    def _analysis_config(self, module: str) -> FrameConfig:
+        return self.config.setup.frame_config(module)
 
     def queue_analysis(self, frame_id: int, path: str, meta: dict[str, Any]) -> None:
         self._analysis_backlog.append((frame_id, path, meta))
 
     def _feed_pool(self) -> None:
         limit = 2 * self.config.n_workers
-        config = self._analysis_config()
         while self._analysis_backlog and self._analysis_inflight < limit:
             frame_id, path, meta = self._analysis_backlog.popleft()
+            config = self._analysis_config(meta["module"])
             thumb = None
             if self.config.thumbnails:
                 thumb = str(self.store.files.root / "thumbs" / f"{frame_id}.jpg")
@@ -529,11 +527,17 @@ class _StoreState:
         self.svc = svc
         self.store = svc.store
         self.seqs = SeqTracker()
-        gr = geometry_and_ratios(svc.config.setup)
-        self.rolling: RollingAttenuation | None = None
-        if gr is not None:
-            self.rolling = RollingAttenuation(
-                gr[0], gr[1], svc.config.rolling_window_s, svc.config.rolling_interval_s
+        self.series: VisitSeries | None = None
+        self.last_result_mono = time.monotonic()
+        try:
+            self.series = VisitSeries(svc.config.setup)
+        except ValueError:
+            log.warning("no λ_att series: the setup has fewer than two cameras with distances")
+        if self.series is not None:  # after a restart: the visits of the frames already analysed
+            self._store_points(
+                self.series.add(
+                    Sample.from_result(r) for r in self.store.result_rows(svc.run.id, svc.dive.id)
+                )
             )
         self.alarms = AlarmEvaluator(svc.config.alarm_limits)
         self.active_alarms = {
@@ -758,7 +762,7 @@ class _StoreState:
             done.append((frame_id, meta, row, analysis_s))
         self.store.save_results(svc.run.id, rows)
         now_mono = time.monotonic()
-        points = []
+        samples = []
         for frame_id, meta, row, analysis_s in done:
             module = meta["module"]
             if meta.get("received_mono") is not None:
@@ -805,48 +809,24 @@ class _StoreState:
                 key = (module, meta["wavelength_nm"])
                 self.linearity[key][(meta["exposure_s"], meta["gain_db"])].append(row["center_gray"])
                 self.linearity_dirty.add(key)
-            if row["status"] == "ok" and self.rolling is not None:
-                point = self.rolling.add(
-                    module,
-                    meta["wavelength_nm"],
-                    meta["exposure_s"],
-                    meta["gain_db"],
-                    Sample(
-                        meta["captured_unix_s"],
-                        row["i_center_gray"],
-                        row["i_center_err_gray"],
-                        meta["depth_m"],
-                    ),
-                )
-                if point is not None:
-                    points.append(point)
-        if points:
-            self._store_points(points)
+            samples.append(Sample.from_result({**meta, **row, "frame_id": frame_id}))
+        if self.series is not None:
+            self.last_result_mono = now_mono
+            self._store_points(self.series.add(samples))
 
-    def _store_points(self, points: list[Any]) -> None:
+    def _store_points(self, changes: Changes) -> None:
+        """Store the λ_att visits a batch changed and publish them (``final`` false: provisional)."""
         svc = self.svc
-        rows = [
-            attenuation_point_row(
-                res,
-                t,
-                depth,
-                run_id=svc.run.id,
-                dive_id=svc.dive.id,
-                window_s=svc.config.rolling_window_s,
-                details={
-                    "pairs": [
-                        [p.exposure_s, p.gain_db, p.n_near, p.n_far, p.lambda_att_m] for p in res.pairs
-                    ],
-                    "note": res.note,
-                },
-            )
-            for res, t, depth in points
-        ]
-        ids = self.store.add_attenuation_points(rows)
-        for pid, r in zip(ids, rows, strict=True):
+        if not changes:
+            return
+        rows = [{**r, "run_id": svc.run.id, "dive_id": svc.dive.id} for r in changes.upserts]
+        ids = self.store.save_visit_points(svc.run.id, rows, changes.deletes)
+        for key in changes.deletes:
+            svc.events.emit("attenuation", {"visit_key": key, "deleted": True}, dive_id=svc.dive.id)
+        for r in rows:
             svc.events.emit(
                 "attenuation",
-                {"point_id": pid, **{k: v for k, v in r.items() if k != "details"}},
+                {"point_id": ids.get(r["visit_key"]), **{k: v for k, v in r.items() if k != "details"}},
                 dive_id=svc.dive.id,
             )
 
@@ -1027,6 +1007,11 @@ class _StoreState:
             self._housekeeping(now)
         self._apply_alarms(self.alarms.evaluate(now))
         self._update_linearity()
+        if (
+            self.series is not None
+            and time.monotonic() - self.last_result_mono > svc.config.visit_idle_close_s
+        ):
+            self._store_points(self.series.close_all())  # the modules went quiet: their visits are over
         self._deliver_commands()
         self._adapt_window()
         svc.events.transient("health", svc.health())

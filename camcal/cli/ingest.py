@@ -116,7 +116,6 @@ def ingest(
         window=s.window,
         fsync=s.fsync,
         sqlite_synchronous=s.sqlite_synchronous,
-        rolling_window_s=s.rolling_window_s,
         alarm_limits=alarm_limits(s),
         retention_days=s.retention_days,
         modules=served,

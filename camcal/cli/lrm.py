@@ -92,6 +92,25 @@ def simulate(
     epoch: Annotated[
         float | None, typer.Option(help="Wall-clock UNIX time of dive time 0 (shared by modules).")
     ] = None,
+    drift: Annotated[
+        float,
+        typer.Option(
+            help="How much the water changes on station: with --drift-shape sine the change of the "
+            "coefficients from the station's start to its end; with bump the fall of λ_att at "
+            "mid-station (0.3: 28 -> 19.6 -> 28 m at 460 nm)."
+        ),
+    ] = 0.04,
+    drift_shape: Annotated[str, typer.Option(help="sine (a steady trend) or bump (down and back).")] = "sine",
+    lem_dwell_s: Annotated[
+        float, typer.Option(help="Seconds the LEM shows each wavelength (its timetable's block).")
+    ] = 60.0,
+    lem_settle_s: Annotated[
+        float,
+        typer.Option(
+            help="Wait after each change of LEM colour before the first shot [s] (e.g. 0.45 on one "
+            "module to interleave its frames with the other's)."
+        ),
+    ] = 0.0,
     tilt_scale: Annotated[float, typer.Option(help="Factor on this module's tilt (alarm tests).")] = 1.0,
     leak_at_s: Annotated[
         float | None, typer.Option(help="Dive time at which the housing starts leaking.")
@@ -105,7 +124,7 @@ def simulate(
     from lrm.agent import Agent, AgentConfig
     from lrm.camera import SimulatedCamera, SimulatedSensors
     from lrm.clock import SimClock
-    from lrm.dive import DiveProfile, DiveSimulation, WaterColumn
+    from lrm.dive import DiveProfile, DiveSimulation, LEMTimetable, WaterColumn
     from lrm.runner import LemTimetableClock, ScheduleRunner
 
     logging.basicConfig(level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -120,9 +139,16 @@ def simulate(
         )
         epoch_s = epoch if epoch is not None else time.time()
         start = datetime.fromtimestamp(epoch_s, UTC)
+        if drift_shape == "sine":
+            column = WaterColumn.with_station_drift(profile, drift)
+        elif drift_shape == "bump":
+            column = WaterColumn.with_station_bump(profile, drift)
+        else:
+            raise ValueError(f"--drift-shape must be sine or bump, got {drift_shape!r}")
         sim = DiveSimulation(
             profile,
-            water_column=WaterColumn.with_station_drift(profile, 0.04),
+            LEMTimetable(dwell_s=lem_dwell_s),
+            water_column=column,
             seed=seed,
             frame_scale=frame_scale,
             start=start,
@@ -132,6 +158,7 @@ def simulate(
         if camera not in sim.module_ids:
             raise ValueError(f"--camera must be one of {', '.join(sim.module_ids)}, got {camera!r}")
         clock = SimClock.synced(start, speed, epoch_s)
+        lem = LemTimetableClock(sim.timetable, sim.start, settle_s=lem_settle_s)
     except ValueError as exc:
         raise fail(str(exc)) from None
     cam = SimulatedCamera(sim, camera, clock, readout_s=readout_s)
@@ -139,7 +166,7 @@ def simulate(
         cam,
         clock,
         sched,
-        lem=LemTimetableClock(sim.timetable, sim.start),
+        lem=lem,
         gate=lambda: profile.captures_enabled(sim.dive_time_s(clock.now())),
     )
     cfg = AgentConfig(module=camera, connect=connect, outbox=outbox or Path(f"lrm-{camera}-outbox"))

@@ -13,14 +13,24 @@ DEFAULT_CROP_PX = 300
 DEFAULT_CENTER_PIXELS = 100
 
 
-def crop_half_size_px(radius_px: float, minimum_px: int = DEFAULT_CROP_PX // 2) -> int:
-    """Half-size of the crop: 150 px, or more when the LEM would fill that.
+#: The crop reaches at least this many disk radii from the centroid (see `crop_half_size_px`).
+CROP_REACH_RADII = 2.5
 
-    The band profile needs room outside the disk for the background fit, so
-    the crop reaches at least 1.6 disk radii plus a margin. For T-REX (disk
-    radii ~45 and ~87 px) this is the paper's 300 x 300 crop.
+
+def crop_half_size_px(radius_px: float, minimum_px: int = DEFAULT_CROP_PX // 2) -> int:
+    """Half-size of the crop: 150 px, or more when the LEM would fill too much of that.
+
+    The band profile needs room outside the disk for the background fit,
+    the same room in units of the disk for every camera: the crop reaches
+    at least `CROP_REACH_RADII` disk radii plus a margin. With the paper's
+    fixed 300 x 300 crop the near T-REX camera (disk radius ~87 px) would
+    see only 1.7 radii, where its halo has not flattened yet: the fit's
+    constant then takes in halo light, and λ_att came out ~0.7 % high on
+    simulated frames (``bench/repeatability.py``; ~0.2 % with 2.5 radii).
+    For T-REX: 300 x 300 for the far camera (~45 px), 456 x 456 for the
+    near one.
     """
-    return max(int(minimum_px), math.ceil(1.6 * radius_px + 10))
+    return max(int(minimum_px), math.ceil(CROP_REACH_RADII * radius_px + 10))
 
 
 @dataclass(frozen=True)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import signal
 import threading
 import time
@@ -111,6 +112,10 @@ def simulate(
             "module to interleave its frames with the other's)."
         ),
     ] = 0.0,
+    sensor_rate_hz: Annotated[
+        float, typer.Option(help="Housing sensor samples per simulated second (lower it at high --speed).")
+    ] = 10.0,
+    fsync: Annotated[bool, typer.Option(help="fsync every frame on the SD card (outbox).")] = True,
     tilt_scale: Annotated[float, typer.Option(help="Factor on this module's tilt (alarm tests).")] = 1.0,
     leak_at_s: Annotated[
         float | None, typer.Option(help="Dive time at which the housing starts leaking.")
@@ -169,7 +174,15 @@ def simulate(
         lem=lem,
         gate=lambda: profile.captures_enabled(sim.dive_time_s(clock.now())),
     )
-    cfg = AgentConfig(module=camera, connect=connect, outbox=outbox or Path(f"lrm-{camera}-outbox"))
+    if not (sensor_rate_hz > 0 and math.isfinite(sensor_rate_hz)):
+        raise fail(f"--sensor-rate-hz must be > 0, got {sensor_rate_hz}")
+    cfg = AgentConfig(
+        module=camera,
+        connect=connect,
+        outbox=outbox or Path(f"lrm-{camera}-outbox"),
+        sensor_rate_hz=sensor_rate_hz,
+        fsync=fsync,
+    )
     agent = Agent(
         cfg,
         clock=clock,

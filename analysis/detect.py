@@ -279,18 +279,19 @@ class DiskResponse:
 def find_disk(sample: np.ndarray, step: int, radius_px: float | None, bg: BackgroundLevel) -> DiskResponse:
     """The most significant disk in a strided subsample of a frame.
 
-    The subsample (every ``step``-th pixel) is clipped a few noise widths
+    The subsample (every ``step``-th pixel) is clipped ten noise widths
     above the dark level (a hot pixel or a speck then weighs no more than a
     few noisy pixels) and averaged over a square of the disk's area (a box
     filter: the matched filter of a uniform disk, up to its corners). The
     noise of that average is measured on the frame itself: the spread of
     the filtered image's lower half (below its median), where the LEM and
     its halo, which only raise values, cannot reach; it is never taken
-    below what the rounding to integer gray values alone leaves. Several
+    below what the frame's pixel noise (``bg``) would give as white noise. Several
     radii are tried when ``radius_px`` is None. Coordinates are
     full-resolution pixels.
     """
-    top_gray = bg.level_gray + max(6.0 * bg.noise_gray, 6.0)
+    # Above any disk the peak search let through (< 8 noise widths or 3 gray), below a hot pixel.
+    top_gray = bg.level_gray + max(10.0 * bg.noise_gray, 4.0)
     clipped = np.minimum(sample, np.float32(top_gray), dtype=np.float32)
     best = DiskResponse(float("nan"), float("nan"), 0.0, -math.inf)
     radii = (radius_px,) if radius_px else SEARCH_RADII_PX
@@ -305,9 +306,11 @@ def find_disk(sample: np.ndarray, step: int, radius_px: float | None, bg: Backgr
         inner = mean[m : h - (side - 1 - m), m : w - (side - 1 - m)]
         if inner.size < 16:
             continue
-        thin = max(side // 2, 1)
+        thin = max(min(side // 2, int(math.sqrt(inner.size / 400))), 1)
         p16, med = np.percentile(inner[::thin, ::thin], (15.87, 50.0))
-        spread = max(float(med - p16), 0.29 / side)
+        # The measured spread catches structure (gradients, a halo from outside the view); white
+        # noise of the frame's own pixel noise is the least it can be (few samples can say less).
+        spread = max(float(med - p16), bg.noise_gray / side, 0.29 / side)
         _, top, _, (ix, iy) = cv2.minMaxLoc(inner)
         sig = (float(top) - float(med)) / spread
         if sig > best.significance:

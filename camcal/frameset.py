@@ -69,7 +69,7 @@ class FrameReadError(Exception):
 #: Focal length in pixels of the T-REX cameras in water (25 mm lens, ~16° over 2448 px).
 TREX_FOCAL_PX = 8709.0
 #: Relative I_center repeatability between visits per wavelength (``bench/repeatability.py``).
-TREX_REPEATABILITY: dict[int, float] = {405: 0.0010, 460: 0.0014, 525: 0.0005}
+TREX_REPEATABILITY: dict[int, float] = {405: 0.0020, 460: 0.0018, 525: 0.0009}
 
 
 class CameraSetup(BaseModel):
@@ -85,8 +85,9 @@ class SeriesSetup(BaseModel):
     """How the live λ_att series is cut into LEM visits and what errors its points carry.
 
     A visit is a run of one wavelength's frames of the two cameras, in
-    capture order, ended by a frame of another wavelength or a gap longer
-    than ``visit_gap_s``; a run longer than ``visit_max_s`` is cut at
+    capture order, ended by a frame of another wavelength, a gap longer than
+    ``visit_gap_s`` or a jump of the LEM's depth between two frames larger
+    than ``visit_depth_jump_m`` (the winch moved); a run longer than ``visit_max_s`` is cut at
     multiples of ``visit_max_s`` (UTC). ``repeatability`` is the relative
     I_center repeatability of a camera between visits beyond the frames'
     own noise, per wavelength (``repeatability_default`` for others): the
@@ -99,12 +100,15 @@ class SeriesSetup(BaseModel):
     model_config = ConfigDict(extra="forbid")
     visit_gap_s: float = Field(30.0, gt=0, le=86400, description="a gap that ends a visit [s]")
     visit_max_s: float = Field(600.0, gt=0, le=86400, description="longest visit [s]")
+    visit_depth_jump_m: float = Field(
+        20.0, gt=0, le=10000, description="a jump of the LEM's depth between frames that ends a visit [m]"
+    )
     repeatability: dict[int, float] = Field(
         default_factory=lambda: dict(TREX_REPEATABILITY),
         description="relative I_center repeatability per wavelength",
     )
     repeatability_default: float = Field(
-        0.0015, ge=0, le=0.5, description="relative I_center repeatability of other wavelengths"
+        0.002, ge=0, le=0.5, description="relative I_center repeatability of other wavelengths"
     )
     trend_prior_per_s: float = Field(0.002, gt=0, le=1.0, description="prior width on d ln I / dt [1/s]")
 

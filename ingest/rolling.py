@@ -2,9 +2,11 @@
 
 A visit is a run of one wavelength's frames of the near and far cameras:
 all frames (accepted or not) sorted by capture time form segments of one
-wavelength, cut where the wavelength changes or where no frame came for
-more than ``visit_gap_s``; a segment longer than ``visit_max_s`` is cut at
-multiples of ``visit_max_s`` (UTC). The segments are a function of the set
+wavelength, cut where the wavelength changes, where no frame came for more
+than ``visit_gap_s`` or where the LEM's depth jumps by more than
+``visit_depth_jump_m`` between two frames (the winch moved between a stop
+and the next); a segment longer than ``visit_max_s`` is cut at multiples of
+``visit_max_s`` (UTC). The segments are a function of the set
 of frames alone, not of the order their results arrive in, so the live
 ingest (results in any order, two modules interleaved) and a re-analysis
 (all results at once) cut the same visits and compute the same points
@@ -168,9 +170,14 @@ class VisitSeries:
         return self._samples[lo].t_unix_s, self._samples[hi].t_unix_s
 
     def _cut(self, j: int) -> bool:
-        """True if a segment starts at sample ``j`` (a new wavelength, or a gap before it)."""
+        """True if a segment starts at sample ``j``: a new wavelength, a gap, or the LEM moved."""
         a, b = self._samples[j - 1], self._samples[j]
-        return a.wavelength_nm != b.wavelength_nm or b.t_unix_s - a.t_unix_s > self.rules.visit_gap_s
+        if a.wavelength_nm != b.wavelength_nm or b.t_unix_s - a.t_unix_s > self.rules.visit_gap_s:
+            return True
+        if a.depth_m is None or b.depth_m is None:
+            return False
+        jump = (b.depth_m + self.distances[b.module]) - (a.depth_m + self.distances[a.module])
+        return abs(jump) > self.rules.visit_depth_jump_m
 
     def _segments(self, t_lo: float, t_hi: float) -> list[list[Sample]]:
         """The visits whose samples lie in [t_lo, t_hi] (a span that starts and ends at cuts)."""

@@ -67,6 +67,28 @@ def test_a_gap_longer_than_visit_gap_s_ends_a_visit_of_one_wavelength() -> None:
     assert [r["n_frames"] for r in rows] == [24, 12]
 
 
+def test_a_visit_ends_where_the_lem_moved_to_another_depth() -> None:
+    """The winch moves from a test stop to the station in 15 s, the LEM still showing 460 nm."""
+    stop = block(0, 460, T0)
+    station = [
+        Sample(
+            s.frame_id + 100,
+            s.module,
+            460,
+            s.t_unix_s + 21,
+            s.depth_m + 1399.0,
+            s.exposure_s,
+            s.gain_db,
+            True,
+            s.i_center_gray,
+            s.i_center_err_gray,
+        )
+        for s in stop
+    ]
+    rows = series_rows(stop + station, Setup())
+    assert [round(r["depth_m"]) for r in rows] == [3400, 4799]
+
+
 def test_a_long_run_of_one_wavelength_is_cut_at_multiples_of_visit_max_s() -> None:
     samples = []
     for k in range(180):  # 460 nm for 30 minutes: three frames per camera every 10 s

@@ -175,6 +175,13 @@ export function drawVisitSeries(timeDiv, depthDiv, series, opts = {}) {
     uirevision,
     ...empty,
   };
+  if (smoothVisits > 1) {
+    // The smoothed lines' names are long: their legend goes under the plot, clear of the title.
+    Object.assign(timeLay, {
+      legend: { orientation: "h", x: 0, y: -0.36, yanchor: "top" },
+      margin: { l: 60, r: 16, t: 36, b: 140 },
+    });
+  }
   const depthLay = { ...profileLayout(series, { title: { text: "profile against depth" }, uirevision }), ...empty };
   depthDiv.dataset.points = String(profileTraces(series).reduce((n, t) => n + (t.showlegend === false ? 0 : t.x.length), 0));
   return Promise.all([

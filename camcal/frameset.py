@@ -101,7 +101,7 @@ class SeriesSetup(BaseModel):
     visit_gap_s: float = Field(30.0, gt=0, le=86400, description="a gap that ends a visit [s]")
     visit_max_s: float = Field(600.0, gt=0, le=86400, description="longest visit [s]")
     visit_depth_jump_m: float = Field(
-        20.0, gt=0, le=10000, description="a jump of the LEM's depth between frames that ends a visit [m]"
+        50.0, gt=0, le=10000, description="a jump of the LEM's depth between frames that ends a visit [m]"
     )
     repeatability: dict[int, float] = Field(
         default_factory=lambda: dict(TREX_REPEATABILITY),

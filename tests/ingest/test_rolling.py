@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import random
 
@@ -87,6 +88,13 @@ def test_a_visit_ends_where_the_lem_moved_to_another_depth() -> None:
     ]
     rows = series_rows(stop + station, Setup())
     assert [round(r["depth_m"]) for r in rows] == [3400, 4799]
+
+
+def test_a_frame_set_that_gives_both_cameras_one_depth_is_not_cut_between_them() -> None:
+    """Frame sets often carry one depth for the set: the two cameras then differ by their distance."""
+    same = [dataclasses.replace(s, depth_m=3400.0) for s in block(0, 525, T0)]
+    rows = series_rows(same, Setup())
+    assert len(rows) == 1 and rows[0]["n_frames"] == 12
 
 
 def test_a_long_run_of_one_wavelength_is_cut_at_multiples_of_visit_max_s() -> None:

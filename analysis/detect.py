@@ -148,7 +148,8 @@ def _component_at(
     low = max(seed_value - math.floor(threshold) - 1, 0)  # fill values > threshold
     flags = 8 | cv2.FLOODFILL_MASK_ONLY | cv2.FLOODFILL_FIXED_RANGE | (1 << 8)
     _, _, _, rect = cv2.floodFill(image, mask, seed_xy, 0, low, 255, flags)
-    return mask[1:-1, 1:-1].view(bool), rect
+    x, y, rw, rh = (int(v) for v in rect)
+    return mask[1:-1, 1:-1].view(bool), (x, y, rw, rh)
 
 
 def _search_window(

@@ -294,14 +294,21 @@ def find_disk(sample: np.ndarray, step: int, radius_px: float | None, bg: Backgr
     # Above any disk the peak search let through (< 8 noise widths or 3 gray), below a hot pixel.
     top_gray = bg.level_gray + max(10.0 * bg.noise_gray, 4.0)
     clipped = np.minimum(sample, np.float32(top_gray), dtype=np.float32)
+    binned: np.ndarray | None = None
     best = DiskResponse(float("nan"), float("nan"), 0.0, -math.inf)
     radii = (radius_px,) if radius_px else SEARCH_RADII_PX
-    h, w = sample.shape
     for r in radii:
-        side = max(round(math.sqrt(math.pi) * r / step), 1)
+        # A large disk is filtered on 2 x 2 means of the subsample: the same pixels, a quarter of the work.
+        k = 2 if math.sqrt(math.pi) * r / step >= 16 else 1
+        if k == 2 and binned is None:
+            half = (clipped.shape[1] // 2, clipped.shape[0] // 2)
+            binned = cv2.resize(clipped, half, interpolation=cv2.INTER_AREA)
+        img = binned if k == 2 and binned is not None else clipped
+        h, w = img.shape
+        side = max(round(math.sqrt(math.pi) * r / (step * k)), 1)
         if side >= min(h, w):
             continue
-        mean = cv2.boxFilter(clipped, -1, (side, side), borderType=cv2.BORDER_REFLECT)
+        mean = cv2.boxFilter(img, -1, (side, side), borderType=cv2.BORDER_REFLECT)
         # Only where the whole box lies inside the frame: the borders repeat pixels.
         m = side // 2
         inner = mean[m : h - (side - 1 - m), m : w - (side - 1 - m)]
@@ -311,11 +318,12 @@ def find_disk(sample: np.ndarray, step: int, radius_px: float | None, bg: Backgr
         p16, med = np.percentile(inner[::thin, ::thin], (15.87, 50.0))
         # The measured spread catches structure (gradients, a halo from outside the view); white
         # noise of the frame's own pixel noise is the least it can be (few samples can say less).
-        spread = max(float(med - p16), bg.noise_gray / side, 0.29 / side)
+        spread = max(float(med - p16), bg.noise_gray / (side * k), 0.29 / (side * k))
         _, top, _, (ix, iy) = cv2.minMaxLoc(inner)
         sig = (float(top) - float(med)) / spread
         if sig > best.significance:
-            best = DiskResponse(float((ix + m) * step), float((iy + m) * step), float(r), sig)
+            x, y = ((ix + m) * k + (k - 1) / 2) * step, ((iy + m) * k + (k - 1) / 2) * step
+            best = DiskResponse(float(x), float(y), float(r), sig)
     return best
 
 

@@ -101,16 +101,18 @@ def radial_profile(
     dist = _distance_map(pixels.shape, center_xy)
     if max_radius_px is None:
         max_radius_px = min(pixels.shape) // 2
-    valid = dist < max_radius_px
-    values = pixels[valid]
-    idx = dist[valid].astype(np.int32)
+    # Every pixel in one pass, without copying the selection out: pixels beyond the last band
+    # and outside the frame (NaN) go to one extra bin, dropped.
+    idx = np.minimum(dist, np.float32(max_radius_px)).astype(np.int32).ravel()
+    values = pixels.ravel().astype(np.float64)
     finite = np.isfinite(values)
     if not finite.all():
-        values, idx = values[finite], idx[finite]
-    values = values.astype(np.float64)
-    count = np.bincount(idx, minlength=max_radius_px)[:max_radius_px]
-    total = np.bincount(idx, weights=values, minlength=max_radius_px)[:max_radius_px]
-    total2 = np.bincount(idx, weights=values * values, minlength=max_radius_px)[:max_radius_px]
+        idx[~finite] = max_radius_px
+        values[~finite] = 0.0
+    n = max_radius_px + 1
+    count = np.bincount(idx, minlength=n)[:max_radius_px]
+    total = np.bincount(idx, weights=values, minlength=n)[:max_radius_px]
+    total2 = np.bincount(idx, weights=values * values, minlength=n)[:max_radius_px]
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = total / count
         var = np.maximum(total2 / count - mean**2, 0.0)

@@ -69,7 +69,7 @@ class FrameReadError(Exception):
 #: Focal length in pixels of the T-REX cameras in water (25 mm lens, ~16° over 2448 px).
 TREX_FOCAL_PX = 8709.0
 #: Relative I_center repeatability between visits per wavelength (``bench/repeatability.py``).
-TREX_REPEATABILITY: dict[int, float] = {405: 0.0020, 460: 0.0018, 525: 0.0009}
+TREX_REPEATABILITY: dict[int, float] = {405: 0.0015, 460: 0.0014, 525: 0.0007}
 
 
 class CameraSetup(BaseModel):
@@ -108,9 +108,9 @@ class SeriesSetup(BaseModel):
         description="relative I_center repeatability per wavelength",
     )
     repeatability_default: float = Field(
-        0.002, ge=0, le=0.5, description="relative I_center repeatability of other wavelengths"
+        0.0015, ge=0, le=0.5, description="relative I_center repeatability of other wavelengths"
     )
-    trend_prior_per_s: float = Field(0.002, gt=0, le=1.0, description="prior width on d ln I / dt [1/s]")
+    trend_prior_per_s: float = Field(0.001, gt=0, le=1.0, description="prior width on d ln I / dt [1/s]")
 
     @field_validator("repeatability")
     @classmethod

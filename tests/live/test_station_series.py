@@ -35,8 +35,8 @@ from tests.utils.live import camcal_cli, cli_env
 from tests.utils.series_check import check_series
 from tests.utils.system import free_ports
 
-SPEED = 120.0
-DIVE = dict(deck_s=5.0, winch_m_per_s=100.0, test_stop_s=200.0, station_s=6600.0)
+SPEED = 100.0
+DIVE = dict(deck_s=5.0, winch_m_per_s=100.0, test_stop_s=200.0, station_s=5400.0)
 DWELL_S = 60.0
 DROP = 0.3
 SEED = 21

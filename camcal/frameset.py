@@ -69,7 +69,7 @@ class FrameReadError(Exception):
 #: Focal length in pixels of the T-REX cameras in water (25 mm lens, ~16° over 2448 px).
 TREX_FOCAL_PX = 8709.0
 #: Relative I_center repeatability between visits per wavelength (``bench/repeatability.py``).
-TREX_REPEATABILITY: dict[int, float] = {405: 0.0015, 460: 0.0014, 525: 0.0007}
+TREX_REPEATABILITY: dict[int, float] = {405: 0.0014, 460: 0.0013, 525: 0.0007}
 
 
 class CameraSetup(BaseModel):

@@ -12,7 +12,6 @@ simulated.
 
 from __future__ import annotations
 
-import itertools
 import math
 import os
 import signal
@@ -173,13 +172,22 @@ def station(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
 
 def test_the_streamed_series_follows_the_drifting_water_with_honest_errors(station: dict[str, Any]) -> None:
     table = pq.read_table(station["export"] / "attenuation.parquet").to_pylist()
-    for column in ("t_unix_s", "depth_m", "n_frames", "stat_err_m", "sys_err_m", "final", "lambda_att_m"):
+    for column in (
+        "t_unix_s",
+        "t_first_unix_s",
+        "t_last_unix_s",
+        "depth_m",
+        "n_frames",
+        "stat_err_m",
+        "sys_err_m",
+        "final",
+        "lambda_att_m",
+    ):
         assert column in table[0], column
     sim = _simulation(station["epoch"])
-    epoch = station["epoch"]
 
     def truth(wl: int, t: float) -> float:
-        return sim.lambda_att_pair_truth_m(wl, t - epoch)
+        return sim.lambda_att_pair_truth_m(wl, t - station["epoch"])
 
     check = check_series(table, truth)
     print(f"\nstreamed in {station['streamed_s']:.0f} s\n{check.table()}")
@@ -193,13 +201,14 @@ def test_the_streamed_series_follows_the_drifting_water_with_honest_errors(stati
     depths = sorted({round(p["depth_m"]) for p in table})
     for stop in (1200, 2021, 3420):
         assert any(abs(d - stop) < 3 for d in depths), (stop, depths)
-    # One point per visit: on station never two points of a wavelength within one LEM block.
-    # (At the end of a test stop, one block can hold a stop's visit and, after the fast winch, a
-    # station's: a visit ends where the LEM moved.)
-    for wl in (405, 460, 525):
-        ts = sorted(p["t_unix_s"] for p in table if p["wavelength_nm"] == wl and p["depth_m"] > 3400)
-        close = [(a, b) for a, b in itertools.pairwise(ts) if b - a <= 2 * DWELL_S]
-        assert not close, (wl, close)
+    # One point per visit: a point's frames all lie in one block of the LEM's timetable.
+    epoch = station["epoch"]
+    for p in table:
+        first, last = ((p[k] - epoch) // DWELL_S for k in ("t_first_unix_s", "t_last_unix_s"))
+        assert first == last, p
+    on_station = [p for p in table if p["depth_m"] > 3400]
+    blocks = {(p["wavelength_nm"], (p["t_unix_s"] - epoch) // DWELL_S) for p in on_station}
+    assert len(blocks) >= 0.9 * len(on_station)  # a module lagging a loaded machine may split a few
     # Every visit but the last of each wavelength is final.
     assert sum(not p["final"] for p in table) <= 3
     assert min(p["n_frames"] for p in table) >= 2

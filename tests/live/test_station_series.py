@@ -1,8 +1,9 @@
 """A drifting station streamed from two `camcal lrm simulate` modules into a real `camcal ingest`.
 
-The water's λ_att falls by 30 % over the hour on station and comes back;
-the LEM shows each wavelength for 60 s; module B shoots 0.45 s after module
-A (interleaved frames); the quick-check schedule. The stored series,
+The water's λ_att falls by 30 % over the 90 minutes on station and comes
+back; the LEM shows each wavelength for 60 s; module B shoots 0.45 s after
+module A (interleaved frames); three exposures at 8 dB, twice each per
+visit; test stops at 1200 and 2021 m on the way down; 100x speed. The stored series,
 exported with `camcal export`, is compared with the simulator's truth at
 each point's time (`tests.utils.series_check`), and `camcal reanalyze`
 must give the identical series from the same frames. Everything runs as

@@ -38,6 +38,7 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python bench/bench_analysis.py
+	$(BIN)/python bench/bench_detect.py
 	$(BIN)/python bench/bench_ingest.py
 
 bench-dashboard: $(STAMP)

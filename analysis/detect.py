@@ -17,6 +17,13 @@ import numpy as np
 #: Step of the strided subsample used by the coarse search. One pixel in 16 is
 #: read, so the search costs about one read pass over the frame.
 COARSE_STEP = 4
+#: A faint disk is the LEM when the disk filter's response stands this many
+#: standard deviations above the frame's (a 5 MP subsample holds ~1000
+#: independent disk-sized cells, so noise alone reaches it about once in
+#: 3000 frames; see ``bench/bench_detect.py``).
+DISK_SIGNIFICANCE = 5.5
+#: Disk radii (full-resolution pixels) the filter tries when the geometry gives none.
+SEARCH_RADII_PX = (12.0, 24.0, 48.0, 96.0, 192.0)
 _GROW_KERNEL = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
 
 
@@ -96,6 +103,12 @@ class Detection:
     elongation
         ``1 - minor/major`` axis ratio of the weighted second moments; a round
         LEM gives ~0, a double image or strong motion blur gives more.
+    significance
+        How far the disk filter's best response stands above the frame's
+        noise, in standard deviations (NaN when the peak search found a
+        bright source and the filter was not needed).
+    matched
+        True when the LEM was found by the disk filter (a faint LEM).
     """
 
     found: bool
@@ -106,10 +119,14 @@ class Detection:
     background: BackgroundLevel
     touches_edge: bool
     elongation: float
+    significance: float = float("nan")
+    matched: bool = False
 
 
-def _not_found(background: BackgroundLevel, peak: float = 0.0) -> Detection:
-    return Detection(False, float("nan"), float("nan"), 0.0, peak, background, False, 0.0)
+def _not_found(
+    background: BackgroundLevel, peak: float = 0.0, significance: float = float("nan")
+) -> Detection:
+    return Detection(False, float("nan"), float("nan"), 0.0, peak, background, False, 0.0, significance)
 
 
 def _significant(peak: float, bg: BackgroundLevel, min_significance: float, min_excess_gray: float) -> bool:
@@ -131,7 +148,8 @@ def _component_at(
     low = max(seed_value - math.floor(threshold) - 1, 0)  # fill values > threshold
     flags = 8 | cv2.FLOODFILL_MASK_ONLY | cv2.FLOODFILL_FIXED_RANGE | (1 << 8)
     _, _, _, rect = cv2.floodFill(image, mask, seed_xy, 0, low, 255, flags)
-    return mask[1:-1, 1:-1].view(bool), rect
+    x, y, rw, rh = (int(v) for v in rect)
+    return mask[1:-1, 1:-1].view(bool), (x, y, rw, rh)
 
 
 def _search_window(
@@ -169,6 +187,8 @@ def locate_source(
     *,
     min_significance: float = 8.0,
     min_excess_gray: float = 3.0,
+    expected_radius_px: float | None = None,
+    disk_significance: float = DISK_SIGNIFICANCE,
 ) -> Detection:
     """Find the LEM and measure its sub-pixel centroid on the full frame.
 
@@ -177,11 +197,19 @@ def locate_source(
     1. estimate the dark level and noise (`background_level`);
     2. find the brightest region on a strided, median-filtered subsample, or,
        if nothing stands out there (a point-like source), on the full frame;
-    3. declare *no source* unless the peak exceeds the background by both
+       a peak counts if it exceeds the background by both
        ``min_significance`` noise widths and ``min_excess_gray`` gray values;
+    3. if no peak counts, look for a faint disk with a filter matched to
+       it (`find_disk`): the mean over a disk of ``expected_radius_px`` (the
+       geometry's prediction; several sizes when None) on the subsample,
+       against the spread of that mean over the frame. A disk standing
+       ``disk_significance`` standard deviations out is the LEM; otherwise
+       there is *no source*;
     4. threshold at half the peak height in a full-resolution window around
-       the region found, and take the intensity-weighted centroid (background
-       removed) of the connected pixels above threshold and a two-pixel rim.
+       the region found (smoothed first for a faint disk, whose single
+       pixels are mostly noise), and take the intensity-weighted centroid
+       (background removed) of the connected pixels above threshold and a
+       two-pixel rim.
 
     Isolated hot pixels do not move the result: they are removed by the median
     in the search and carry a negligible weight in the centroid.
@@ -193,8 +221,11 @@ def locate_source(
     box = _search_window(sample, COARSE_STEP, bg, min_significance, min_excess_gray)
     if box is None:
         box = _search_window(frame, 1, bg, min_significance, min_excess_gray)
-        if box is None:
-            return _not_found(bg, float(sample.max()))
+    if box is None:
+        disk = find_disk(sample, COARSE_STEP, expected_radius_px, bg)
+        if disk.significance < disk_significance:
+            return _not_found(bg, float(sample.max()), disk.significance)
+        return _faint_disk(frame, bg, disk)
     bx0, by0, bx1, by1, peak = box
     x0, y0 = max(bx0, 0), max(by0, 0)
     x1, y1 = min(bx1, width), min(by1, height)
@@ -233,4 +264,110 @@ def locate_source(
         background=bg,
         touches_edge=touches,
         elongation=elongation,
+    )
+
+
+@dataclass(frozen=True)
+class DiskResponse:
+    """The disk filter's best response: where, how significant, at which radius."""
+
+    x_px: float
+    y_px: float
+    radius_px: float
+    significance: float
+
+
+def find_disk(sample: np.ndarray, step: int, radius_px: float | None, bg: BackgroundLevel) -> DiskResponse:
+    """The most significant disk in a strided subsample of a frame.
+
+    The subsample (every ``step``-th pixel) is clipped ten noise widths
+    above the dark level (a hot pixel or a speck then weighs no more than a
+    few noisy pixels) and averaged over a square of the disk's area (a box
+    filter: the matched filter of a uniform disk, up to its corners). The
+    noise of that average is measured on the frame itself: the spread of
+    the filtered image's lower half (below its median), where the LEM and
+    its halo, which only raise values, cannot reach; it is never taken
+    below what the frame's pixel noise (``bg``) would give as white noise. Several
+    radii are tried when ``radius_px`` is None. Coordinates are
+    full-resolution pixels.
+    """
+    # Above any disk the peak search let through (< 8 noise widths or 3 gray), below a hot pixel.
+    top_gray = bg.level_gray + max(10.0 * bg.noise_gray, 4.0)
+    clipped = np.minimum(sample, np.float32(top_gray), dtype=np.float32)
+    binned: np.ndarray | None = None
+    best = DiskResponse(float("nan"), float("nan"), 0.0, -math.inf)
+    radii = (radius_px,) if radius_px else SEARCH_RADII_PX
+    for r in radii:
+        # A large disk is filtered on 2 x 2 means of the subsample: the same pixels, a quarter of the work.
+        k = 2 if math.sqrt(math.pi) * r / step >= 16 else 1
+        if k == 2 and binned is None:
+            half = (clipped.shape[1] // 2, clipped.shape[0] // 2)
+            binned = cv2.resize(clipped, half, interpolation=cv2.INTER_AREA)
+        img = binned if k == 2 and binned is not None else clipped
+        h, w = img.shape
+        side = max(round(math.sqrt(math.pi) * r / (step * k)), 1)
+        if side >= min(h, w):
+            continue
+        mean = cv2.boxFilter(img, -1, (side, side), borderType=cv2.BORDER_REFLECT)
+        # Only where the whole box lies inside the frame: the borders repeat pixels.
+        m = side // 2
+        inner = mean[m : h - (side - 1 - m), m : w - (side - 1 - m)]
+        if inner.size < 16:
+            continue
+        thin = max(min(side // 2, int(math.sqrt(inner.size / 400))), 1)
+        p16, med = np.percentile(inner[::thin, ::thin], (15.87, 50.0))
+        # The measured spread catches structure (gradients, a halo from outside the view); white
+        # noise of the frame's own pixel noise is the least it can be (few samples can say less).
+        spread = max(float(med - p16), bg.noise_gray / (side * k), 0.29 / (side * k))
+        _, top, _, (ix, iy) = cv2.minMaxLoc(inner)
+        sig = (float(top) - float(med)) / spread
+        if sig > best.significance:
+            x, y = ((ix + m) * k + (k - 1) / 2) * step, ((iy + m) * k + (k - 1) / 2) * step
+            best = DiskResponse(float(x), float(y), float(r), sig)
+    return best
+
+
+def _faint_disk(frame: np.ndarray, bg: BackgroundLevel, disk: DiskResponse) -> Detection:
+    """Centroid and size of a faint disk found by `find_disk`, on a smoothed full-resolution window."""
+    height, width = frame.shape
+    reach = round(2.0 * disk.radius_px + 3 * COARSE_STEP + 4)
+    cx, cy = round(disk.x_px), round(disk.y_px)
+    x0, y0 = max(cx - reach, 0), max(cy - reach, 0)
+    x1, y1 = min(cx + reach + 1, width), min(cy + reach + 1, height)
+    window = frame[y0:y1, x0:x1].astype(np.float32)
+    k = max(3, 2 * round(disk.radius_px / 8.0) + 1)
+    smooth = cv2.blur(window, (k, k), borderType=cv2.BORDER_REFLECT)
+    _, peak, _, (lx, ly) = cv2.minMaxLoc(smooth)
+    threshold = bg.level_gray + 0.5 * (float(peak) - bg.level_gray)
+    component = (smooth > threshold).astype(np.uint8)
+    _, labels = cv2.connectedComponents(component, connectivity=8)
+    mask = labels == labels[ly, lx]
+    grown = cv2.dilate(mask.view(np.uint8), _GROW_KERNEL).view(bool)
+    weights = np.where(grown, smooth - np.float32(bg.level_gray), 0)
+    np.maximum(weights, 0, out=weights)
+    m = cv2.moments(weights)
+    if m["m00"] <= 0:
+        return _not_found(bg, float(peak), disk.significance)
+    x_local, y_local = m["m10"] / m["m00"], m["m01"] / m["m00"]
+    mu20, mu02, mu11 = m["mu20"] / m["m00"], m["mu02"] / m["m00"], m["mu11"] / m["m00"]
+    spread = np.sqrt(max((mu20 - mu02) ** 2 + 4 * mu11**2, 0.0))
+    major, minor = 0.5 * (mu20 + mu02 + spread), 0.5 * (mu20 + mu02 - spread)
+    elongation = 1.0 - float(np.sqrt(max(minor, 0.0) / major)) if major > 0 else 0.0
+    touches = bool(
+        (x0 == 0 and mask[:, 0].any())
+        or (y0 == 0 and mask[0, :].any())
+        or (x1 == width and mask[:, -1].any())
+        or (y1 == height and mask[-1, :].any())
+    )
+    return Detection(
+        found=True,
+        x_px=float(x0 + x_local),
+        y_px=float(y0 + y_local),
+        radius_px=float(np.sqrt(mask.sum() / np.pi)),
+        peak_gray=float(peak),
+        background=bg,
+        touches_edge=touches,
+        elongation=elongation,
+        significance=disk.significance,
+        matched=True,
     )

@@ -56,6 +56,10 @@ class FrameConfig:
     a LEM centre above ``high`` is saturated, below ``low`` too dark.
     ``saturated_pixel_fraction`` is the fraction of disk pixels allowed at 255
     before the frame counts as saturated even if the centre is in range.
+    ``expected_radius_px`` is the LEM's radius the geometry predicts for this
+    camera (`camcal.frameset.Setup.disk_radius_px`): the size of the disk
+    filter that finds a faint LEM (`analysis.detect.find_disk`); None tries
+    several sizes.
     """
 
     linear_range_gray: tuple[float, float] = (5.0, 240.0)
@@ -63,6 +67,7 @@ class FrameConfig:
     center_pixels: int = DEFAULT_CENTER_PIXELS
     saturated_pixel_fraction: float = 0.005
     edge_margin_px: float = 4.0
+    expected_radius_px: float | None = None
 
     def __post_init__(self) -> None:
         lo, hi = self.linear_range_gray
@@ -70,6 +75,8 @@ class FrameConfig:
             raise ValueError(f"linear_range_gray must satisfy 0 <= low < high <= 255, got {lo, hi}")
         if self.crop_px < 20 or self.center_pixels < 1:
             raise ValueError("crop_px must be >= 20 and center_pixels >= 1")
+        if self.expected_radius_px is not None and not (0 < self.expected_radius_px < 1e5):
+            raise ValueError(f"expected_radius_px must be > 0 (or None), got {self.expected_radius_px}")
 
 
 @dataclass(frozen=True)
@@ -154,11 +161,13 @@ def analyze_frame(frame: np.ndarray, config: FrameConfig | None = None) -> Frame
     """
     config = config or FrameConfig()
     frame = check_frame(frame)
-    det: Detection = locate_source(frame)
+    det: Detection = locate_source(frame, expected_radius_px=config.expected_radius_px)
     if not det.found:
+        size = f"{config.expected_radius_px:.0f} px" if config.expected_radius_px else "any size"
         return rejected(
             Reason.NO_SOURCE,
-            f"brightest region {det.peak_gray:.0f} gray over a background of "
+            f"no disk ({size}) above the noise: best {det.significance:.1f} σ; brightest region "
+            f"{det.peak_gray:.0f} gray over a background of "
             f"{det.background.level_gray:.1f} ± {det.background.noise_gray:.1f}",
         )
     located = {

@@ -13,14 +13,24 @@ DEFAULT_CROP_PX = 300
 DEFAULT_CENTER_PIXELS = 100
 
 
-def crop_half_size_px(radius_px: float, minimum_px: int = DEFAULT_CROP_PX // 2) -> int:
-    """Half-size of the crop: 150 px, or more when the LEM would fill that.
+#: The crop reaches at least this many disk radii from the centroid (see `crop_half_size_px`).
+CROP_REACH_RADII = 2.5
 
-    The band profile needs room outside the disk for the background fit, so
-    the crop reaches at least 1.6 disk radii plus a margin. For T-REX (disk
-    radii ~45 and ~87 px) this is the paper's 300 x 300 crop.
+
+def crop_half_size_px(radius_px: float, minimum_px: int = DEFAULT_CROP_PX // 2) -> int:
+    """Half-size of the crop: 150 px, or more when the LEM would fill too much of that.
+
+    The band profile needs room outside the disk for the background fit,
+    the same room in units of the disk for every camera: the crop reaches
+    at least `CROP_REACH_RADII` disk radii plus a margin. With the paper's
+    fixed 300 x 300 crop the near T-REX camera (disk radius ~87 px) would
+    see only 1.7 radii, where its halo has not flattened yet: the fit's
+    constant then takes in halo light, and λ_att came out ~0.7 % high on
+    simulated frames (``bench/repeatability.py``; ~0.2 % with 2.5 radii).
+    For T-REX: 300 x 300 for the far camera (~45 px), 456 x 456 for the
+    near one.
     """
-    return max(int(minimum_px), math.ceil(1.6 * radius_px + 10))
+    return max(int(minimum_px), math.ceil(CROP_REACH_RADII * radius_px + 10))
 
 
 @dataclass(frozen=True)
@@ -91,16 +101,18 @@ def radial_profile(
     dist = _distance_map(pixels.shape, center_xy)
     if max_radius_px is None:
         max_radius_px = min(pixels.shape) // 2
-    valid = dist < max_radius_px
-    values = pixels[valid]
-    idx = dist[valid].astype(np.int32)
+    # Every pixel in one pass, without copying the selection out: pixels beyond the last band
+    # and outside the frame (NaN) go to one extra bin, dropped.
+    idx = np.minimum(dist, np.float32(max_radius_px)).astype(np.int32).ravel()
+    values = pixels.ravel().astype(np.float64)
     finite = np.isfinite(values)
     if not finite.all():
-        values, idx = values[finite], idx[finite]
-    values = values.astype(np.float64)
-    count = np.bincount(idx, minlength=max_radius_px)[:max_radius_px]
-    total = np.bincount(idx, weights=values, minlength=max_radius_px)[:max_radius_px]
-    total2 = np.bincount(idx, weights=values * values, minlength=max_radius_px)[:max_radius_px]
+        idx[~finite] = max_radius_px
+        values[~finite] = 0.0
+    n = max_radius_px + 1
+    count = np.bincount(idx, minlength=n)[:max_radius_px]
+    total = np.bincount(idx, weights=values, minlength=n)[:max_radius_px]
+    total2 = np.bincount(idx, weights=values * values, minlength=n)[:max_radius_px]
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = total / count
         var = np.maximum(total2 / count - mean**2, 0.0)

@@ -24,6 +24,8 @@ import deflate
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from analysis.frame import FrameConfig
+
 MANIFEST = "manifest.csv"
 SETUP = "setup.json"
 REQUIRED_COLUMNS = ("file", "camera", "wavelength_nm", "exposure_s", "gain_db")
@@ -64,10 +66,62 @@ class FrameReadError(Exception):
 
 
 # ---------------------------------------------------------------- setup.json
+#: Focal length in pixels of the T-REX cameras in water (25 mm lens, ~16° over 2448 px).
+TREX_FOCAL_PX = 8709.0
+#: Relative I_center repeatability between visits per wavelength (``bench/repeatability.py``).
+TREX_REPEATABILITY: dict[int, float] = {405: 0.0014, 460: 0.0013, 525: 0.0007}
+
+
 class CameraSetup(BaseModel):
     model_config = ConfigDict(extra="allow")
     distance_m: float = Field(gt=0, description="LEM-to-camera distance in metres")
     distance_err_m: float = Field(0.0, ge=0, description="its one-sigma error in metres")
+    focal_px: float | None = Field(
+        None, gt=0, description="focal length in pixels (default: the setup's focal_px)"
+    )
+
+
+class SeriesSetup(BaseModel):
+    """How the live λ_att series is cut into LEM visits and what errors its points carry.
+
+    A visit is a run of one wavelength's frames of the two cameras, in
+    capture order, ended by a frame of another wavelength, a gap longer than
+    ``visit_gap_s`` or a jump of the LEM's depth between two frames larger
+    than ``visit_depth_jump_m`` (the winch moved); a run longer than ``visit_max_s`` is cut at
+    multiples of ``visit_max_s`` (UTC). ``repeatability`` is the relative
+    I_center repeatability of a camera between visits beyond the frames'
+    own noise, per wavelength (``repeatability_default`` for others): the
+    floor of a point's statistical error (`analysis.visit`; the defaults
+    were measured by ``bench/repeatability.py``, see ``docs/series.md``).
+    ``trend_prior_per_s`` is the width of the prior on how fast a camera's
+    signal can change within a visit (d ln I / dt).
+    """
+
+    model_config = ConfigDict(extra="forbid")
+    visit_gap_s: float = Field(30.0, gt=0, le=86400, description="a gap that ends a visit [s]")
+    visit_max_s: float = Field(600.0, gt=0, le=86400, description="longest visit [s]")
+    visit_depth_jump_m: float = Field(
+        50.0, gt=0, le=10000, description="a jump of the LEM's depth between frames that ends a visit [m]"
+    )
+    repeatability: dict[int, float] = Field(
+        default_factory=lambda: dict(TREX_REPEATABILITY),
+        description="relative I_center repeatability per wavelength",
+    )
+    repeatability_default: float = Field(
+        0.0015, ge=0, le=0.5, description="relative I_center repeatability of other wavelengths"
+    )
+    trend_prior_per_s: float = Field(0.001, gt=0, le=1.0, description="prior width on d ln I / dt [1/s]")
+
+    @field_validator("repeatability")
+    @classmethod
+    def _floors(cls, v: dict[int, float]) -> dict[int, float]:
+        bad = {wl: x for wl, x in v.items() if not 0 <= x <= 0.5}
+        if bad:
+            raise ValueError(f"repeatability must lie in [0, 0.5], got {bad}")
+        return v
+
+    def repeatability_at(self, wavelength_nm: int) -> float:
+        return self.repeatability.get(int(wavelength_nm), self.repeatability_default)
 
 
 class RatioSetup(BaseModel):
@@ -98,6 +152,30 @@ class Setup(BaseModel):
     cameras: dict[str, CameraSetup] = Field(default_factory=_trex_cameras)
     emission_ratio: dict[int, RatioSetup] = Field(default_factory=_trex_ratios)
     linear_range: tuple[float, float] = (5.0, 240.0)
+    focal_px: float = Field(TREX_FOCAL_PX, gt=0, description="focal length of the cameras in pixels")
+    lem_diameter_m: float = Field(0.43, gt=0, description="diameter of the LEM sphere in metres")
+    series: SeriesSetup = Field(default_factory=SeriesSetup)
+
+    def disk_radius_px(self, camera: str) -> float | None:
+        """The LEM's radius in pixels the pinhole model predicts for a camera, or None if unknown.
+
+        ``f · a / sqrt(L² - a²)`` with ``f`` the camera's focal length, ``a``
+        the LEM's radius and ``L`` its distance.
+        """
+        cam = self.cameras.get(camera)
+        a = self.lem_diameter_m / 2.0
+        if cam is None or cam.distance_m <= a:
+            return None
+        focal = cam.focal_px or self.focal_px
+        return focal * a / math.sqrt(cam.distance_m**2 - a * a)
+
+    def frame_config(self, camera: str | None = None) -> FrameConfig:
+        """The per-frame analysis settings for a camera's frames: linear range and disk size."""
+        lo, hi = self.linear_range
+        return FrameConfig(
+            linear_range_gray=(lo, hi),
+            expected_radius_px=self.disk_radius_px(camera) if camera is not None else None,
+        )
 
     @field_validator("linear_range")
     @classmethod

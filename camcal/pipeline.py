@@ -99,9 +99,10 @@ def analyze_file(folder: str, row: ManifestRow, config: FrameConfig) -> FrameAna
     return result
 
 
-def _analyze_batch(args: tuple[str, list[ManifestRow], FrameConfig]) -> list[FrameAnalysis]:
-    folder, rows, config = args
-    return [analyze_file(folder, row, config) for row in rows]
+def _analyze_batch(args: tuple[str, list[ManifestRow], Mapping[str, FrameConfig]]) -> list[FrameAnalysis]:
+    """Analyse rows with their camera's config (the one under "" for a camera the setup lacks)."""
+    folder, rows, configs = args
+    return [analyze_file(folder, row, configs.get(row.camera) or configs[""]) for row in rows]
 
 
 @dataclass(frozen=True)
@@ -155,11 +156,12 @@ def analyze_rows(
 ) -> FrameSetAnalysis:
     """Analyse the given rows of a frame set (see `analyze_folder`)."""
     folder = Path(folder)
-    config = FrameConfig(linear_range_gray=tuple(setup.linear_range))  # type: ignore[arg-type]
+    configs = {cam: setup.frame_config(cam) for cam in {r.camera for r in rows}}
+    configs[""] = setup.frame_config(None)
     workers = workers or os.cpu_count() or 1
     frames: list[FrameAnalysis] = []
     batch = 4
-    batches = [(str(folder), rows[i : i + batch], config) for i in range(0, len(rows), batch)]
+    batches = [(str(folder), rows[i : i + batch], configs) for i in range(0, len(rows), batch)]
     if workers <= 1 or len(rows) <= batch:
         results = map(_analyze_batch, batches)
         for out in results:

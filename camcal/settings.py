@@ -22,7 +22,7 @@ from pydantic_settings import (
     TomlConfigSettingsSource,
 )
 
-from camcal.frameset import CameraSetup, RatioSetup, Setup
+from camcal.frameset import CameraSetup, RatioSetup, SeriesSetup, Setup
 
 
 class AlarmSettings(BaseModel):
@@ -108,7 +108,10 @@ class Settings(BaseSettings):
     sqlite_synchronous: str = Field(
         "FULL", pattern="^(OFF|NORMAL|FULL|EXTRA)$", description="SQLite durability"
     )
-    rolling_window_s: float = Field(300.0, gt=0, description="time window of the rolling λ_att")
+    visit_gap_s: float = Field(
+        30.0, gt=0, le=86400, description="a gap in the frames that ends a LEM visit of the λ_att series [s]"
+    )
+    visit_max_s: float = Field(600.0, gt=0, le=86400, description="longest LEM visit of the λ_att series [s]")
     station_depth_m: float | None = Field(
         None,
         gt=0,
@@ -153,6 +156,7 @@ class Settings(BaseSettings):
             },
             emission_ratio=self.emission_ratio,
             linear_range=self.linear_range,
+            series=SeriesSetup(visit_gap_s=self.visit_gap_s, visit_max_s=self.visit_max_s),
         )
 
     def tokens(self) -> dict[str, str]:

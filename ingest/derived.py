@@ -198,33 +198,6 @@ def _stack(values: list[tuple[float, float]]) -> tuple[float, float, int]:
     return float(v.mean()), max(scatter, propagated), n
 
 
-def attenuation_point_row(
-    res: AttenuationResult,
-    t_unix_s: float,
-    depth_m: float | None,
-    *,
-    run_id: int,
-    dive_id: int,
-    window_s: float,
-    details: dict[str, Any],
-) -> dict[str, Any]:
-    """The columns of a stored rolling λ_att point (`Store.add_attenuation_points`)."""
-    return {
-        "run_id": run_id,
-        "dive_id": dive_id,
-        "wavelength_nm": res.wavelength_nm,
-        "t_unix_s": t_unix_s,
-        "depth_m": depth_m,
-        "lambda_att_m": res.lambda_att_m,
-        "stat_err_m": res.stat_err_m,
-        "sys_err_m": res.sys_err_m,
-        "n_pairs": res.n_pairs,
-        "chi2_ndof": res.chi2_ndof,
-        "window_s": window_s,
-        "details": details,
-    }
-
-
 def attenuation_dict(res: AttenuationResult) -> dict[str, Any]:
     return {
         "wavelength_nm": res.wavelength_nm,

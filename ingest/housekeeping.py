@@ -160,6 +160,7 @@ class Housekeeping:
             g("disk", self._disk, now)
         g("alarms", self._apply_alarms, self.st.alarms.evaluate(now))
         g("linearity", self.st.results.update_linearity)
+        g("visits", self.st.results.close_idle_visits)
         g("commands", self.deliver_commands)
         g("window", self._adapt_window)
         if mono - self.last_counters_save >= COUNTERS_SAVE_S:

@@ -1,7 +1,7 @@
 """Re-analysing stored frames with other calibration inputs, beside the original results.
 
 A re-analysis is a new analysis run of a dive: per-frame results, the
-rolling λ_att series and the linearity fits, computed as the live ingest
+per-visit λ_att series and the linearity fits, computed as the live ingest
 computes them. The per-frame work is `ingest.worker.analyse_batch` mapped
 over batches of frames by a runner (`ingest.runners`: in this process, a
 local process pool, or Dask), with the frames read through fsspec; the
@@ -12,21 +12,15 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from analysis import FrameConfig
 from camcal import __version__
 from camcal.frameset import Setup
-from ingest.derived import (
-    attenuation_point_row,
-    geometry_and_ratios,
-    linearity_rows,
-    mean_gray_by_setting,
-    result_row,
-)
-from ingest.rolling import RollingAttenuation, Sample
+from ingest.derived import linearity_rows, mean_gray_by_setting, result_row
+from ingest.rolling import Sample, series_rows
 from ingest.runners import BatchRunner, LocalRunner
 from ingest.worker import analyse_batch
 from storage.store import Store
@@ -46,8 +40,6 @@ class ReanalysisOptions:
     ``t_from``/``t_to``: only frames captured in that span (UTC seconds).
     """
 
-    window_s: float = 300.0
-    interval_s: float = 10.0
     workers: int = 1
     batch_size: int = 16
     reuse_live: bool = True
@@ -111,12 +103,14 @@ def reanalyse(
                     (fid, store.files.url(path, options.frames_url))
                     for fid, path in store.dive_frames(dive_id, options.t_from, options.t_to)
                 ]
-            lo, hi = setup.linear_range
+            modules = store.frame_modules(fid for fid, _ in tasks)
+            configs = {m: setup.frame_config(m) for m in set(modules.values())}
+            configs[""] = setup.frame_config(None)
             n = analyse_into_run(
                 store,
                 run_id,
-                tasks,
-                FrameConfig(linear_range_gray=(lo, hi)),
+                [(fid, url, modules.get(fid, "")) for fid, url in tasks],
+                configs,
                 options,
                 runner or LocalRunner(options.workers),
                 progress=(lambda f: progress("frames", 0.7 * f)) if progress else None,
@@ -137,14 +131,15 @@ def reanalyse(
 def analyse_into_run(
     store: Store,
     run_id: int,
-    tasks: list[tuple[int, str]],
-    config: FrameConfig,
+    tasks: Sequence[tuple[int, str] | tuple[int, str, str]],
+    config: FrameConfig | Mapping[str, FrameConfig],
     options: ReanalysisOptions,
     runner: BatchRunner,
     progress: Callable[[float], None] | None = None,
 ) -> int:
-    """Analyse frames ``(frame_id, URL or path)`` in batches on ``runner``; store each batch's results
-    as it completes. Returns the number of results stored."""
+    """Analyse frames ``(frame_id, URL or path[, module])`` in batches on ``runner`` (with ``config``,
+    or its module's when it maps modules to configs, see `analyse_batch`); store each batch's
+    results as it completes. Returns the number of results stored."""
     size = max(1, options.batch_size)
     batches = [tasks[i : i + size] for i in range(0, len(tasks), size)]
     stored = done = 0
@@ -164,36 +159,17 @@ def analyse_into_run(
 
 
 def derive_run(store: Store, dive_id: int, run_id: int, setup: Setup, options: ReanalysisOptions) -> None:
-    """The rolling λ_att series and the linearity fits of a run, from its stored frame results."""
+    """The per-visit λ_att series and the linearity fits of a run, from its stored frame results.
+
+    The series is the one the live ingest builds from the same frames
+    (`ingest.rolling`), every visit final.
+    """
     rows = store.result_rows(run_id, dive_id)
-    gr = geometry_and_ratios(setup)
-    points = []
-    if gr is not None:
-        rolling = RollingAttenuation(gr[0], gr[1], options.window_s, options.interval_s)
-        for r in rows:
-            if r["status"] != "ok" or r["i_center_gray"] is None:
-                continue
-            out = rolling.add(
-                r["module"],
-                r["wavelength_nm"],
-                r["exposure_s"],
-                r["gain_db"],
-                Sample(r["captured_unix_s"], r["i_center_gray"], r["i_center_err_gray"], r["depth_m"]),
-            )
-            if out is not None:
-                res, t, depth = out
-                points.append(
-                    attenuation_point_row(
-                        res,
-                        t,
-                        depth,
-                        run_id=run_id,
-                        dive_id=dive_id,
-                        window_s=options.window_s,
-                        details={"note": res.note},
-                    )
-                )
-    store.add_attenuation_points(points)
+    try:
+        points = series_rows((Sample.from_result(r) for r in rows), setup)
+    except ValueError:  # fewer than two cameras with distances: no series
+        points = []
+    store.save_visit_points(run_id, [{**p, "run_id": run_id, "dive_id": dive_id} for p in points])
     result_rows = [result_row(r) for r in rows]
     lr = tuple(setup.linear_range)
     for (module, wl), pts in mean_gray_by_setting(result_rows).items():

@@ -5,13 +5,13 @@ from __future__ import annotations
 import logging
 import time
 from collections import defaultdict
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ingest.derived import attenuation_point_row, geometry_and_ratios, linearity_rows
+from ingest.derived import linearity_rows
 from ingest.network import Incoming
-from ingest.rolling import RollingAttenuation, Sample
+from ingest.rolling import Changes, Sample, VisitSeries
 
 if TYPE_CHECKING:
     from ingest.storeloop import StoreState
@@ -24,11 +24,18 @@ class Results:
         self.st = state
         self.svc = state.svc
         self.store = state.store
-        cfg = self.svc.config
-        gr = geometry_and_ratios(cfg.setup)
-        self.rolling: RollingAttenuation | None = None
-        if gr is not None:
-            self.rolling = RollingAttenuation(gr[0], gr[1], cfg.rolling_window_s, cfg.rolling_interval_s)
+        self.series: VisitSeries | None = None
+        self.last_result_mono = time.monotonic()
+        try:
+            self.series = VisitSeries(self.svc.config.setup)
+        except ValueError:
+            log.warning("no λ_att series: the setup has fewer than two cameras with distances")
+        if self.series is not None:  # after a restart: the visits of the frames already analysed
+            self._store_points(
+                self.series.add(
+                    Sample.from_result(r) for r in self.store.result_rows(self.svc.run.id, self.svc.dive.id)
+                )
+            )
         self.linearity: dict[tuple[str, int], dict[tuple[float, float], list[float]]] = defaultdict(
             lambda: defaultdict(list)
         )
@@ -52,7 +59,7 @@ class Results:
             done.append((frame_id, meta, row, analysis_s))
         self.store.save_results(svc.run.id, rows)
         now_mono = time.monotonic()
-        points = []
+        samples = []
         for frame_id, meta, row, analysis_s in done:
             module = meta["module"]
             if meta.get("received_mono") is not None:
@@ -99,48 +106,32 @@ class Results:
                 key = (module, meta["wavelength_nm"])
                 self.linearity[key][(meta["exposure_s"], meta["gain_db"])].append(row["center_gray"])
                 self.linearity_dirty.add(key)
-            if row["status"] == "ok" and self.rolling is not None:
-                point = self.rolling.add(
-                    module,
-                    meta["wavelength_nm"],
-                    meta["exposure_s"],
-                    meta["gain_db"],
-                    Sample(
-                        meta["captured_unix_s"],
-                        row["i_center_gray"],
-                        row["i_center_err_gray"],
-                        meta["depth_m"],
-                    ),
-                )
-                if point is not None:
-                    points.append(point)
-        if points:
-            self._store_points(points)
+            samples.append(Sample.from_result({**meta, **row, "frame_id": frame_id}))
+        if self.series is not None:
+            self.last_result_mono = now_mono
+            self._store_points(self.series.add(samples))
 
-    def _store_points(self, points: list[Any]) -> None:
+    def close_idle_visits(self) -> None:
+        """The modules went quiet (no result for ``visit_idle_close_s``): their open visits are final."""
+        if (
+            self.series is not None
+            and time.monotonic() - self.last_result_mono > self.svc.config.visit_idle_close_s
+        ):
+            self._store_points(self.series.close_all())
+
+    def _store_points(self, changes: Changes) -> None:
+        """Store the λ_att visits a batch changed and publish them (``final`` false: provisional)."""
         svc = self.svc
-        rows = [
-            attenuation_point_row(
-                res,
-                t,
-                depth,
-                run_id=svc.run.id,
-                dive_id=svc.dive.id,
-                window_s=svc.config.rolling_window_s,
-                details={
-                    "pairs": [
-                        [p.exposure_s, p.gain_db, p.n_near, p.n_far, p.lambda_att_m] for p in res.pairs
-                    ],
-                    "note": res.note,
-                },
-            )
-            for res, t, depth in points
-        ]
-        ids = self.store.add_attenuation_points(rows)
-        for pid, r in zip(ids, rows, strict=True):
+        if not changes:
+            return
+        rows = [{**r, "run_id": svc.run.id, "dive_id": svc.dive.id} for r in changes.upserts]
+        ids = self.store.save_visit_points(svc.run.id, rows, changes.deletes)
+        for key in changes.deletes:
+            svc.events.emit("attenuation", {"visit_key": key, "deleted": True}, dive_id=svc.dive.id)
+        for r in rows:
             svc.events.emit(
                 "attenuation",
-                {"point_id": pid, **{k: v for k, v in r.items() if k != "details"}},
+                {"point_id": ids.get(r["visit_key"]), **{k: v for k, v in r.items() if k != "details"}},
                 dive_id=svc.dive.id,
             )
 

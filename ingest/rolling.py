@@ -1,104 +1,364 @@
-"""The rolling λ_att: latest near and far stacks at equal settings, within a time window."""
+"""The live λ_att series: one point per LEM visit, kept up to date as frame results arrive.
+
+A visit is a run of one wavelength's frames of the near and far cameras:
+all frames (accepted or not) sorted by capture time form segments of one
+wavelength, cut where the wavelength changes, where no frame came for more
+than ``visit_gap_s`` or where the LEM's depth jumps by more than
+``visit_depth_jump_m`` between two frames (the winch moved between a stop
+and the next); a segment longer than ``visit_max_s`` is cut at multiples of
+``visit_max_s`` (UTC). The segments are a function of the set
+of frames alone, not of the order their results arrive in, so the live
+ingest (results in any order, two modules interleaved) and a re-analysis
+(all results at once) cut the same visits and compute the same points
+(`analysis.visit.visit_attenuation`).
+
+A visit's point is *provisional* while frames may still join it and
+*final* once both cameras have moved on: each has sent a frame of another
+wavelength after the visit's last frame, or a frame more than
+``visit_gap_s`` later. A result that arrives after that (a frame still in
+analysis, a module catching up after a lost link) updates the point again,
+so the stored series always equals what a re-analysis of the same frames
+gives.
+
+`VisitSeries.add` takes a batch of frame results and returns the changes
+to store: points to insert or update (keyed by ``visit_key``) and the keys
+of visits that no longer exist (two visits joined by a late frame).
+"""
 
 from __future__ import annotations
 
+import bisect
 import math
-from collections import defaultdict, deque
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
 
-import numpy as np
+from analysis import EmissionRatio, Geometry
+from analysis.visit import VisitFrame, VisitResult, visit_attenuation
+from camcal.frameset import SeriesSetup, Setup
+from ingest.derived import geometry_and_ratios
 
-from analysis import AttenuationResult, EmissionRatio, Geometry, combine_pairs, pair_result
+#: Most frame results a series keeps in memory; the oldest are forgotten beyond it.
+MAX_SAMPLES = 200_000
 
 
 @dataclass(frozen=True)
 class Sample:
+    """One analysed frame as the series needs it (rejected frames too: they mark visits)."""
+
+    frame_id: int
+    module: str
+    wavelength_nm: int
     t_unix_s: float
-    i_center_gray: float
-    i_center_err_gray: float
     depth_m: float | None
+    exposure_s: float
+    gain_db: float
+    ok: bool = False
+    i_center_gray: float | None = None
+    i_center_err_gray: float | None = None
+
+    @property
+    def order(self) -> tuple[float, str, int]:
+        return (self.t_unix_s, self.module, self.frame_id)
+
+    @classmethod
+    def from_result(cls, r: dict[str, Any]) -> Sample:
+        """From a `storage.store.Store.result_rows` dict (or the same keys)."""
+        ok = r["status"] == "ok" and r["i_center_gray"] is not None and r["i_center_err_gray"] is not None
+        return cls(
+            int(r["frame_id"]),
+            r["module"],
+            int(r["wavelength_nm"]),
+            float(r["captured_unix_s"]),
+            r["depth_m"],
+            float(r["exposure_s"]),
+            float(r["gain_db"]),
+            ok,
+            r["i_center_gray"] if ok else None,
+            r["i_center_err_gray"] if ok else None,
+        )
 
 
-class RollingAttenuation:
-    """λ_att per wavelength from the frames of the last ``window_s`` seconds.
+@dataclass
+class Visit:
+    """A visit as last computed: its frames' span and its point (None: no pair yet)."""
 
-    Every accepted frame joins the stack of its (camera, wavelength,
-    exposure, gain). A setting seen by both cameras within the window forms
-    a pair; the pairs of a wavelength combine into one point. Points are
-    emitted at most every ``min_interval_s`` per wavelength.
-    """
+    key: str
+    wavelength_nm: int
+    samples: list[Sample]
+    result: VisitResult | None
+    final: bool = False
+    row: dict[str, Any] | None = field(default=None, repr=False)
 
-    def __init__(
-        self,
-        geometry: Geometry,
-        ratios: Mapping[int, EmissionRatio],
-        window_s: float = 300.0,
-        min_interval_s: float = 10.0,
-        min_frames: int = 2,
-    ) -> None:
-        self.geometry = geometry
-        self.ratios = dict(ratios)
-        self.window_s = window_s
-        self.min_interval_s = min_interval_s
-        self.min_frames = min_frames
-        self._stacks: dict[tuple[str, int, float, float], deque[Sample]] = defaultdict(deque)
-        self._last_emit: dict[int, float] = {}
 
-    def add(
-        self, camera: str, wavelength_nm: int, exposure_s: float, gain_db: float, sample: Sample
-    ) -> tuple[AttenuationResult, float, float | None] | None:
-        """Add one accepted frame; returns (result, time, depth) when a new point is due."""
-        if camera not in (self.geometry.near_camera, self.geometry.far_camera):
-            return None
-        key = (camera, wavelength_nm, exposure_s, gain_db)
-        self._stacks[key].append(sample)
-        t = sample.t_unix_s
-        if t - self._last_emit.get(wavelength_nm, -math.inf) < self.min_interval_s:
-            return None
-        result = self.compute(wavelength_nm, t)
-        if result is None:
-            return None
-        self._last_emit[wavelength_nm] = t
-        return result
+@dataclass(frozen=True)
+class Changes:
+    """What a batch changed: rows to upsert (by ``visit_key``) and visit keys to delete."""
 
-    def compute(
-        self, wavelength_nm: int, now_unix_s: float
-    ) -> tuple[AttenuationResult, float, float | None] | None:
-        """The combined λ_att of a wavelength over the window ending at ``now_unix_s``."""
-        ratio = self.ratios.get(wavelength_nm)
+    upserts: list[dict[str, Any]]
+    deletes: list[str]
+
+    def __bool__(self) -> bool:
+        return bool(self.upserts or self.deletes)
+
+
+class VisitSeries:
+    """The per-visit λ_att series of one analysis run (see the module docstring)."""
+
+    def __init__(self, setup: Setup) -> None:
+        gr = geometry_and_ratios(setup)
+        if gr is None:
+            raise ValueError("a λ_att series needs two cameras with distances in the setup")
+        self.geometry: Geometry = gr[0]
+        self.ratios: dict[int, EmissionRatio] = gr[1]
+        self.rules: SeriesSetup = setup.series
+        self.distances = {name: cam.distance_m for name, cam in setup.cameras.items()}
+        self._cams = (self.geometry.near_camera, self.geometry.far_camera)
+        self._samples: list[Sample] = []  # every sample of the two cameras, in capture order
+        self._orders: list[tuple[float, str, int]] = []
+        self._seen: set[int] = set()
+        self._visits: dict[str, Visit] = {}
+        self._open: set[str] = set()
+        self._newest: dict[str, float] = {}
+        self._newest_by_wl: dict[tuple[str, int], float] = {}
+
+    # ------------------------------------------------------------------ input
+    def add(self, samples: Iterable[Sample]) -> Changes:
+        """Add a batch of analysed frames; returns the points to store."""
+        spans: list[tuple[float, float]] = []
+        for s in samples:
+            if s.module not in self._cams or s.frame_id in self._seen:
+                continue
+            self._seen.add(s.frame_id)
+            i = bisect.bisect(self._orders, s.order)
+            self._orders.insert(i, s.order)
+            self._samples.insert(i, s)
+            spans.append(self._segment_span(i))
+            self._newest[s.module] = max(self._newest.get(s.module, -math.inf), s.t_unix_s)
+            key = (s.module, s.wavelength_nm)
+            self._newest_by_wl[key] = max(self._newest_by_wl.get(key, -math.inf), s.t_unix_s)
+        changes = self._recompute(_merge(spans)) if spans else Changes([], [])
+        finals = self._close(lambda v: self._moved_on(v))
+        self._forget()
+        return Changes(_dedupe(changes.upserts + finals.upserts), changes.deletes)
+
+    def close_all(self) -> Changes:
+        """Every open visit is final (the stream ended: a re-analysis, or the modules went quiet)."""
+        return self._close(lambda v: True)
+
+    def points(self) -> list[dict[str, Any]]:
+        """The current rows of every visit with a point, in time order."""
+        rows = [v.row for v in self._visits.values() if v.row is not None]
+        return sorted(rows, key=lambda r: (r["t_unix_s"], r["wavelength_nm"]))
+
+    # ------------------------------------------------------------------ visits
+    def _segment_span(self, i: int) -> tuple[float, float]:
+        """Capture-time span of the samples a new sample at index ``i`` can affect."""
+        lo = i
+        while lo > 0 and not self._cut(lo):
+            lo -= 1
+        hi = i
+        while hi + 1 < len(self._samples) and not self._cut(hi + 1):
+            hi += 1
+        # One more segment on each side: the new sample may have joined it or split it off.
+        lo = max(lo - 1, 0)
+        while lo > 0 and not self._cut(lo):
+            lo -= 1
+        hi = min(hi + 1, len(self._samples) - 1)
+        while hi + 1 < len(self._samples) and not self._cut(hi + 1):
+            hi += 1
+        return self._samples[lo].t_unix_s, self._samples[hi].t_unix_s
+
+    def _cut(self, j: int) -> bool:
+        """True if a segment starts at sample ``j``: a new wavelength, a gap, or the LEM moved."""
+        a, b = self._samples[j - 1], self._samples[j]
+        if a.wavelength_nm != b.wavelength_nm or b.t_unix_s - a.t_unix_s > self.rules.visit_gap_s:
+            return True
+        if a.depth_m is None or b.depth_m is None:
+            return False
+        jump = (b.depth_m + self.distances[b.module]) - (a.depth_m + self.distances[a.module])
+        return abs(jump) > self.rules.visit_depth_jump_m
+
+    def _segments(self, t_lo: float, t_hi: float) -> list[list[Sample]]:
+        """The visits whose samples lie in [t_lo, t_hi] (a span that starts and ends at cuts)."""
+        i0 = bisect.bisect_left(self._orders, (t_lo, "", -1))
+        i1 = bisect.bisect_right(self._orders, (t_hi, "\U0010ffff", 2**63))
+        out: list[list[Sample]] = []
+        for j in range(i0, i1):
+            if j == i0 or self._cut(j):
+                out.append([])
+            out[-1].append(self._samples[j])
+        visits = []
+        step = self.rules.visit_max_s
+        for seg in out:
+            if seg[-1].t_unix_s - seg[0].t_unix_s <= step:
+                visits.append(seg)
+                continue
+            chunks: dict[int, list[Sample]] = {}
+            for s in seg:
+                chunks.setdefault(math.floor(s.t_unix_s / step), []).append(s)
+            visits.extend(chunks[k] for k in sorted(chunks))
+        return visits
+
+    def _recompute(self, spans: Sequence[tuple[float, float]]) -> Changes:
+        upserts, deletes = [], []
+        for t_lo, t_hi in spans:
+            old = {
+                k
+                for k, v in self._visits.items()
+                if v.samples[0].t_unix_s <= t_hi and v.samples[-1].t_unix_s >= t_lo
+            }
+            new: dict[str, list[Sample]] = {}
+            for seg in self._segments(t_lo, t_hi):
+                new[_visit_key(seg)] = seg
+            for k in sorted(old - set(new)):
+                self._open.discard(k)
+                if self._visits.pop(k).row is not None:
+                    deletes.append(k)
+            for k, seg in new.items():
+                prev = self._visits.get(k)
+                if prev is not None and prev.samples == seg:
+                    continue
+                visit = Visit(
+                    k, seg[0].wavelength_nm, seg, self._compute(seg), final=bool(prev and prev.final)
+                )
+                self._visits[k] = visit
+                if not visit.final:
+                    self._open.add(k)
+                if visit.result is not None:
+                    visit.row = self._row(visit)
+                    upserts.append(visit.row)
+                elif prev is not None and prev.row is not None:
+                    deletes.append(k)
+        return Changes(upserts, deletes)
+
+    def _compute(self, seg: list[Sample]) -> VisitResult | None:
+        wl = seg[0].wavelength_nm
+        ratio = self.ratios.get(wl)
         if ratio is None:
             return None
-        start = now_unix_s - self.window_s
-        pairs, depths = [], []
-        g = self.geometry
-        for (cam, wl, exp, gain), dq in list(self._stacks.items()):
-            while dq and dq[0].t_unix_s < start:
-                dq.popleft()
-            if cam != g.near_camera or wl != wavelength_nm:
+        frames = [
+            VisitFrame(
+                s.module,
+                s.exposure_s,
+                s.gain_db,
+                s.t_unix_s,
+                float(s.i_center_gray),  # type: ignore[arg-type]
+                float(s.i_center_err_gray),  # type: ignore[arg-type]
+                None if s.depth_m is None else s.depth_m + self.distances[s.module],
+            )
+            for s in seg
+            if s.ok
+        ]
+        return visit_attenuation(
+            frames,
+            wl,
+            self.geometry,
+            ratio,
+            repeatability=self.rules.repeatability_at(wl),
+            trend_prior_per_s=self.rules.trend_prior_per_s,
+        )
+
+    def _moved_on(self, v: Visit) -> bool:
+        """Both cameras have sent a later frame of another wavelength, or one beyond the gap."""
+        t_last = v.samples[-1].t_unix_s
+        for cam in self._cams:
+            newest = self._newest.get(cam, -math.inf)
+            if newest > t_last + self.rules.visit_gap_s:
                 continue
-            far = self._stacks.get((g.far_camera, wl, exp, gain))
-            if far is None:
-                continue
-            while far and far[0].t_unix_s < start:
-                far.popleft()
-            if len(dq) < self.min_frames or len(far) < self.min_frames:
-                continue
-            near_stats, far_stats = _stack(dq), _stack(far)
-            pairs.append(pair_result(wl, exp, gain, near_stats, far_stats, g, ratio))
-            depths += [s.depth_m for s in (*dq, *far) if s.depth_m is not None]
-        usable = [p for p in pairs if math.isfinite(p.log_ratio) and p.log_ratio_err > 0]
-        if not usable:
-            return None
-        depth = float(np.mean(depths)) if depths else None
-        return combine_pairs(usable, g, ratio), now_unix_s, depth
+            same = self._newest_by_wl.get((cam, v.wavelength_nm), -math.inf)
+            if newest > t_last and newest > same:
+                continue  # its newest frame is of another wavelength and later than the visit
+            return False
+        return True
+
+    def _close(self, done: Callable[[Visit], bool]) -> Changes:
+        rows = []
+        for k in sorted(self._open):
+            v = self._visits[k]
+            if done(v):
+                v.final = True
+                self._open.discard(k)
+                if v.result is not None:
+                    v.row = self._row(v)
+                    rows.append(v.row)
+        return Changes(rows, [])
+
+    def _row(self, v: Visit) -> dict[str, Any]:
+        res = v.result
+        assert res is not None
+        return {
+            "visit_key": v.key,
+            "wavelength_nm": res.wavelength_nm,
+            "t_unix_s": res.t_s,
+            "t_first_unix_s": res.t_first_s,
+            "t_last_unix_s": res.t_last_s,
+            "depth_m": res.lem_depth_m,
+            "lambda_att_m": res.lambda_att_m,
+            "stat_err_m": res.stat_err_m,
+            "sys_err_m": res.sys_err_m,
+            "n_pairs": res.n_pairs,
+            "n_frames": res.n_frames,
+            "chi2_ndof": res.chi2_ndof,
+            "window_s": res.t_last_s - res.t_first_s,
+            "final": v.final,
+            "details": visit_details(res),
+        }
+
+    def _forget(self) -> None:
+        """Drop the oldest samples (and their final visits) beyond `MAX_SAMPLES`."""
+        extra = len(self._samples) - MAX_SAMPLES
+        if extra <= 0:
+            return
+        cutoff = self._samples[extra].t_unix_s
+        for k in [k for k, v in self._visits.items() if v.final and v.samples[-1].t_unix_s < cutoff]:
+            del self._visits[k]
+        for s in self._samples[:extra]:
+            self._seen.discard(s.frame_id)
+        del self._samples[:extra]
+        del self._orders[:extra]
 
 
-def _stack(samples: deque[Sample]) -> tuple[float, float, int]:
-    """Mean I_center of a stack with its error: scatter over sqrt(n), or propagated if larger."""
-    values = np.array([s.i_center_gray for s in samples])
-    errors = np.array([s.i_center_err_gray for s in samples])
-    n = len(values)
-    propagated = float(np.sqrt(np.sum(errors**2)) / n)
-    scatter = float(values.std(ddof=1) / math.sqrt(n)) if n >= 3 else 0.0
-    return float(values.mean()), max(scatter, propagated), n
+def visit_details(res: VisitResult) -> dict[str, Any]:
+    """What a stored point keeps besides its columns: pairs, error terms, trends."""
+    return {
+        "log_ratio": res.log_ratio,
+        "log_ratio_err": res.log_ratio_err,
+        "terms": res.terms,
+        "trends": {c: [t.slope_per_s, t.slope_err_per_s, t.fitted] for c, t in res.trends.items()},
+        "pairs": [
+            [p.exposure_s, p.gain_db, p.n_near, p.n_far, p.log_ratio, p.log_ratio_err, p.trend_shift]
+            for p in res.pairs
+        ],
+        "note": res.note,
+    }
+
+
+def _visit_key(seg: Sequence[Sample]) -> str:
+    first = seg[0]
+    return f"{first.wavelength_nm}:{first.t_unix_s:.6f}:{first.module}:{first.frame_id}"
+
+
+def _merge(spans: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    spans = sorted(spans)
+    out = [spans[0]]
+    for lo, hi in spans[1:]:
+        if lo <= out[-1][1]:
+            out[-1] = (out[-1][0], max(out[-1][1], hi))
+        else:
+            out.append((lo, hi))
+    return out
+
+
+def _dedupe(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The last row per visit key, in first-seen order."""
+    last = {r["visit_key"]: r for r in rows}
+    return list(last.values())
+
+
+def series_rows(samples: Iterable[Sample], setup: Setup) -> list[dict[str, Any]]:
+    """The final per-visit series of a set of frames, all at once (a re-analysis)."""
+    series = VisitSeries(setup)
+    series.add(samples)
+    series.close_all()
+    return series.points()

@@ -84,8 +84,7 @@ class IngestConfig:
     sqlite_synchronous: str = "FULL"
     dive_name: str | None = None
     setup: Setup = field(default_factory=Setup)
-    rolling_window_s: float = 300.0
-    rolling_interval_s: float = 10.0
+    visit_idle_close_s: float = 60.0  # no frame result for this long: the open λ_att visits are final
     command_retry_s: float = 3.0
     retention_days: float | None = None
     calibration: str | None = None
@@ -239,9 +238,8 @@ class IngestService:
         return self._q.qsize() + len(self._analysis_backlog)
 
     # -- analysis pool ---------------------------------------------------
-    def _analysis_config(self) -> FrameConfig:
-        lo, hi = self.config.setup.linear_range
-        return FrameConfig(linear_range_gray=(lo, hi))
+    def _analysis_config(self, module: str) -> FrameConfig:
+        return self.config.setup.frame_config(module)
 
     def queue_analysis(self, frame_id: int, path: str, meta: dict[str, Any]) -> None:
         self._analysis_backlog.append((frame_id, path, meta))
@@ -251,9 +249,9 @@ class IngestService:
 
     def feed_pool(self) -> None:
         limit = 2 * self.config.n_workers
-        config = self._analysis_config()
         while self._analysis_backlog and self._analysis_inflight < limit:
             frame_id, path, meta = self._analysis_backlog.popleft()
+            config = self._analysis_config(meta["module"])
             thumb = None
             if self.config.thumbnails:
                 thumb = str(self.store.files.root / "thumbs" / f"{frame_id}.jpg")

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -108,17 +108,26 @@ def analyse_stored_frame(path: str, config: FrameConfig, thumb_path: str | None)
 
 
 def analyse_batch(
-    tasks: Sequence[tuple[int, str]], config: FrameConfig, storage_options: dict[str, Any] | None = None
+    tasks: Sequence[tuple[int, str] | tuple[int, str, str]],
+    config: FrameConfig | Mapping[str, FrameConfig],
+    storage_options: dict[str, Any] | None = None,
 ) -> list[tuple[int, dict[str, Any]]]:
-    """Analyse frames ``(frame_id, url)``: each read through fsspec (a local path or any URL such as
-    ``s3://bucket/key``), decoded and analysed. Returns ``(frame_id, result columns)`` in order.
+    """Analyse frames ``(frame_id, url)`` or ``(frame_id, url, module)``: each read through fsspec
+    (a local path or any URL such as ``s3://bucket/key``), decoded and analysed with ``config`` (or
+    its module's, when ``config`` maps modules to configs). Returns ``(frame_id, result columns)``
+    in order.
 
     Never raises for a bad frame: a missing or unreadable one is a rejected result.
     """
     from storage.files import read_url
 
     out = []
-    for frame_id, url in tasks:
+    for task in tasks:
+        frame_id, url = task[0], task[1]
+        if isinstance(config, FrameConfig):
+            cfg = config
+        else:  # the module's config, else the one under "" (any module)
+            cfg = config.get(str(task[2]) if len(task) > 2 else "") or config[""]
         t0 = time.perf_counter()
         name = url.rsplit("/", 1)[-1]
         try:
@@ -130,7 +139,7 @@ def analyse_batch(
         except FrameReadError as exc:
             row = result_row(rejected(exc.reason, exc.detail))
         else:
-            row = result_row(analyze_frame(frame, config))
+            row = result_row(analyze_frame(frame, cfg))
             row["width_px"], row["height_px"] = frame.shape[1], frame.shape[0]
         row["analysis_s"] = time.perf_counter() - t0
         out.append((frame_id, row))

@@ -176,15 +176,23 @@ class ScheduleRunner:
 
 
 class LemTimetableClock:
-    """A `LemClock` from a timetable in seconds since ``epoch`` (e.g. the dive start)."""
+    """A `LemClock` from a timetable in seconds since ``epoch`` (e.g. the dive start).
 
-    def __init__(self, timetable: Any, epoch: datetime) -> None:
+    ``settle_s`` delays the first shot after each change of colour (time for
+    the LED to settle, or to interleave two modules' frames: one module at 0,
+    the other half a frame later).
+    """
+
+    def __init__(self, timetable: Any, epoch: datetime, settle_s: float = 0.0) -> None:
+        if not (settle_s >= 0 and settle_s < timetable.dwell_s):
+            raise ValueError(f"settle_s must lie in [0, dwell_s={timetable.dwell_s}), got {settle_s}")
         self.timetable = timetable
         self.epoch = epoch
+        self.settle_s = float(settle_s)
 
     def wavelength_at(self, t: datetime) -> int:
         return int(self.timetable.wavelength_at((t - self.epoch).total_seconds()))
 
     def next_start_of(self, wavelength_nm: int, after: datetime) -> datetime:
         s = self.timetable.next_start_of(wavelength_nm, (after - self.epoch).total_seconds())
-        return self.epoch + timedelta(seconds=float(s))
+        return self.epoch + timedelta(seconds=float(s) + self.settle_s)

@@ -71,6 +71,8 @@ class SimulationSpec:
                 for wl, v in self.lem.emission_ratio.items()
             },
             linear_range=(5.0, 240.0),
+            focal_px=self.camera.focal_px,
+            lem_diameter_m=self.lem.diameter_m,
         )
 
 

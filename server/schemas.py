@@ -67,6 +67,9 @@ class AlarmPublic(BaseModel):
 
 
 class AttenuationPointPublic(BaseModel):
+    """One LEM visit's λ_att: at the mean time and LEM depth of its frames; ``final`` false while
+    the visit runs."""
+
     model_config = ConfigDict(extra="allow")
     id: int
     run_id: int
@@ -78,6 +81,11 @@ class AttenuationPointPublic(BaseModel):
     sys_err_m: float | None
     total_err_m: float | None
     n_pairs: int
+    n_frames: int | None = None
+    visit_key: str | None = None
+    t_first_unix_s: float | None = None
+    t_last_unix_s: float | None = None
+    final: bool = True
 
 
 class RunPublic(BaseModel):

@@ -149,10 +149,20 @@ class FrameResult(Base):
 
 
 class AttenuationPoint(Base):
-    """One point of the rolling λ_att series of a wavelength."""
+    """One point of the λ_att series of a wavelength: one LEM visit (`ingest.rolling`).
+
+    ``t_unix_s`` and ``depth_m`` are the mean capture time and mean LEM depth
+    of the frames used (``n_frames``, between ``t_first_unix_s`` and
+    ``t_last_unix_s``); ``final`` is false while frames may still join the
+    visit. ``visit_key`` names the visit within its run (points of runs made
+    before visits existed have none). ``window_s`` is the visit's span.
+    """
 
     __tablename__ = "attenuation_points"
-    __table_args__ = (Index("ix_att_run_wl_time", "run_id", "wavelength_nm", "t_unix_s"),)
+    __table_args__ = (
+        Index("ix_att_run_wl_time", "run_id", "wavelength_nm", "t_unix_s"),
+        Index("ux_att_run_visit", "run_id", "visit_key", unique=True),
+    )
     id: Mapped[int] = mapped_column(BigId, primary_key=True, autoincrement=True)
     run_id: Mapped[int] = mapped_column(ForeignKey("analysis_runs.id"))
     dive_id: Mapped[int] = mapped_column(ForeignKey("dives.id"))
@@ -166,6 +176,11 @@ class AttenuationPoint(Base):
     chi2_ndof: Mapped[float | None] = mapped_column(Float)
     window_s: Mapped[float] = mapped_column(Float)
     details: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    visit_key: Mapped[str | None] = mapped_column(String(80))
+    t_first_unix_s: Mapped[float | None] = mapped_column(Float)
+    t_last_unix_s: Mapped[float | None] = mapped_column(Float)
+    n_frames: Mapped[int | None] = mapped_column(Integer)
+    final: Mapped[bool] = mapped_column(Boolean, default=True, server_default=text("true"))
 
 
 class ChiSquareFitRecord(Base):

@@ -343,8 +343,13 @@ def attenuation_dict(p: AttenuationPoint) -> dict[str, Any]:
         "sys_err_m": p.sys_err_m,
         "total_err_m": total,
         "n_pairs": p.n_pairs,
+        "n_frames": p.n_frames,
         "chi2_ndof": p.chi2_ndof,
         "window_s": p.window_s,
+        "visit_key": p.visit_key,
+        "t_first_unix_s": p.t_first_unix_s,
+        "t_last_unix_s": p.t_last_unix_s,
+        "final": p.final,
         "details": p.details,
     }
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import Engine, func, insert, literal, select, text, tuple_, update
+from sqlalchemy import Engine, delete, func, insert, literal, select, text, tuple_, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -551,6 +551,16 @@ class Store:
             q = select(Frame.id, Frame.path).where(Frame.id.in_(self._frames_in(dive_id, t_from, t_to)))
             return [(int(i), p) for i, p in s.execute(q.order_by(Frame.id))]
 
+    def frame_modules(self, frame_ids: Iterable[int]) -> dict[int, str]:
+        """The module of each of the given frames."""
+        ids = list(frame_ids)
+        out: dict[int, str] = {}
+        with self.read() as s:
+            for i in range(0, len(ids), 500):
+                q = select(Frame.id, Frame.module_id).where(Frame.id.in_(ids[i : i + 500]))
+                out.update((int(f), m) for f, m in s.execute(q))
+        return out
+
     def locate_frames(
         self, keys: Iterable[tuple[str, str, int]]
     ) -> dict[tuple[str, str, int], tuple[int, int]]:
@@ -580,6 +590,37 @@ class Store:
             s.add_all(objs)
             s.flush()
             return [o.id for o in objs]
+
+    def save_visit_points(
+        self, run_id: int, upserts: Sequence[dict[str, Any]], deletes: Sequence[str] = ()
+    ) -> dict[str, int]:
+        """Insert or update λ_att points by (run, ``visit_key``) and delete visits that are gone,
+        in one transaction. Returns the point id of every upserted visit key."""
+        if not upserts and not deletes:
+            return {}
+        table = AttenuationPoint.__table__
+        with self.session() as s:
+            if deletes:
+                s.execute(
+                    delete(AttenuationPoint).where(
+                        AttenuationPoint.run_id == run_id, AttenuationPoint.visit_key.in_(list(deletes))
+                    )
+                )
+            for row in upserts:
+                stmt = self._insert(table).values(**row)
+                s.execute(
+                    stmt.on_conflict_do_update(
+                        index_elements=["run_id", "visit_key"],
+                        set_={k: stmt.excluded[k] for k in row if k not in ("run_id", "visit_key")},
+                    )
+                )
+            keys = [r["visit_key"] for r in upserts]
+            ids = s.execute(
+                select(AttenuationPoint.visit_key, AttenuationPoint.id).where(
+                    AttenuationPoint.run_id == run_id, AttenuationPoint.visit_key.in_(keys)
+                )
+            ).all()
+        return {k: int(i) for k, i in ids}
 
     def add_attitude(self, samples: Sequence[dict[str, Any]]) -> None:
         if samples:

@@ -143,7 +143,6 @@ def ingest(
         max_payload_bytes=int(s.max_payload_mb * 1024 * 1024),
         fsync=s.fsync,
         sqlite_synchronous=s.sqlite_synchronous,
-        rolling_window_s=s.rolling_window_s,
         alarm_limits=alarm_limits(s),
         retention_days=s.retention_days,
         modules=served,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import signal
 import threading
 import time
@@ -106,6 +107,29 @@ def simulate(
         float,
         typer.Option(help="Dive time at which the simulation begins [s]; 0: on deck, before the descent."),
     ] = 0.0,
+    drift: Annotated[
+        float,
+        typer.Option(
+            help="How much the water changes on station: with --drift-shape sine the change of the "
+            "coefficients from the station's start to its end; with bump the fall of λ_att at "
+            "mid-station (0.3: 28 -> 19.6 -> 28 m at 460 nm)."
+        ),
+    ] = 0.04,
+    drift_shape: Annotated[str, typer.Option(help="sine (a steady trend) or bump (down and back).")] = "sine",
+    lem_dwell_s: Annotated[
+        float, typer.Option(help="Seconds the LEM shows each wavelength (its timetable's block).")
+    ] = 60.0,
+    lem_settle_s: Annotated[
+        float,
+        typer.Option(
+            help="Wait after each change of LEM colour before the first shot [s] (e.g. 0.45 on one "
+            "module to interleave its frames with the other's)."
+        ),
+    ] = 0.0,
+    sensor_rate_hz: Annotated[
+        float, typer.Option(help="Housing sensor samples per simulated second (lower it at high --speed).")
+    ] = 10.0,
+    fsync: Annotated[bool, typer.Option(help="fsync every frame on the SD card (outbox).")] = True,
     tilt_scale: Annotated[float, typer.Option(help="Factor on this module's tilt (alarm tests).")] = 1.0,
     leak_at_s: Annotated[
         float | None, typer.Option(help="Dive time at which the housing starts leaking.")
@@ -119,7 +143,7 @@ def simulate(
     from lrm.agent import Agent, AgentConfig
     from lrm.camera import SimulatedCamera, SimulatedSensors
     from lrm.clock import SimClock
-    from lrm.dive import DiveProfile, DiveSimulation, WaterColumn
+    from lrm.dive import DiveProfile, DiveSimulation, LEMTimetable, WaterColumn
     from lrm.runner import LemTimetableClock, ScheduleRunner
 
     logging.basicConfig(level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -138,9 +162,16 @@ def simulate(
         # Dive time 0 lies begin_s before the epoch: at the epoch the dive is at begin_s, and the
         # simulated wall clock reads the real one (it runs `speed` times faster from there).
         start = datetime.fromtimestamp(epoch_s - begin_s, UTC)
+        if drift_shape == "sine":
+            column = WaterColumn.with_station_drift(profile, drift)
+        elif drift_shape == "bump":
+            column = WaterColumn.with_station_bump(profile, drift)
+        else:
+            raise ValueError(f"--drift-shape must be sine or bump, got {drift_shape!r}")
         sim = DiveSimulation(
             profile,
-            water_column=WaterColumn.with_station_drift(profile, 0.04),
+            LEMTimetable(dwell_s=lem_dwell_s),
+            water_column=column,
             seed=seed,
             frame_scale=frame_scale,
             start=start,
@@ -150,6 +181,7 @@ def simulate(
         if camera not in sim.module_ids:
             raise ValueError(f"--camera must be one of {', '.join(sim.module_ids)}, got {camera!r}")
         clock = SimClock.synced(start, speed, epoch_s - begin_s / speed)
+        lem = LemTimetableClock(sim.timetable, sim.start, settle_s=lem_settle_s)
     except ValueError as exc:
         raise fail(str(exc)) from None
     cam = SimulatedCamera(sim, camera, clock, readout_s=readout_s)
@@ -157,10 +189,18 @@ def simulate(
         cam,
         clock,
         sched,
-        lem=LemTimetableClock(sim.timetable, sim.start),
+        lem=lem,
         gate=lambda: profile.captures_enabled(sim.dive_time_s(clock.now())),
     )
-    cfg = AgentConfig(module=camera, connect=connect, outbox=outbox or Path(f"lrm-{camera}-outbox"))
+    if not (sensor_rate_hz > 0 and math.isfinite(sensor_rate_hz)):
+        raise fail(f"--sensor-rate-hz must be > 0, got {sensor_rate_hz}")
+    cfg = AgentConfig(
+        module=camera,
+        connect=connect,
+        outbox=outbox or Path(f"lrm-{camera}-outbox"),
+        sensor_rate_hz=sensor_rate_hz,
+        fsync=fsync,
+    )
     agent = Agent(
         cfg,
         clock=clock,

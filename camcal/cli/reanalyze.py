@@ -129,16 +129,16 @@ def reanalyze(
             help="Copy the live results when the linear range is unchanged (λ_att is recomputed either way)."
         ),
     ] = True,
-    window_s: Annotated[float, typer.Option(help="Window of the rolling λ_att series [s].")] = 300.0,
-    interval_s: Annotated[float, typer.Option(help="Interval between rolling λ_att points [s].")] = 10.0,
     label: Annotated[str | None, typer.Option(help="A label for the new analysis run.")] = None,
     json_out: Annotated[Path | None, typer.Option("--json", help="Write a summary as JSON here.")] = None,
 ) -> None:
     """Re-analyse a stored dive, a time span, or frame-set folders with another calibration, on Dask.
 
     The results go into the store as a new analysis run beside the originals
-    (the live run is never changed): per-frame I_center, the rolling λ_att
-    series and the linearity fits. Frames are read through fsspec, so a
+    (the live run is never changed): per-frame I_center, the per-visit λ_att
+    series (visits cut as the setup's ``series`` section says; the live
+    run's by default, so an unchanged calibration gives the live series) and
+    the linearity fits. Frames are read through fsspec, so a
     folder and an S3-compatible bucket work the same.
     """
     from camcal.cli.data import open_store
@@ -161,8 +161,6 @@ def reanalyze(
     chosen = load_setup_file(setup) if setup else None
     storage_options = parse_storage_options(storage_option)
     options = ReanalysisOptions(
-        window_s=window_s,
-        interval_s=interval_s,
         batch_size=batch_size,
         reuse_live=reuse_live,
         frames_url=frames_url,

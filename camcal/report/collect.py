@@ -25,7 +25,7 @@ class ReportData:
     """A dive's results as the report needs them; plain dicts and lists, as the queries return them.
 
     ``attenuation`` is the λ_att table over the station (the API's
-    ``/api/dives/{id}/attenuation``), ``series`` the rolling λ_att points per
+    ``/api/dives/{id}/attenuation``), ``series`` the per-visit λ_att points per
     wavelength, ``fit`` the newest stored χ² fit (None: none kept yet).
     """
 

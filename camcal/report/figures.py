@@ -93,7 +93,7 @@ def timeline(
     if alarms:
         ax.plot([], [], "--", color=SEVERITY_COLORS["MAJOR"], label=f"alarms raised ({len(alarms)})")
     ax.invert_yaxis()
-    ax.set_ylabel("depth [m]")
+    ax.set_ylabel("LEM depth [m]")
     _time_axis(ax)
     ax.grid(alpha=0.3)
     if ax.get_legend_handles_labels()[0]:
@@ -188,7 +188,7 @@ def _att_points(series: dict[int, list[dict[str, Any]]]) -> dict[int, dict[str, 
 
 
 def attenuation_time(series: dict[int, list[dict[str, Any]]]) -> str:
-    """The rolling λ_att per wavelength over time: statistical error bars, total (⊕ sys) lighter."""
+    """λ_att per LEM visit and wavelength over time: statistical error bars, total (⊕ sys) lighter."""
     fig, ax = plt.subplots(figsize=(9.5, 4.0))
     for wl, p in _att_points(series).items():
         t = _times(p["t_unix_s"])
@@ -214,7 +214,7 @@ def attenuation_time(series: dict[int, list[dict[str, Any]]]) -> str:
 
 
 def attenuation_depth(series: dict[int, list[dict[str, Any]]]) -> str:
-    """λ_att per wavelength against depth (the depth of each rolling window's frames)."""
+    """λ_att per wavelength against the LEM's depth (the mean over each visit's frames)."""
     fig, ax = plt.subplots(figsize=(6.5, 4.6))
     for wl, p in _att_points(series).items():
         col = wl_color(wl)
@@ -232,7 +232,7 @@ def attenuation_depth(series: dict[int, list[dict[str, Any]]]) -> str:
         )
     ax.invert_yaxis()
     ax.set_xlabel("λ_att [m] (error: stat ⊕ sys)")
-    ax.set_ylabel("depth [m]")
+    ax.set_ylabel("LEM depth [m]")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()

@@ -413,17 +413,18 @@ def _attenuation(d: ReportData) -> str:
     if any(d.series.values()):
         body += figure(
             figures.attenuation_time(d.series),
-            "The rolling λ_att (each point combines the frames "
-            "of a time window) per wavelength: statistical error bars, shaded stat ⊕ sys.",
+            "λ_att per LEM visit (each point combines the frames of one visit of the LEM's "
+            "colour, at their mean time) per wavelength: statistical error bars, shaded stat ⊕ sys.",
             "attenuation length over time",
         )
         body += figure(
             figures.attenuation_depth(d.series),
-            "The rolling λ_att against the depth of its frames.",
+            "λ_att per LEM visit against the LEM's mean depth during the visit: "
+            "the test stops and the station.",
             "attenuation length against depth",
         )
     else:
-        body += note("No rolling λ_att points were stored for this run.")
+        body += note("No λ_att points were stored for this run.")
     return section("attenuation", body)
 
 

@@ -11,13 +11,21 @@ A rolling λ_att measured during a dive needs a truth that moves. The model:
   water attenuates more; below a couple of kilometres ``w`` is below 1 % and
   the column is the ``deep`` water (by default the ``trex`` preset: 20 / 28 /
   21 m attenuation). Coefficients, not lengths, are mixed because they add.
-* **Time.** On station the water drifts by a few per cent (the ship drifts,
-  particle clouds pass): all coefficients are multiplied by
+* **Time.** On station the water drifts (the ship drifts, particle clouds
+  pass): all coefficients are multiplied by a factor f(t). The ``"sine"``
+  drift is
 
       f(t) = 1 + drift_frac * sin(2π (t - drift_center_s) / drift_period_s)
 
-  which is steepest at ``drift_center_s``. The defaults centre it on the
-  default dive's station, where it changes λ_att by ~4 % in 30 minutes.
+  which is steepest at ``drift_center_s``; the defaults centre it on the
+  default dive's station, where it changes λ_att by ~4 % in 30 minutes. The
+  ``"bump"`` drift is a passing cloud of particles,
+
+      f(t) = 1 + drift_frac * cos²(π (t - drift_center_s) / drift_period_s)
+
+  for |t - drift_center_s| < drift_period_s / 2 and 1 outside: λ_att falls
+  smoothly to 1 / (1 + drift_frac) of its value at ``drift_center_s`` and
+  comes back (e.g. 28 -> 20 -> 28 m with drift_frac = 0.4).
   ``drift_frac = 0`` switches the drift off.
 
 Between the LEM and a camera the light crosses a 20-40 m column; its optics
@@ -36,6 +44,9 @@ from analysis.scattering import WaterOptics
 from lrm.dive.profile import STATION, DiveProfile
 from lrm.sim.scene import Water, water_preset
 
+#: The shapes of the water's drift in time (see the module docstring).
+DRIFT_SHAPES = ("sine", "bump")
+
 
 @dataclass(frozen=True)
 class WaterColumn:
@@ -47,15 +58,20 @@ class WaterColumn:
     drift_frac: float = 0.05
     drift_period_s: float = 14400.0
     drift_center_s: float = 4620.0
+    drift_shape: str = "sine"
 
     def __post_init__(self) -> None:
+        if self.drift_shape not in DRIFT_SHAPES:
+            raise ValueError(
+                f"drift_shape must be one of {', '.join(DRIFT_SHAPES)}, got {self.drift_shape!r}"
+            )
         missing = sorted(set(self.deep.optics) - set(self.shallow.optics))
         if missing:
             raise ValueError(f"shallow water lacks the deep water's wavelengths {missing} nm")
         if not (self.turbid_scale_m > 0 and math.isfinite(self.turbid_scale_m)):
             raise ValueError(f"turbid_scale_m must be > 0, got {self.turbid_scale_m}")
-        if not (0 <= self.drift_frac < 1):
-            raise ValueError(f"drift_frac must lie in [0, 1), got {self.drift_frac}")
+        if not (0 <= self.drift_frac < (1 if self.drift_shape == "sine" else 10)):
+            raise ValueError(f"drift_frac must lie in [0, 1) ([0, 10) for a bump), got {self.drift_frac}")
         if not self.drift_period_s > 0:
             raise ValueError(f"drift_period_s must be > 0, got {self.drift_period_s}")
 
@@ -88,6 +104,35 @@ class WaterColumn:
             drift_center_s=(t0 + t1) / 2.0,
         )
 
+    @classmethod
+    def with_station_bump(
+        cls,
+        profile: DiveProfile,
+        lambda_drop_frac: float = 0.3,
+        *,
+        deep: Water | None = None,
+        shallow: Water | None = None,
+        turbid_scale_m: float = 500.0,
+    ) -> WaterColumn:
+        """A column in which λ_att of every wavelength falls by ``lambda_drop_frac`` and comes back.
+
+        The bump spans the station: λ_att is the deep water's at the
+        station's start and end and ``1 - lambda_drop_frac`` of it in the
+        middle (0.3: 28 -> 19.6 -> 28 m at 460 nm).
+        """
+        if not (0 <= lambda_drop_frac < 0.9):
+            raise ValueError(f"lambda_drop_frac must lie in [0, 0.9), got {lambda_drop_frac}")
+        t0, t1 = profile.window(STATION)
+        return cls(
+            deep=deep or water_preset("trex"),
+            shallow=shallow or water_preset("turbid"),
+            turbid_scale_m=turbid_scale_m,
+            drift_frac=1.0 / (1.0 - lambda_drop_frac) - 1.0,
+            drift_period_s=max(t1 - t0, 1.0),
+            drift_center_s=(t0 + t1) / 2.0,
+            drift_shape="bump",
+        )
+
     @property
     def wavelengths_nm(self) -> tuple[int, ...]:
         return tuple(sorted(self.deep.optics))
@@ -105,6 +150,9 @@ class WaterColumn:
         """f(t): the factor on all coefficients at dive time ``t_s``."""
         if self.drift_frac == 0:
             return 1.0
+        if self.drift_shape == "bump":
+            x = (t_s - self.drift_center_s) / self.drift_period_s
+            return 1.0 + self.drift_frac * math.cos(math.pi * x) ** 2 if abs(x) < 0.5 else 1.0
         return 1.0 + self.drift_frac * math.sin(
             2.0 * math.pi * (t_s - self.drift_center_s) / self.drift_period_s
         )

@@ -74,7 +74,8 @@ async def attenuation(
     wavelength_nm: WavelengthQuery = None,
     t_from: FloatQuery = None,
 ) -> dict[str, Any]:
-    """The λ_att series per wavelength (rolling, with statistical and systematic errors)."""
+    """The λ_att series per wavelength: one point per LEM visit, with statistical and systematic errors
+    and whether the visit is over (``final``)."""
 
     def q() -> dict[str, Any]:
         with store.read() as s:

@@ -85,7 +85,7 @@ def test_dask_reanalysis_reproduces_the_live_i_center(
     store, dive_id, live_id = replayed["store"], replayed["dive_id"], replayed["run_id"]
     before = snapshot(store, live_id)
     run_id = start_run(store, dive_id, replayed["setup"], "dask, analysed again")
-    opts = ReanalysisOptions(reuse_live=False, batch_size=8, window_s=3600.0, interval_s=0.0)
+    opts = ReanalysisOptions(reuse_live=False, batch_size=8)
     n = reanalyse(store, dive_id, run_id, replayed["setup"], opts, runner=dask_runner)
     assert n == replayed["frames"] == 72
     live, again = results(store, live_id), results(store, run_id)
@@ -107,7 +107,7 @@ def test_changed_distances_change_lambda_att_and_the_live_run_stays(
     store, dive_id, live_id = replayed["store"], replayed["dive_id"], replayed["run_id"]
     setup = replayed["setup"]
     before = snapshot(store, live_id)
-    opts = ReanalysisOptions(window_s=3600.0, interval_s=0.0)
+    opts = ReanalysisOptions()
     same = start_run(store, dive_id, setup, "same calibration")
     moved = start_run(store, dive_id, with_distance(setup, "B", 45.0), "B at 45 m")
     assert reanalyse(store, dive_id, same, setup, opts, runner=dask_runner) == 72  # copied from live

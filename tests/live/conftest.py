@@ -19,8 +19,6 @@ def ingest_config(data: Path, **over) -> IngestConfig:
         workers=1,
         sqlite_synchronous="NORMAL",
         link_timeout_s=2.0,
-        rolling_interval_s=0.0,
-        rolling_window_s=600.0,
         alarm_limits=AlarmLimits(link_timeout_s=2.0),
     )
     base.update(over)

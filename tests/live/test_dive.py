@@ -39,9 +39,7 @@ def test_simulated_dive_everything_stored_once_and_lambda_att_tracks_the_water(t
         frame_scale=0.25,
         start=start,
     )
-    svc = IngestService(
-        ingest_config(tmp_path / "data", rolling_window_s=120.0, rolling_interval_s=20.0, workers=2)
-    )
+    svc = IngestService(ingest_config(tmp_path / "data", workers=2))
     svc.start()
     schedule = Schedule(name="dive-test", exposures_s=(0.05, 0.07, 0.11), gains_db=(6.0,), repeats=3)
     agents = []

@@ -41,8 +41,6 @@ def run_simulated_dive(data: Path, *, station_s: float = 240.0, seed: int = 5) -
             events_bind=None,
             workers=2,
             sqlite_synchronous="NORMAL",
-            rolling_window_s=120.0,
-            rolling_interval_s=15.0,
             alarm_limits=AlarmLimits(link_timeout_s=3.0),
         )
     )

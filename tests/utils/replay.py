@@ -36,8 +36,6 @@ def stream_frame_set(
             sqlite_synchronous="NORMAL",
             dive_name=dive,
             setup=read_setup(folder),
-            rolling_window_s=3600.0,
-            rolling_interval_s=0.0,
             alarm_limits=AlarmLimits(link_timeout_s=5.0),
         )
     )

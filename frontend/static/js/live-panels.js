@@ -1,7 +1,7 @@
-// The live view's shared panels: alarms with acknowledgement, and the rolling λ_att (numbers and plots).
+// The live view's shared panels: alarms with acknowledgement, and λ_att per LEM visit (numbers and plots).
 
 import { WAVELENGTHS, SEVERITY_RANK as RANK, fmt, plural, utc, wlColor } from "./format.js";
-import { attenuationLayout, attenuationTraces, draw, emptyPlot } from "./plots.js";
+import { drawVisitSeries } from "./lambda-profile.js";
 import { el, toast } from "./ui.js";
 
 /** The alarm list: active ones first (worst, then newest), then the five last cleared. */
@@ -54,20 +54,21 @@ export function renderAlarms(list, alarms, { operator, onAck }) {
   list.replaceChildren(...items);
 }
 
-/** The latest λ_att per wavelength in large type, with its errors, pairs, depth and time. */
+/** The latest λ_att per wavelength in large type, with its errors, frames, depth, time and state. */
 export function renderLambdaNow(box, attenuation) {
   const items = [];
   for (const wl of WAVELENGTHS.map(String)) {
     const pts = attenuation[wl] || [];
     const p = pts[pts.length - 1];
     const about = p
-      ? `± ${fmt(p.stat_err_m, 2)} stat ± ${fmt(p.sys_err_m, 2)} sys · ${plural(p.n_pairs, "pair")} · ` +
-        `${fmt(p.depth_m, 0)} m · ${utc(p.t_unix_s, { date: false })}`
+      ? `± ${fmt(p.stat_err_m, 2)} stat ± ${fmt(p.sys_err_m, 2)} sys · ${plural(p.n_frames ?? 0, "frame")} · ` +
+        `${fmt(p.depth_m, 0)} m · ${utc(p.t_unix_s, { date: false })}` +
+        (p.final === false ? " · provisional" : "")
       : "no point yet";
     items.push(
       el(
         "div",
-        { class: "wl-value", style: { "--wl": wlColor(wl) }, "data-wl": wl },
+        { class: `wl-value${p && p.final === false ? " provisional" : ""}`, style: { "--wl": wlColor(wl) }, "data-wl": wl },
         el("div", { class: "wl-name" }, `${wl} nm`),
         el("div", { class: "huge" }, p ? fmt(p.lambda_att_m, 1) : "–", el("span", { class: "unit" }, "m")),
         el("div", { class: "errs" }, about),
@@ -81,15 +82,12 @@ export function renderLambdaNow(box, attenuation) {
   }
 }
 
-/** λ_att against time and against depth (a zoom survives updates: uirevision). */
-export function drawLambda(timeDiv, depthDiv, attenuation) {
-  const hasPoints = Object.values(attenuation).some((p) => p.length);
-  const note = hasPoints ? {} : emptyPlot("waiting for the first λ_att point…");
-  const lay = (against) => ({
-    ...attenuationLayout(against, { uirevision: "live", title: { text: `against ${against}` } }, attenuation),
-    ...note,
-  });
-  const fail = (err) => toast(err.message);
-  draw(timeDiv, attenuationTraces(attenuation, "time"), lay("time"), "camcal-lambda-att-time").catch(fail);
-  draw(depthDiv, attenuationTraces(attenuation, "depth"), lay("depth"), "camcal-lambda-att-depth").catch(fail);
+/** λ_att per visit against time and the profile against depth (a zoom survives updates: uirevision). */
+export function drawLambda(timeDiv, depthDiv, attenuation, smoothVisits = 0) {
+  drawVisitSeries(timeDiv, depthDiv, attenuation, {
+    smoothVisits,
+    uirevision: "live",
+    filename: "camcal-lambda-att",
+    emptyText: "waiting for the first LEM visit…",
+  }).catch((err) => toast(err.message));
 }

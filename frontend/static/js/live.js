@@ -7,6 +7,7 @@ import { api, operator } from "./api.js";
 import { SEVERITY_RANK as RANK, fmtAge } from "./format.js";
 import { createCard, showThumbnail, updateCard, updateQuality } from "./live-cards.js";
 import { LiveSocket } from "./livesocket.js";
+import { upsertVisit } from "./lambda-profile.js";
 import { drawLambda, renderAlarms, renderLambdaNow } from "./live-panels.js";
 import { $, initTheme, mountOperator, setText, toast } from "./ui.js";
 
@@ -220,10 +221,8 @@ function onEvent(msg) {
       break;
     }
     case "attenuation": {
-      const wl = String(p.wavelength_nm);
-      (state.attenuation[wl] ||= []).push({ ...p, id: p.point_id });
-      if (state.attenuation[wl].length > 600) state.attenuation[wl].shift();
-      attDirty = true;
+      // One point per LEM visit: a running visit's point is updated in place, final when it ends.
+      if (upsertVisit(state.attenuation, p)) attDirty = true;
       break;
     }
     case "alarm":
@@ -425,12 +424,16 @@ function renderAttenuation(now) {
   }
   attDirty = false;
   attDrawnAt = now;
-  drawLambda($("#att-time"), $("#att-depth"), state.attenuation);
+  drawLambda($("#att-time"), $("#att-depth"), state.attenuation, Number($("#att-smooth").value));
 }
 
 // ------------------------------------------------------------------ start
 initTheme($("#theme"));
 mountOperator($("#operator"));
+$("#att-smooth").addEventListener("change", () => {
+  attDirty = true;
+  requestRender();
+});
 window.addEventListener("camcal:auth", () => render());
 window.addEventListener("camcal:theme", () => {
   attDirty = true;

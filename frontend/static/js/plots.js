@@ -1,5 +1,5 @@
 // plotly.js, loaded on demand from /vendor (never a CDN), styled from the page's theme, and the
-// figures both pages draw: λ_att against time and depth, radial profiles, linearity, time series.
+// figures both pages draw: radial profiles, linearity, time series (λ_att: lambda-profile.js).
 
 import { WAVELENGTHS, fmt, plotDate, wlColor } from "./format.js";
 
@@ -83,79 +83,6 @@ export function emptyPlot(text) {
 
 export function purge(div) {
   if (window.Plotly && div) window.Plotly.purge(div);
-}
-
-// ------------------------------------------------------------------ λ_att
-/**
- * Traces of λ_att per wavelength: thick bars the statistical error, thin bars stat ⊕ sys.
- * @param {object} series {"405": [{t_unix_s, depth_m, lambda_att_m, stat_err_m, sys_err_m, n_pairs}]}
- * @param {"time"|"depth"} against
- */
-export function attenuationTraces(series, against = "time", { namePrefix = "", dash = "solid", opacity = 1 } = {}) {
-  const traces = [];
-  const keys = Object.keys(series || {}).sort();
-  for (const wl of keys) {
-    const pts = (series[wl] || []).filter((p) => p.lambda_att_m !== null && p.lambda_att_m !== undefined);
-    if (!pts.length) continue;
-    const color = wlColor(wl);
-    const lam = pts.map((p) => p.lambda_att_m);
-    const stat = pts.map((p) => p.stat_err_m ?? 0);
-    const total = pts.map((p) => Math.hypot(p.stat_err_m ?? 0, p.sys_err_m ?? 0));
-    const other = against === "time" ? pts.map((p) => plotDate(p.t_unix_s)) : pts.map((p) => p.depth_m);
-    const xy = (vals) => (against === "time" ? { x: other, y: vals } : { x: vals, y: other });
-    const err = (arr, thickness, width) => ({ type: "data", array: arr, visible: true, color, thickness, width });
-    const errKey = against === "time" ? "error_y" : "error_x";
-    const group = `${namePrefix}${wl}`;
-    traces.push({
-      ...xy(lam),
-      type: "scatter",
-      mode: "markers",
-      marker: { size: 1, color, opacity: 0 },
-      [errKey]: err(total, 1, 0),
-      hoverinfo: "skip",
-      showlegend: false,
-      legendgroup: group,
-      opacity: 0.55 * opacity,
-    });
-    traces.push({
-      ...xy(lam),
-      type: "scatter",
-      mode: against === "time" ? "lines+markers" : "markers",
-      name: `${namePrefix}${wl} nm`,
-      legendgroup: group,
-      line: { color, width: 1.5, dash },
-      marker: { color, size: 7 },
-      opacity,
-      [errKey]: err(stat, 2.5, 4),
-      customdata: pts.map((p) => [p.stat_err_m, p.sys_err_m, p.n_pairs, p.depth_m]),
-      hovertemplate:
-        `${wl} nm: %{${against === "time" ? "y" : "x"}:.2f} m` +
-        " ± %{customdata[0]:.2f} stat ± %{customdata[1]:.2f} sys<br>" +
-        "%{customdata[2]} pairs, depth %{customdata[3]:.0f} m<extra></extra>",
-    });
-  }
-  return traces;
-}
-
-/**
- * Axes of a λ_att figure. Against depth, the depth axis points down with an explicit range from
- * `series` (at least 40 m: one stop is not a line), so redraws never keep a stale range.
- */
-export function attenuationLayout(against, extra = {}, series = null) {
-  const lam = { title: { text: "λ_att (m)" } };
-  if (against === "time") return { xaxis: { title: { text: "time (UTC)" }, type: "date" }, yaxis: lam, ...extra };
-  const depth = { title: { text: "depth (m)" }, autorange: "reversed", tickformat: ",.0f" };
-  const ds = Object.values(series || {})
-    .flat()
-    .map((p) => p.depth_m)
-    .filter((d) => d !== null && d !== undefined);
-  if (ds.length) {
-    const lo = Math.min(...ds);
-    const hi = Math.max(...ds);
-    const pad = Math.max(20 - (hi - lo) / 2, (hi - lo) * 0.06);
-    Object.assign(depth, { autorange: false, range: [hi + pad, lo - pad] });
-  }
-  return { xaxis: lam, yaxis: depth, ...extra };
 }
 
 // ------------------------------------------------------------------ radial profile

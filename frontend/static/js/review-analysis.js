@@ -2,7 +2,8 @@
 
 import { api, query } from "./api.js";
 import { fmt, fmtExposure, wlColor } from "./format.js";
-import { attenuationLayout, attenuationTraces, draw, emptyPlot, linearityFigure, stackedFigure } from "./plots.js";
+import { drawVisitSeries } from "./lambda-profile.js";
+import { draw, linearityFigure, stackedFigure } from "./plots.js";
 import { $, el, setText, toast } from "./ui.js";
 
 const MODULE_COLORS = ["#5cc8ff", "#ff9f43", "#c46bff", "#52e07a"];
@@ -173,13 +174,15 @@ async function loadAttenuation(ctx, runId) {
       `${describeSpan(sp, ctx.span?.mode)}: ${sp.n_frames} frames`,
     );
     $("#att-table").replaceWith(Object.assign(attenuationTable(table), { id: "att-table" }));
-    const name = `camcal-${ctx.dive.name}-run${runId}-lambda-att`;
-    const empty = Object.values(series.series).some((s) => s.length) ? {} : emptyPlot("no rolling λ_att points in this run");
-    const lay = (against) => ({ ...attenuationLayout(against, { title: { text: `against ${against}` } }, series.series), ...empty });
-    await Promise.all([
-      draw($("#att-series-time"), attenuationTraces(series.series, "time"), lay("time"), `${name}-time`),
-      draw($("#att-series-depth"), attenuationTraces(series.series, "depth"), lay("depth"), `${name}-depth`),
-    ]);
+    const smooth = $("#att-series-smooth");
+    const redraw = () =>
+      drawVisitSeries($("#att-series-time"), $("#att-series-depth"), series.series, {
+        smoothVisits: Number(smooth.value),
+        filename: `camcal-${ctx.dive.name}-run${runId}-lambda-att`,
+        emptyText: "no λ_att points in this run",
+      });
+    smooth.onchange = () => redraw().catch((err) => toast(err.message));
+    await redraw();
   } catch (err) {
     toast(err.message);
   }

@@ -1,0 +1,154 @@
+"""λ_att of one LEM visit: stamp, interpolation of non-simultaneous frames, honest errors.
+
+Synthetic I_center values with known truth and Gaussian noise (no
+simulator, no images): the pure arithmetic of `analysis.visit`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from analysis import EmissionRatio, Geometry
+from analysis.visit import VisitFrame, camera_trend, visit_attenuation
+
+GEOMETRY = Geometry("A", "B", 21.56, 0.02, 41.62, 0.04)
+RATIO = EmissionRatio(1.27, 0.04)
+SETTINGS = ((0.05, 8.0), (0.07, 8.0), (0.11, 8.0))
+
+
+def frames(
+    rng: np.random.Generator,
+    *,
+    lam_at: callable,
+    near_times: np.ndarray,
+    far_times: np.ndarray,
+    rel_noise: float = 0.003,
+    depth_m: float = 3420.0,
+) -> list[VisitFrame]:
+    """Frames of both cameras whose I follow exp(-L / λ(t)) with the LEM's emission ratio."""
+    out = []
+    for cam, times, dist, emit in (("A", near_times, 21.56, 1.0), ("B", far_times, 41.62, RATIO.value)):
+        for i, t in enumerate(times):
+            e, g = SETTINGS[i % len(SETTINGS)]
+            true = 4e5 * emit * e * 10 ** (g / 20) * math.exp(-dist / lam_at(t)) / 100
+            i_gray = true * (1 + rel_noise * rng.standard_normal())
+            out.append(VisitFrame(cam, e, g, float(t), i_gray, rel_noise * true, depth_m - dist))
+    return out
+
+
+def test_a_steady_visit_gives_the_truth_stamped_at_its_frames_mean_time_and_depth() -> None:
+    rng = np.random.default_rng(1)
+    near, far = np.arange(0.0, 12.0, 1.0), np.arange(0.45, 12.45, 1.0)
+    fr = frames(rng, lam_at=lambda t: 28.0, near_times=near, far_times=far)
+    res = visit_attenuation(fr, 460, GEOMETRY, RATIO, repeatability=0.0, trend_prior_per_s=0.002)
+    assert res is not None and res.n_pairs == 3 and res.n_frames == 24
+    assert res.t_s == pytest.approx(np.mean(np.concatenate([near, far])))
+    assert res.lem_depth_m == pytest.approx(np.mean([f.lem_depth_m for f in fr]))
+    assert res.lambda_att_m == pytest.approx(28.0, abs=3 * res.stat_err_m)
+    # Systematic error: the distances and I0'/I0 only, kept apart from the statistical one.
+    x = (41.62 - 21.56) / res.lambda_att_m
+    sys = math.hypot(math.hypot(0.02, 0.04) / x, res.lambda_att_m**2 / 20.06 * 0.04 / 1.27)
+    assert res.sys_err_m == pytest.approx(sys, rel=1e-9)
+
+
+def test_settings_only_one_camera_took_are_left_out() -> None:
+    rng = np.random.default_rng(2)
+    fr = frames(rng, lam_at=lambda t: 20.0, near_times=np.arange(6.0), far_times=np.arange(6.0) + 0.4)
+    extra = VisitFrame("A", 0.5, 2.0, 100.0, 50.0, 0.1, 3400.0)
+    res = visit_attenuation([*fr, extra], 405, GEOMETRY, RATIO, repeatability=0.0, trend_prior_per_s=0.002)
+    assert res is not None and res.n_frames == 12 and res.t_last_s < 100.0
+    assert (
+        visit_attenuation([extra], 405, GEOMETRY, RATIO, repeatability=0.0, trend_prior_per_s=0.002) is None
+    )
+
+
+def test_far_frames_taken_later_than_near_ones_are_interpolated_to_the_stamp() -> None:
+    """The water clears by 3 %/min; the far camera shoots 30 s after the near one.
+
+    Without interpolation the ratio mixes two waters (λ ~2 % off at this
+    rate); each camera's trend over the visit brings both to the mean time.
+    """
+    rng = np.random.default_rng(3)
+
+    def lam(t: float) -> float:
+        return 25.0 * (1 + 0.03 * t / 60)
+
+    near = np.arange(0.0, 12.0, 1.0)
+    far = near + 30.0
+    fr = frames(rng, lam_at=lam, near_times=near, far_times=far, rel_noise=0.001)
+    res = visit_attenuation(fr, 460, GEOMETRY, RATIO, repeatability=0.0, trend_prior_per_s=0.002)
+    truth = lam(res.t_s)
+    assert all(t.fitted for t in res.trends.values())
+    assert res.lambda_att_m == pytest.approx(truth, abs=2.5 * res.stat_err_m)
+    # What ignoring the mismatch would give: far off, many errors away.
+    naive = GEOMETRY.baseline_m / (res.log_ratio + sum(p.trend_shift for p in res.pairs) / 3 + math.log(1.27))
+    assert abs(naive - truth) > 5 * res.stat_err_m
+
+
+def test_a_mismatch_the_frames_cannot_resolve_is_carried_in_the_error() -> None:
+    """Three frames per camera, 20 s apart: no trend can be fitted; the prior bounds the drift."""
+    rng = np.random.default_rng(4)
+    fr = frames(
+        rng,
+        lam_at=lambda t: 25.0,
+        near_times=np.array([0.0, 1.0, 2.0]),
+        far_times=np.array([20.0, 21.0, 22.0]),
+    )
+    res = visit_attenuation(fr, 460, GEOMETRY, RATIO, repeatability=0.0, trend_prior_per_s=0.002)
+    assert not any(t.fitted for t in res.trends.values())
+    assert res.terms["trend"] == pytest.approx(0.002 * math.hypot(10.0, 10.0), rel=0.01)
+    assert res.terms["trend"] > 5 * res.terms["frames"]
+
+
+def test_the_floor_is_added_once_per_visit_whatever_the_number_of_frames() -> None:
+    rng = np.random.default_rng(5)
+    args = dict(lam_at=lambda t: 25.0, rel_noise=0.0005)
+    few = frames(rng, near_times=np.arange(3.0), far_times=np.arange(3.0) + 0.5, **args)
+    many = frames(rng, near_times=np.arange(60.0), far_times=np.arange(60.0) + 0.5, **args)
+    for fr in (few, many):
+        res = visit_attenuation(fr, 460, GEOMETRY, RATIO, repeatability=0.004, trend_prior_per_s=0.002)
+        assert res.terms["floor"] == pytest.approx(math.sqrt(2) * 0.004)
+        assert res.log_ratio_err >= res.terms["floor"]
+
+
+@pytest.mark.parametrize("noise", [0.002, 0.01])
+def test_pulls_of_many_visits_have_an_rms_near_one(noise: float) -> None:
+    """Gaussian frame noise, water changing between and within visits: the errors mean what they say."""
+    rng = np.random.default_rng(6)
+    pulls = []
+    for k in range(400):
+        base = 20.0 + 8.0 * math.sin(k / 40)
+
+        def lam(t: float, base: float = base) -> float:
+            return base * (1 - 0.003 * t / 60)
+
+        n = int(rng.integers(3, 13))
+        near = np.sort(rng.uniform(0, 15, n))
+        far = np.sort(rng.uniform(0, 15, n)) + rng.uniform(-5, 5)
+        fr = frames(rng, lam_at=lam, near_times=near, far_times=far, rel_noise=noise)
+        res = visit_attenuation(fr, 460, GEOMETRY, RATIO, repeatability=0.0, trend_prior_per_s=0.002)
+        if res is None:
+            continue
+        pulls.append((res.lambda_att_m - lam(res.t_s)) / res.stat_err_m)
+    rms = math.sqrt(np.mean(np.square(pulls)))
+    assert len(pulls) > 300
+    assert 0.85 < rms < 1.15, rms
+
+
+def test_the_trend_fit_recovers_a_slope_and_leans_on_the_prior_without_frames() -> None:
+    t = np.arange(12.0)
+    exp = np.array([0.05, 0.07, 0.11] * 4)
+    i = 100 * exp / 0.05 * np.exp(-0.004 * t)
+    fit = camera_trend(t, i, 0.001 * i, exp, np.full(12, 8.0), prior_per_s=0.01)
+    assert fit.fitted and fit.slope_per_s == pytest.approx(-0.004, abs=3 * fit.slope_err_per_s)
+    lone = camera_trend(t[:2], i[:2], 0.001 * i[:2], exp[:2], np.full(2, 8.0), prior_per_s=0.01)
+    assert not lone.fitted and lone.slope_per_s == 0.0 and lone.slope_err_per_s == 0.01
+
+
+def test_no_attenuation_is_said_instead_of_a_value() -> None:
+    fr = [VisitFrame("A", 0.05, 8.0, 0.0, 10.0, 0.1), VisitFrame("B", 0.05, 8.0, 0.5, 30.0, 0.1)]
+    res = visit_attenuation(fr, 460, GEOMETRY, RATIO, repeatability=0.0, trend_prior_per_s=0.002)
+    assert res.lambda_att_m is None and res.stat_err_m is None and "not dimmer" in res.note

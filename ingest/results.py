@@ -31,11 +31,9 @@ class Results:
         except ValueError:
             log.warning("no λ_att series: the setup has fewer than two cameras with distances")
         if self.series is not None:  # after a restart: the visits of the frames already analysed
-            self._store_points(
-                self.series.add(
-                    Sample.from_result(r) for r in self.store.result_rows(self.svc.run.id, self.svc.dive.id)
-                )
-            )
+            served = self.svc.config.serves  # (another ingest's modules are its own business)
+            rows = self.store.result_rows(self.svc.run.id, self.svc.dive.id)
+            self._store_points(self.series.add(Sample.from_result(r) for r in rows if served(r["module"])))
         self.linearity: dict[tuple[str, int], dict[tuple[float, float], list[float]]] = defaultdict(
             lambda: defaultdict(list)
         )

@@ -8,6 +8,7 @@ storage and live tests skip.
 
 from __future__ import annotations
 
+import gc
 import os
 import time
 import uuid
@@ -79,6 +80,9 @@ def fresh_database(admin_url: str, template: str | None = None) -> Iterator[str]
         try:
             yield _url(admin_url, name)
         finally:
+            # A connection the test left open is collected (and warns) here, in the test that left
+            # it, not in whichever later test the garbage collector happens to run in.
+            gc.collect()
             _drop(admin, name)
     finally:
         admin.dispose()

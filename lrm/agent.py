@@ -6,7 +6,10 @@ second), and **comm**, which alone owns the ZeroMQ DEALER socket. Every
 frame and sensor packet goes to the outbox (SD card) first and is sent
 afterwards; it stays pending until the ship acknowledges it, and everything
 pending is sent again after a reconnect or when its acknowledgement is late.
-Commands from the ship are answered and applied exactly once.
+Commands from the ship are answered and applied exactly once. Before it
+sends anything but ``hello``, the comm thread checks that the peer is the
+right ship (`lrm.shipcheck`): one that speaks the protocol, over CURVE with
+the ship's key, and records the dive the module was started for.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from camcal.frameset import encode_png
 from camcal.schedule import CameraLimits, Schedule
 from lrm.outbox import Outbox
 from lrm.runner import Capture, ScheduleRunner
+from lrm.shipcheck import ShipCheck
 
 log = logging.getLogger("camcal.lrm")
 
@@ -58,6 +62,12 @@ class AgentConfig:
     sensor_batch_s: float = 1.0
     initial_window: int = 2
     fsync: bool = True
+    #: The dive this module is started for: it refuses an ingest of another dive (None: any).
+    dive: str | None = None
+    #: The link's CURVE keys (`camcal.wire.keys`); without them the link is plaintext, which must
+    #: be asked for (``plaintext``): a lab bench only.
+    keys: wire.ModuleKeys | None = None
+    plaintext: bool = False
 
 
 class Agent:
@@ -77,7 +87,13 @@ class Agent:
     ) -> None:
         if (runner is None) == (source is None):
             raise ValueError("give the agent either a schedule runner or a replay source")
+        if config.keys is None and not config.plaintext:
+            raise ValueError(
+                "the module link needs keys (camcal keys create, then --keys) or, on a lab bench "
+                "only, plaintext=True"
+            )
         self.config = config
+        self.check = ShipCheck(config.module, config.connect, config.dive, config.keys)
         self.clock = clock
         self.runner = runner
         self._source = source or (lambda stop: runner.next_capture(stop))  # type: ignore[union-attr]
@@ -166,6 +182,11 @@ class Agent:
     def stopped(self) -> bool:
         return self._stop.is_set()
 
+    @property
+    def refusal(self) -> Any:
+        """Why the module refuses the peer it is connected to (`lrm.shipcheck.Refusal`), or None."""
+        return self.check.refusal
+
     def capture_done(self) -> bool:
         """True when the capture thread has finished (a replay reached its end)."""
         return not any(t.is_alive() for t in self._threads if t.name.startswith("lrm-capture"))
@@ -252,7 +273,8 @@ class Agent:
     # ------------------------------------------------------------ comm
     def _comm_loop(self) -> None:
         cfg = self.config
-        sock = wire.module_socket(self.ctx, cfg.connect, cfg.module)
+        check = self.check
+        sock = check.open(self.ctx)
         send_q: deque[tuple[str, int]] = deque((e.boot, e.seq) for e in self.outbox.pending())
         queued = set(send_q)
         in_flight: dict[tuple[str, int], float] = {}
@@ -263,6 +285,7 @@ class Agent:
         last_ship = last_hello = last_beat = 0.0
         poller = zmq.Poller()
         poller.register(sock, zmq.POLLIN)
+        dive = {"dive": cfg.dive} if cfg.dive else {}
 
         def requeue(keys: list[tuple[str, int]]) -> None:
             for k in sorted(keys, reverse=True):
@@ -283,6 +306,12 @@ class Agent:
                         send_q.append(k)
                         queued.add(k)
                 now = time.monotonic()
+                check.watch()
+                if check.renew_due():  # a failed handshake libzmq may not retry: a new socket
+                    poller.unregister(sock)
+                    check.close(sock)
+                    sock = check.open(self.ctx)
+                    poller.register(sock, zmq.POLLIN)
                 if dict(poller.poll(20)).get(sock):
                     for _ in range(256):
                         try:
@@ -293,9 +322,15 @@ class Agent:
                             msg, _ = wire.decode(parts, allowed=wire.SHIP_TYPES)
                         except wire.ProtocolError as exc:
                             self.counters[f"bad_{exc.kind}"] += 1
+                            check.foreign_message(welcomed)
                             continue
                         last_ship = time.monotonic()
                         if msg.type == "welcome":
+                            if not check.accept_welcome(msg):
+                                welcomed = False
+                                self.linked.clear()
+                                requeue(list(in_flight))
+                                continue
                             window = msg.window
                             if in_flight:
                                 requeue(list(in_flight))
@@ -310,7 +345,10 @@ class Agent:
                                         self.counters["acked"] += 1
                         elif msg.type == "nack":
                             self._on_nack(msg, in_flight, retry_at, tries)
-                            if msg.reason == "not_served":  # the wrong ingest: say hello until the right one
+                            if msg.reason == "wrong_dive":
+                                check.wrong_dive(msg)
+                            if msg.reason in ("not_served", "wrong_dive"):
+                                # The wrong ingest: keep everything, say hello until the right one.
                                 welcomed = False
                                 self.linked.clear()
                                 requeue(list(in_flight))
@@ -335,6 +373,7 @@ class Agent:
                             schedule=self._schedule_state(),
                             outbox_pending=self.outbox.pending_count(),
                             last_seq=self._seq,
+                            **dive,
                         ),
                     )
                 if now - last_beat >= cfg.heartbeat_s:
@@ -348,6 +387,7 @@ class Agent:
                             outbox_pending=self.outbox.pending_count(),
                             in_flight=len(in_flight),
                             last_seq=self._seq,
+                            **dive,
                         ),
                     )
                 late = [k for k, t in in_flight.items() if now - t > cfg.ack_timeout_s]
@@ -372,6 +412,8 @@ class Agent:
                         continue
                     try:
                         header, payload = self.outbox.message(entry, cfg.module)
+                        if dive:  # the ship refuses a message of another dive than its own
+                            header = header.model_copy(update=dive)
                     except (OSError, ValueError) as exc:  # the SD card lost or damaged it
                         log.error("outbox entry %s/%d cannot be sent, skipped: %s", key[0], key[1], exc)
                         self.outbox.discard(*key)
@@ -386,10 +428,10 @@ class Agent:
                     in_flight[key] = time.monotonic()
                     self.counters["sent"] += 1
             if welcomed:
-                self._send(sock, wire.Bye(module=cfg.module, boot=self.boot))
+                self._send(sock, wire.Bye(module=cfg.module, boot=self.boot, **dive))
                 time.sleep(0.05)
         finally:
-            sock.close(0)
+            check.close(sock)
 
     def _on_nack(
         self,
@@ -406,6 +448,10 @@ class Agent:
         """
         self.counters["nacked"] += 1
         self.counters[f"nacked_{msg.reason}"] += 1
+        if msg.reason == "wrong_dive":  # nothing to settle: the message waits for the right ingest
+            if msg.boot is not None and msg.seq is not None:
+                in_flight.pop((msg.boot, msg.seq), None)
+            return
         if msg.boot is None or msg.seq is None:  # not one of our data messages (a hello, a heartbeat...)
             log.warning("ship refused a %s: %s: %s", msg.of or "message", msg.reason, msg.detail)
             return

@@ -17,6 +17,7 @@ from camcal.cli import (
     doctor,
     fit,
     ingest,
+    keys,
     lrm,
     reanalyze,
     report,
@@ -42,6 +43,7 @@ transport.register(app)
 report.register(app)
 # The live system.
 ingest.register(app)
+keys.register(app)
 lrm.register(app)
 serve.register(app)
 data.register(app)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import secrets
 import signal
 import subprocess
 import sys
@@ -15,6 +14,7 @@ import typer
 
 from camcal.cli.common import console, fail
 from camcal.cli.config import settings_or_fail
+from camcal.cli.credentials import child_environment, operator_tokens, simulated_link, tokens_or_generated
 from camcal.logs import configure_logging
 from camcal.settings import Settings
 
@@ -22,20 +22,6 @@ from camcal.settings import Settings
 def register(app: typer.Typer) -> None:
     app.command("serve")(serve)
     app.command("up")(up)
-
-
-def operator_tokens(items: list[str] | None, settings: Settings) -> dict[str, str]:
-    """Configured tokens (``CAMCAL_OPERATOR_TOKENS``) plus ``NAME=TOKEN`` options."""
-    out = settings.tokens()
-    for item in items or []:
-        name, sep, token = item.strip().partition("=")
-        if not sep or not name or len(token) < 8:
-            raise fail("--operator-token: give NAME=TOKEN with a token of at least 8 characters")
-        out[name] = token
-    for name, token in out.items():
-        if len(token) < 8:
-            raise fail(f"operator token of {name!r} is shorter than 8 characters")
-    return out
 
 
 def run_server(settings: Settings, tokens: dict[str, str], events: str | None) -> None:
@@ -104,6 +90,7 @@ def _spawn(args: list[str], log: Path) -> subprocess.Popen[bytes]:
             stdout=fh,
             stderr=fh,
             start_new_session=True,
+            env=child_environment(),  # the children need no operator token
         )
 
 
@@ -140,14 +127,11 @@ def up(
     data_dir.mkdir(parents=True, exist_ok=True)
     logs = data_dir / "logs"
     logs.mkdir(exist_ok=True)
-    tokens = operator_tokens(operator_token, s) or {"operator": secrets.token_urlsafe(12)}
+    tokens, generated = tokens_or_generated(operator_token, s)
     events = f"tcp://127.0.0.1:{events_port}"
-    from storage.store import Store
-
-    try:
-        Store.open(data_dir, s.database_url).close()  # create or migrate the database before anyone uses it
-    except Exception as exc:
-        raise fail(f"cannot open the store in {data_dir}: {exc}") from None
+    link = simulated_link(s, ["A", "B"]) if simulate else []
+    dive = up_dive(s)
+    link += ["--dive", dive]
     # SIGTERM (docker stop, systemd, kill) must stop the children too. uvicorn handles the signal,
     # shuts down, then raises it again: with the default action this process would die before the
     # `finally` below stops the ingest and the modules.
@@ -164,6 +148,8 @@ def up(
                     f"tcp://127.0.0.1:{ingest_port}",
                     "--events",
                     events,
+                    "--dive",
+                    dive,
                 ],
                 logs / "ingest.log",
             ),
@@ -204,6 +190,7 @@ def up(
                                 str(test_stop_s),
                                 "--station-s",
                                 str(station_s),
+                                *link,
                             ],
                             logs / f"module-{m}.log",
                         ),
@@ -214,8 +201,9 @@ def up(
             "(review: /review, API: /docs)"
         )
         console.print(f"data: {data_dir}   logs: {logs}   modules connect to tcp://<this host>:{ingest_port}")
-        for name, token in tokens.items():
-            console.print(f"operator token for {name}: {token}")
+        if generated:  # a token camcal made up is shown once; a configured one never is
+            for name, token in tokens.items():
+                console.print(f"operator token for {name}: {token}")
         console.print("stop with Ctrl-C")
         if simulate and s.station_depth_m is None:  # the simulated dive's plan
             from lrm.dive import DiveProfile
@@ -224,6 +212,23 @@ def up(
         run_server(s, tokens, events)
     finally:
         stop_children(children)
+
+
+def up_dive(settings: Settings) -> str:
+    """The dive ``camcal up`` records into (the configured one, else the open one, else a new one),
+    named to the ingest and the simulated modules alike: a module refuses an ingest of another dive."""
+    from storage.store import Store
+
+    try:
+        store = Store.open(settings.data_dir, settings.database_url)  # also creates or migrates it
+    except Exception as exc:
+        raise fail(f"cannot open the store in {settings.data_dir}: {exc}") from None
+    try:
+        dive = store.current_dive(create=True, name=settings.dive)
+        assert dive is not None
+        return dive.name
+    finally:
+        store.close()
 
 
 def _exit_on_sigterm(signum: int, _frame: object) -> None:

@@ -22,6 +22,7 @@ def ingest_config(data: Path, **over) -> IngestConfig:
         rolling_interval_s=0.0,
         rolling_window_s=600.0,
         alarm_limits=AlarmLimits(link_timeout_s=2.0),
+        plaintext=True,  # in-process tests of the ingest's logic; the link's keys have their own tests
     )
     base.update(over)
     return IngestConfig(**base)

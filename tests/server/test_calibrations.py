@@ -157,6 +157,7 @@ def test_cli_builds_versions_from_lab_results_and_the_ingest_records_its_calibra
             workers=1,
             sqlite_synchronous="NORMAL",
             calibration="lab@2",
+            plaintext=True,
         ),
         store=store,
     )
@@ -172,5 +173,11 @@ def test_cli_builds_versions_from_lab_results_and_the_ingest_records_its_calibra
         svc.stop()
     with pytest.raises(ValueError, match="no calibration"):
         IngestService(
-            IngestConfig(data_dir=data, bind="tcp://127.0.0.1:*", events_bind=None, calibration="missing")
+            IngestConfig(
+                data_dir=data,
+                bind="tcp://127.0.0.1:*",
+                events_bind=None,
+                calibration="missing",
+                plaintext=True,
+            )
         ).start()

@@ -172,8 +172,8 @@ class Gatekeeper:
                 break
             if event["event"] == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL and event["value"] == _MISMATCH:
                 self.refused.add("plaintext")  # a client without CURVE (or with another mechanism)
-            else:
-                self.refused.add("not_zmtp")  # garbage, a timeout, or a broken handshake
+            else:  # garbage, a timeout, a broken handshake, or a plaintext client that hung up first
+                self.refused.add("no_handshake")
 
     def _answer(self, req: list[bytes]) -> None:
         # [peer, "", version, request id, domain, address, identity, mechanism, credentials...]

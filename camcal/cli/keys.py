@@ -67,18 +67,17 @@ def create(
 
 @app.command("list")
 def list_(keys: KeysDirOption = None, data: DataOption = None) -> None:
-    """The ship's key and every module key the ship lets in, with their public keys."""
-    from rich.table import Table
-
+    """The ship's key and every module key the ship lets in: owner, public key (Z85), secret here or not."""
     from camcal.wire.keys import list_keys
 
     folder = _folder(keys, data)
     found = list_keys(folder)
     if not found:
         raise fail(f"no keys in {folder}: create them with `camcal keys create A B --keys {folder}`")
-    table = Table(title=f"keys in {folder}")
-    for col in ("owner", "public key (Z85)", "secret here", "file"):
-        table.add_column(col, overflow="fold")
+    console.print(f"keys in {folder}:", highlight=False)
+    width = max(len(k.owner) for k in found)
     for k in found:
-        table.add_row(k.owner, k.public, "yes" if k.has_secret else "no", str(k.path))
-    console.print(table)
+        secret = "secret here" if k.has_secret else "public only"
+        console.print(
+            f"  {k.owner:<{width}}  {k.public}  {secret}  {k.path}", highlight=False, soft_wrap=True
+        )

@@ -31,6 +31,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from camcal import wire
+from camcal.wire.keys import create_module_key
 from tests.utils.live import cli_env
 from tests.utils.rogue import IngestProbe, invalid_json_events
 from tests.utils.schema_strategies import strategy
@@ -178,8 +179,10 @@ def test_fuzzed_messages_get_the_promised_answer_and_the_counters_add_up(fuzz_sh
 
 def test_the_minimal_module_in_the_docs_delivers_everything(fuzz_ship: IngestProbe) -> None:
     example = REPO / "docs" / "examples" / "minimal_module.py"
+    create_module_key(fuzz_ship.keys, "MIN")
+    args = [fuzz_ship.endpoint, "--module", "MIN", "--frames", "6", "--keys", str(fuzz_ship.keys)]
     res = subprocess.run(
-        [sys.executable, str(example), fuzz_ship.endpoint, "--module", "MIN", "--frames", "6"],
+        [sys.executable, str(example), *args],
         capture_output=True,
         text=True,
         timeout=60,

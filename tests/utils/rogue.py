@@ -70,8 +70,12 @@ class Rogue:
         expect: int = 1,
         skip: tuple[str, ...] = ("ship_heartbeat",),
     ) -> list[Any]:
-        """Send one message; collect replies until ``expect`` arrived or ``wait_s`` (``skip``: ignored)."""
-        self.sock.send_multipart(parts)
+        """Send one message; collect replies until ``expect`` arrived or ``wait_s`` (``skip``: ignored).
+
+        A message the socket cannot send (no connection: the ship refused the handshake) is dropped.
+        """
+        with contextlib.suppress(zmq.Again):
+            self.sock.send_multipart(parts, zmq.NOBLOCK)
         return self.collect(wait_s, expect, skip)
 
     def collect(

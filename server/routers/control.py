@@ -12,12 +12,11 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from camcal.schedule import Schedule, presets
 from ingest.derived import predict_settings, result_row
-from server.deps import OperatorDep, SettingsDep, StoreDep
+from server.deps import ModuleId, OperatorDep, SettingsDep, StoreDep
 from server.errors import Conflict, Invalid, NotFound
 from storage import queries
 
 router = APIRouter(tags=["control"])
-ModuleId = Annotated[str, Path(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")]
 
 
 class ScheduleCommand(BaseModel):

@@ -34,7 +34,7 @@ def dive_copy(dive_data, tmp_path: Path) -> Path:
 def wait_run(client: TestClient, dive_id: int, run_id: int) -> dict:
     for _ in range(600):
         run = next(r for r in client.get(f"/api/dives/{dive_id}/runs").json() if r["id"] == run_id)
-        if run["status"] != "running":
+        if run["status"] not in ("queued", "running"):
             return run
         time.sleep(0.1)
     raise AssertionError("re-analysis did not finish")

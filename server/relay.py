@@ -45,6 +45,7 @@ class Client:
     dropped: Counter[str] = field(default_factory=Counter)
     resync: bool = False
     batch: bool = False
+    address: str = ""
 
     def next_seq(self) -> int:
         self.seq += 1
@@ -211,10 +212,14 @@ class LiveHub:
             return
         q.put_nowait(message)
 
-    def register(self) -> Client:
-        client = Client(asyncio.Queue(self.client_queue))
+    def register(self, address: str = "") -> Client:
+        client = Client(asyncio.Queue(self.client_queue), address=address)
         self.clients.add(client)
         return client
+
+    def connections_of(self, address: str) -> int:
+        """Live connections of one client address."""
+        return sum(1 for c in self.clients if c.address == address)
 
     def unregister(self, client: Client) -> None:
         self.clients.discard(client)

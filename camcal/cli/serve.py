@@ -38,8 +38,12 @@ def run_server(settings: Settings, tokens: dict[str, str], events: str | None) -
             operator_tokens=tokens,
             linear_range=settings.linear_range,
             station_depth_m=settings.station_depth_m,
+            max_body_bytes=int(settings.http_max_body_mb * 1024 * 1024),
+            max_websockets_per_client=settings.http_max_connections_per_client,
+            max_requests_per_client=2 * settings.http_max_connections_per_client,
         )
     )
+    tls = tls_files(settings)
     # No permessage-deflate: compressing every event once per browser costs the ship more CPU than
     # the bytes it saves on its own network (events are a few hundred bytes of JSON).
     config = uvicorn.Config(
@@ -49,11 +53,27 @@ def run_server(settings: Settings, tokens: dict[str, str], events: str | None) -
         log_level="warning",
         ws_ping_interval=20,
         ws_per_message_deflate=False,
+        ws_max_size=64 * 1024,  # a browser sends a few small requests; nothing needs more
+        ssl_certfile=str(tls[0]) if tls else None,
+        ssl_keyfile=str(tls[1]) if tls else None,
     )
     try:
         uvicorn.Server(config).run()
     except OSError as exc:
         raise fail(f"cannot serve on {settings.http_host}:{settings.http_port}: {exc}") from None
+
+
+def tls_files(settings: Settings) -> tuple[Path, Path] | None:
+    """The TLS certificate and key (``http_tls_cert``, ``http_tls_key``), both or neither, readable."""
+    cert, key = settings.http_tls_cert, settings.http_tls_key
+    if cert is None and key is None:
+        return None
+    if cert is None or key is None:
+        raise fail("TLS needs both http_tls_cert and http_tls_key (--tls-cert, --tls-key)")
+    for what, path in (("certificate", cert), ("key", key)):
+        if not path.is_file():
+            raise fail(f"TLS {what} {path} is not a readable file")
+    return cert, key
 
 
 def serve(
@@ -67,18 +87,33 @@ def serve(
     ] = None,
     db_url: Annotated[str | None, typer.Option(help="SQLAlchemy URL [CAMCAL_DATABASE_URL].")] = None,
     operator_token: Annotated[
-        list[str] | None, typer.Option(help="NAME=TOKEN of an operator (repeat).")
+        list[str] | None,
+        typer.Option(help="NAME=TOKEN of an operator (repeat); shown by ps: use CAMCAL_OPERATOR_TOKENS."),
+    ] = None,
+    tls_cert: Annotated[
+        Path | None, typer.Option(help="TLS certificate (PEM): serve HTTPS [CAMCAL_HTTP_TLS_CERT].")
+    ] = None,
+    tls_key: Annotated[
+        Path | None, typer.Option(help="The certificate's private key (PEM) [CAMCAL_HTTP_TLS_KEY].")
     ] = None,
     config: Annotated[Path | None, typer.Option(help="A TOML configuration file [CAMCAL_CONFIG].")] = None,
 ) -> None:
     """Serve the dashboard and the API (OpenAPI at /docs) for a data folder."""
     s = settings_or_fail(
-        config, data_dir=data, http_host=host, http_port=port, events_connect=events, database_url=db_url
+        config,
+        data_dir=data,
+        http_host=host,
+        http_port=port,
+        events_connect=events,
+        database_url=db_url,
+        http_tls_cert=tls_cert,
+        http_tls_key=tls_key,
     )
     configure_logging(s.log_level, s.log_format)
     tokens = operator_tokens(operator_token, s)
+    scheme = "https" if tls_files(s) else "http"
     console.print(
-        f"camcal server: http://{s.http_host}:{s.http_port}  (API docs at /docs; data {s.data_dir})"
+        f"camcal server: {scheme}://{s.http_host}:{s.http_port}  (API docs at /docs; data {s.data_dir})"
     )
     run_server(s, tokens, None if s.events_connect == "none" else s.events_connect)
 

@@ -134,22 +134,22 @@ class Guard:
     # -- route rules, read once from the app's routes --------------------
     def rules(self) -> list[RouteRule]:
         if self._rules is None:
-            from fastapi.routing import APIRoute
+            from starlette.routing import compile_path
 
             from server.deps import needs_operator
+            from server.openapi import api_routes
 
             out = []
-            for route in self.fastapi_app.routes:
-                if isinstance(route, APIRoute):
-                    extra = route.openapi_extra or {}
-                    out.append(
-                        RouteRule(
-                            frozenset(route.methods or ()),
-                            route.path_regex,
-                            needs_operator(route),
-                            extra.get(MAX_BODY_KEY),
-                        )
+            for route, path in api_routes(self.fastapi_app.routes):
+                extra = route.openapi_extra or {}
+                out.append(
+                    RouteRule(
+                        frozenset(route.methods or ()),
+                        compile_path(path)[0],
+                        needs_operator(route),
+                        extra.get(MAX_BODY_KEY),
                     )
+                )
             self._rules = out
         return self._rules
 

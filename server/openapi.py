@@ -11,6 +11,7 @@ has the one shape of `server.errors`.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from typing import Any
 
 from fastapi import FastAPI
@@ -50,6 +51,16 @@ _GENERIC = {
 }
 
 
+def api_routes(routes: Any, prefix: str = "") -> Iterator[tuple[APIRoute, str]]:
+    """Every API route of an app with its full path, included routers walked into."""
+    for r in routes:
+        inner = getattr(r, "original_router", None)
+        if inner is not None:
+            yield from api_routes(inner.routes, prefix + inner.prefix)
+        elif isinstance(r, APIRoute):
+            yield r, prefix + r.path
+
+
 def _add(op: dict[str, Any], status: str) -> None:
     responses = op.setdefault("responses", {})
     if status not in responses:
@@ -79,11 +90,11 @@ def install(app: FastAPI) -> None:
         ):
             schema["components"]["schemas"].setdefault(name, sub)
         schema["components"]["schemas"]["ErrorResponse"].pop("$defs", None)
-        for route in app.routes:
-            if not isinstance(route, APIRoute) or not route.include_in_schema:
+        for route, path in api_routes(app.routes):
+            if not route.include_in_schema:
                 continue
             for method in route.methods or ():
-                op = schema["paths"].get(route.path_format, {}).get(method.lower())
+                op = schema["paths"].get(path, {}).get(method.lower())
                 if op is None:
                     continue
                 _add(op, "429")

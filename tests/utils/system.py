@@ -205,3 +205,39 @@ def camcal_up(
         yield system
     finally:
         stop_system(proc)
+
+
+@contextlib.contextmanager
+def camcal_serve(
+    data: Path, *extra: str, env: dict[str, str] | None = None, scheme: str = "http", verify: Any = False
+) -> Iterator[tuple[str, subprocess.Popen[bytes]]]:
+    """``camcal serve --events none`` of ``data`` on a free port; yields its base URL and process."""
+    (port,) = free_ports(1)
+    base = {k: v for k, v in os.environ.items() if not k.startswith("CAMCAL_")}
+    full_env = {**base, "PYTHONPATH": str(REPO), **(env or {})}
+    log = data.parent / f"serve-{port}.log"
+    args = [sys.executable, "-c", "from camcal.cli import main; main()", "serve", "--data", str(data)]
+    args += ["--port", str(port), "--events", "none", *extra]
+    with log.open("wb") as fh:
+        proc = subprocess.Popen(args, env=full_env, stdout=fh, stderr=subprocess.STDOUT)
+    url = f"{scheme}://127.0.0.1:{port}"
+    try:
+
+        def up() -> bool:
+            if proc.poll() is not None:
+                raise RuntimeError(f"camcal serve exited with {proc.returncode}: {log.read_text()[-2000:]}")
+            try:
+                return httpx.get(f"{url}/api/health", timeout=2, verify=verify).status_code == 200
+            except httpx.HTTPError:
+                return False
+
+        wait_until(up, 60, "camcal serve to answer", every_s=0.2)
+        yield url, proc
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(5)

@@ -152,3 +152,21 @@ def test_doctor_reports_what_to_fix(tmp_path: Path, monkeypatch: pytest.MonkeyPa
     res = runner.invoke(app, ["doctor", "--check", "data"])
     assert res.exit_code == 0 and "writable" in res.output
     assert json.loads(json.dumps(Settings().masked()))  # serialisable
+
+
+def test_doctor_checks_the_module_link(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("CAMCAL_DATA_DIR", str(tmp_path))
+    ingest_port, events_port = free_ports(2)
+    monkeypatch.setenv("CAMCAL_INGEST_BIND", f"tcp://*:{ingest_port}")
+    monkeypatch.setenv("CAMCAL_EVENTS_CONNECT", f"tcp://127.0.0.1:{events_port}")
+    monkeypatch.setenv("COLUMNS", "300")
+
+    def link() -> str:
+        res = runner.invoke(app, ["doctor", "--check", "ingest", "--wait", "0.1"])
+        return re.sub(r"\s+", " ", res.output)
+
+    assert "no ship key pair" in link() and "camcal keys create" in link()
+    assert runner.invoke(app, ["keys", "create", "A", "B"]).exit_code == 0
+    assert "CURVE; keys in" in link() and "modules let in: A, B" in link()
+    monkeypatch.setenv("CAMCAL_LINK_PLAINTEXT", "true")
+    assert "PLAINTEXT: no encryption" in link()

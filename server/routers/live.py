@@ -75,6 +75,7 @@ def build_snapshot(store: Store, hub: LiveHub, settings: ServerSettings) -> dict
         "modules": out_modules,
         "attenuation": {str(k): v[-300:] for k, v in attenuation.items()},
         "alarms": alarms,
+        "refused_connections": (hub.live_health(settings.stale_after_s) or {}).get("refused_connections"),
         "last_event_id": hub.last_event_id,
     }
 

@@ -9,6 +9,7 @@ pid, so a failed test never leaves a simulated dive running.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import signal
 import socket
@@ -87,6 +88,7 @@ class System:
     operator: str
     process: subprocess.Popen[bytes]
     log: Path
+    ingest_port: int = 0
 
     def url(self, path: str) -> str:
         return f"{self.base_url}{path}"
@@ -181,13 +183,12 @@ def camcal_up(
         str(test_stop_s),
         "--station-s",
         str(station_s),
-        "--operator-token",
-        f"tester={token}",
         *(extra or []),
     ]
+    env["CAMCAL_OPERATOR_TOKENS"] = json.dumps({"tester": token})  # never on a command line
     with log.open("wb") as fh:
         proc = subprocess.Popen(args, cwd=data.parent, env=env, stdout=fh, stderr=subprocess.STDOUT)
-    system = System(f"http://127.0.0.1:{port}", data, token, "tester", proc, log)
+    system = System(f"http://127.0.0.1:{port}", data, token, "tester", proc, log, ingest_port)
     try:
         deadline = time.monotonic() + ready_timeout_s
         while True:

@@ -170,3 +170,18 @@ def test_doctor_checks_the_module_link(tmp_path: Path, monkeypatch: pytest.Monke
     assert "CURVE; keys in" in link() and "modules let in: A, B" in link()
     monkeypatch.setenv("CAMCAL_LINK_PLAINTEXT", "true")
     assert "PLAINTEXT: no encryption" in link()
+
+
+def test_operator_tokens_come_from_a_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    as_json = tmp_path / "tokens.json"
+    as_json.write_text('{"alice": "secret-token-123"}')
+    monkeypatch.setenv("CAMCAL_OPERATOR_TOKENS_FILE", str(as_json))
+    assert Settings().tokens() == {"alice": "secret-token-123"}
+    as_lines = tmp_path / "tokens"
+    as_lines.write_text("# operators\nalice = secret-token-123\nbob=another-token-456\n")
+    monkeypatch.setenv("CAMCAL_OPERATOR_TOKENS_FILE", str(as_lines))
+    assert Settings().tokens() == {"alice": "secret-token-123", "bob": "another-token-456"}
+    assert "secret-token" not in json.dumps(Settings().masked())
+    as_lines.write_text("alice secret-token-123\n")
+    with pytest.raises(ValueError, match="line 1: expected NAME=TOKEN"):
+        Settings().tokens()

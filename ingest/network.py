@@ -72,9 +72,10 @@ class Incoming:
 def _user_id(frame: zmq.Frame) -> str:
     """The module the connection's key belongs to ("" if the handshake named none)."""
     try:
-        return frame.get("User-Id") or ""
+        value = frame.get("User-Id")
     except zmq.ZMQError:
         return ""
+    return value if isinstance(value, str) else ""
 
 
 def nack(reason: str, detail: str, ref: dict[str, Any] | None = None) -> wire.Nack:

@@ -338,7 +338,6 @@ def camera_module(
 
     logging.basicConfig(level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     sched = load_schedule(schedule)
-    module_keys = link_keys(keys, camera, plaintext)
     exp = parse_floats(exposure_range_s, "--exposure-range-s")
     gain = parse_floats(gain_range_db, "--gain-range-db")
     if len(exp) != 2 or len(gain) != 2:
@@ -373,6 +372,11 @@ def camera_module(
     if problems:
         cam.close()
         raise fail("; ".join(f"schedule {field}: {why}" for field, why in problems))
+    try:  # after the camera: its problems are the ones to fix first
+        module_keys = link_keys(keys, camera, plaintext)
+    except typer.Exit:
+        cam.close()
+        raise
     runner = ScheduleRunner(cam, clock, sched, lem=lem)
     cfg = AgentConfig(
         module=camera,

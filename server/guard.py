@@ -123,7 +123,7 @@ def _json_error(status: int, code: str, message: str, headers: list[tuple[bytes,
 
 
 class Guard:
-    """See the module docstring. ``token_check(scope_headers) -> (status, message) | None``."""
+    """See the module docstring; ``fastapi_app`` is the app whose routes' rules it applies."""
 
     def __init__(self, app: ASGIApp, *, fastapi_app: Any) -> None:
         self.app = app
@@ -202,8 +202,8 @@ class Guard:
             else:
                 self._in_flight.pop(client, None)
 
-    def _limit(self, scope: Scope, settings: Any) -> int:
-        rule = self.rule_for(scope["method"], scope["path"])
+    @staticmethod
+    def _limit(rule: RouteRule | None, settings: Any) -> int:
         if rule is not None and rule.max_body_bytes is not None:
             return int(rule.max_body_bytes)
         return int(settings.max_body_bytes)
@@ -212,7 +212,8 @@ class Guard:
         """An early answer for this request (413, 401, 403, 429), or None to let it in."""
         headers = dict(scope.get("headers") or [])
         length = headers.get(b"content-length")
-        limit = self._limit(scope, settings)
+        rule = self.rule_for(scope["method"], scope["path"])
+        limit = self._limit(rule, settings)
         if length is not None:
             try:
                 n = int(length)
@@ -220,7 +221,6 @@ class Guard:
                 return _json_error(400, "bad_request", "Content-Length is not a number")
             if n > limit:
                 return _json_error(413, "too_large", f"the request body is over the limit of {limit} bytes")
-        rule = self.rule_for(scope["method"], scope["path"])
         if rule is None or not rule.needs_token:
             return None
         from server.deps import TokenRefused, check_token
@@ -234,7 +234,7 @@ class Guard:
 
     def _bounded(self, scope: Scope, receive: Receive, settings: Any) -> Receive:
         """``receive`` that counts the body and stops it at the route's limit."""
-        limit = self._limit(scope, settings)
+        limit = self._limit(self.rule_for(scope["method"], scope["path"]), settings)
         seen = 0
 
         async def bounded() -> Message:

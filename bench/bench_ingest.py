@@ -46,6 +46,7 @@ from camcal import wire
 from camcal.frameset import read_manifest, read_setup
 from camcal.parallel import process_pool
 from camcal.schedule import Schedule
+from camcal.wire.keys import create_module_key, create_ship_key
 from ingest.service import IngestConfig, IngestService
 from ingest.worker import analyse_stored_frame
 from lrm.simset import SimulationSpec, simulate_frame_set
@@ -178,11 +179,23 @@ def analysis_floor(folder: Path, out: Path) -> dict[str, float]:
 
 
 # ------------------------------------------------------------------ the ingest
-def replay(folder: Path, cam: str, endpoint: str, outbox: Path, speed: float) -> subprocess.Popen[bytes]:
+def link_keys(data: Path) -> Path:
+    """The link's CURVE keys (the production setting) for the ship and modules A and B."""
+    folder = data / "keys"
+    create_ship_key(folder)
+    for m in ("A", "B"):
+        create_module_key(folder, m)
+    return folder
+
+
+def replay(
+    folder: Path, cam: str, endpoint: str, outbox: Path, speed: float, keys: Path
+) -> subprocess.Popen[bytes]:
     path = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
     env = {**os.environ, "PYTHONPATH": path}
     cmd = [sys.executable, "-c", "from camcal.cli import main; main()", "lrm", "replay", str(folder)]
     cmd += ["--camera", cam, "--connect", endpoint, "--speed", str(speed), "--outbox", str(outbox)]
+    cmd += ["--keys", str(keys)]  # the production link: CURVE
     return subprocess.Popen([*cmd, "--log-level", "warning"], env=env, stdout=subprocess.DEVNULL)
 
 
@@ -194,12 +207,15 @@ def ingest_run(folder: Path, work: Path, speed: float) -> dict[str, Any]:
         events_bind="tcp://127.0.0.1:*",
         setup=read_setup(folder),
         dive_name="bench",
+        keys_dir=link_keys(work / "data"),
     )
     svc = IngestService(cfg)
     svc.start()
     n_rows = len(read_manifest(folder))
     self0, kids0 = cpu_s(resource.RUSAGE_SELF), cpu_s(resource.RUSAGE_CHILDREN)
-    procs = [replay(folder, cam, svc.endpoint, work / f"outbox-{cam}", speed) for cam in ("A", "B")]
+    keys = cfg.keys_dir
+    assert keys is not None
+    procs = [replay(folder, cam, svc.endpoint, work / f"outbox-{cam}", speed, keys) for cam in ("A", "B")]
     for p in procs:
         if p.wait(1800) != 0:
             raise SystemExit(f"a replay failed with status {p.returncode}")

@@ -194,7 +194,9 @@ def run_modules(
     for i, m in enumerate(modules):
         phase = float(rng.uniform(0, 1.0 / rate_hz)) if rate_hz > 0 else 0.0
         src = PacedSource(m, files["A" if i % 2 == 0 else "B"], rate_hz, phase)
-        cfg = AgentConfig(module=m, connect=endpoint, outbox=Path(outbox) / m, fsync=False, initial_window=8)
+        cfg = AgentConfig(
+            module=m, connect=endpoint, outbox=Path(outbox) / m, fsync=False, initial_window=8, plaintext=True
+        )
         agents.append(Agent(cfg, clock=clock, source=src, sensors=Sensors() if sensors else None))
         sources.append(src)
     for a in agents:
@@ -227,7 +229,7 @@ def start_ingest(
     cmd = [
         sys.executable, "-c", "from camcal.cli import main; main()", "ingest",
         "--data", str(data), "--bind", f"tcp://127.0.0.1:{port}", "--events", f"tcp://127.0.0.1:{events_port}",
-        "--workers", str(workers), "--dive", "bench", "--log-level", "warning",
+        "--workers", str(workers), "--dive", "bench", "--log-level", "warning", "--plaintext",
         "--fsync" if fsync else "--no-fsync",
     ]  # fmt: skip
     if db_url:

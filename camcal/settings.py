@@ -83,13 +83,36 @@ class Settings(BaseSettings):
     data_dir: Path = Field(Path("camcal-data"), description="folder of the database (SQLite) and frame files")
     database_url: str | None = Field(None, description="SQLAlchemy URL; default SQLite in data_dir")
     ingest_bind: str = Field("tcp://*:5555", description="where modules connect (ZeroMQ ROUTER)")
+    keys_dir: Path | None = Field(
+        None, description="the module link's CURVE keys (`camcal keys create`); default <data_dir>/keys"
+    )
+    link_plaintext: bool = Field(
+        False, description="module link without keys or encryption: a lab bench only (doctor warns)"
+    )
     events_bind: str = Field("tcp://127.0.0.1:5556", description="the ingest's event publisher (bind)")
+    dive: str | None = Field(
+        None,
+        min_length=1,
+        max_length=120,
+        description="the dive's name: the ingest records into it; a module refuses an ingest of another",
+    )
     events_connect: str = Field(
         "tcp://127.0.0.1:5556",
         description="where the server subscribes to events (several ingests: comma-separated)",
     )
     http_host: str = Field("127.0.0.1", description="dashboard address (0.0.0.0 for the ship's network)")
     http_port: int = Field(8000, ge=1, le=65535, description="dashboard port")
+    http_tls_cert: Path | None = Field(None, description="TLS certificate (PEM) for the dashboard: HTTPS")
+    http_tls_key: Path | None = Field(None, description="the TLS certificate's private key (PEM)")
+    http_max_body_mb: float = Field(
+        1.0, gt=0, le=1024, description="largest request body the API reads (MiB); larger: 413"
+    )
+    http_max_connections_per_client: int = Field(
+        16, ge=1, le=10000, description="WebSocket connections one client address may hold at once"
+    )
+    operator_tokens_file: Path | None = Field(
+        None, description="a file of operator tokens (JSON name -> token, or NAME=TOKEN lines)"
+    )
     modules: list[ModuleSetting] = Field(
         default_factory=_trex_modules, description="modules and LEM distances"
     )
@@ -160,7 +183,15 @@ class Settings(BaseSettings):
         )
 
     def tokens(self) -> dict[str, str]:
-        return {name: tok.get_secret_value() for name, tok in self.operator_tokens.items()}
+        """The operator tokens: ``operator_tokens`` and those of ``operator_tokens_file``."""
+        out = {name: tok.get_secret_value() for name, tok in self.operator_tokens.items()}
+        if self.operator_tokens_file is not None:
+            out.update(read_tokens_file(self.operator_tokens_file))
+        return out
+
+    def keys_path(self) -> Path:
+        """The module link's keys folder."""
+        return self.keys_dir or self.data_dir / "keys"
 
     def masked(self) -> dict[str, Any]:
         """The effective configuration with secrets (tokens, database passwords) masked."""
@@ -180,6 +211,34 @@ def load_settings(config: Path | None = None, **overrides: Any) -> Settings:
     if config is not None:
         os.environ["CAMCAL_CONFIG"] = str(config)
     return Settings(**{k: v for k, v in overrides.items() if v is not None})
+
+
+def read_tokens_file(path: Path) -> dict[str, str]:
+    """Operator tokens from a file: a JSON object (name -> token) or ``NAME=TOKEN`` lines (``#`` comments)."""
+    import json
+
+    try:
+        text = Path(path).read_text()
+    except OSError as exc:
+        raise ValueError(f"operator_tokens_file {path}: {exc.strerror or exc}") from None
+    if text.lstrip().startswith("{"):
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"operator_tokens_file {path}: not JSON: {exc.msg}") from None
+        if not isinstance(data, dict) or not all(isinstance(v, str) for v in data.values()):
+            raise ValueError(f"operator_tokens_file {path}: expected an object of name -> token")
+        return {str(k): v for k, v in data.items()}
+    out = {}
+    for n, line in enumerate(text.splitlines(), 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        name, sep, token = line.partition("=")
+        if not sep or not name.strip() or not token.strip():
+            raise ValueError(f"operator_tokens_file {path}, line {n}: expected NAME=TOKEN")
+        out[name.strip()] = token.strip()
+    return out
 
 
 def endpoint_list(text: str | None) -> list[str]:

@@ -18,6 +18,7 @@ from pathlib import Path
 from analysis import FrameConfig
 from camcal.frameset import FrameReadError, ManifestRow, Setup, decode_frame, parse_manifest, parse_setup
 from camcal.parallel import process_pool
+from camcal.wire.models import is_id
 from camcal.wire.sensors import check_columns, check_rows
 from ingest.seqtrack import SeqTracker
 from ingest.worker import analyse_stored_frame
@@ -128,6 +129,11 @@ def import_frame_set(
             continue
         boot = row.boot or fallback
         seq = row.seq if row.seq is not None else i + 1
+        if not is_id(row.camera) or not is_id(boot):  # ".." would name a folder above the dive's
+            report.problems.append(
+                (row.file or f"row {i + 1}", f"camera {row.camera!r} or boot {boot!r} is not a valid id")
+            )
+            continue
         if (row.camera, boot) not in stored:
             stored[(row.camera, boot)] = store.known_seqs(row.camera, boot)
         if seq in stored[(row.camera, boot)]:  # arrived over the link, or imported before

@@ -3,7 +3,9 @@
 It decodes and checks every message, answers ``hello`` with ``welcome`` and
 every refused message with a ``nack`` (reason, and whether resending can
 help), keeps track of links and heartbeats, and sends what the store thread
-hands it (acks, nacks, commands) through an inproc socket. Nothing a
+hands it (acks, nacks, commands) through an inproc socket. With CURVE it
+also answers the link's ZAP requests (`ingest.gatekeeper`), and it believes
+a message's ``module`` only when the connection's key belongs to that module. Nothing a
 message holds can stop this thread: a failure while handling one message
 is caught at the message's boundary, counted, logged (rate-limited) and
 answered with ``internal_error``.
@@ -23,9 +25,11 @@ import zmq
 
 from camcal import wire
 from camcal.wire.reasons import REASONS
+from camcal.wire.sockets import route_module
 from ingest.counters import RateLimitedLog
 
 if TYPE_CHECKING:
+    from ingest.gatekeeper import Gatekeeper
     from ingest.service import IngestService
 
 log = logging.getLogger("camcal.ingest")
@@ -65,6 +69,15 @@ class Incoming:
     received_mono: float = 0.0
 
 
+def _user_id(frame: zmq.Frame) -> str:
+    """The module the connection's key belongs to ("" if the handshake named none)."""
+    try:
+        value = frame.get("User-Id")
+    except zmq.ZMQError:
+        return ""
+    return value if isinstance(value, str) else ""
+
+
 def nack(reason: str, detail: str, ref: dict[str, Any] | None = None) -> wire.Nack:
     """The refusal of a message, naming it as far as ``ref`` (type, boot, seq) could be read."""
     ref = ref or {}
@@ -82,8 +95,16 @@ def nack(reason: str, detail: str, ref: dict[str, Any] | None = None) -> wire.Na
 class Network:
     """Runs in the ``ingest-net`` thread; see the module docstring."""
 
-    def __init__(self, svc: IngestService, router: Any, pull: Any, q: queue.Queue[Incoming]) -> None:
+    def __init__(
+        self,
+        svc: IngestService,
+        router: Any,
+        pull: Any,
+        q: queue.Queue[Incoming],
+        gatekeeper: Gatekeeper | None = None,
+    ) -> None:
         self.svc = svc
+        self.gatekeeper = gatekeeper  # None: a plaintext link (lab bench)
         self.config = svc.config
         self.counters = svc.counters
         self.router = router
@@ -97,9 +118,14 @@ class Network:
         poller = zmq.Poller()
         poller.register(self.router, zmq.POLLIN)
         poller.register(self.pull, zmq.POLLIN)
+        gate = self.gatekeeper.sockets if self.gatekeeper else ()
+        for sock in gate:
+            poller.register(sock, zmq.POLLIN)
         started.set()
         while not stop.is_set():
             events = dict(poller.poll(50))
+            if self.gatekeeper and any(sock in events for sock in gate):
+                self._guarded("gatekeeper", self.gatekeeper.handle)
             if self.router in events:
                 for _ in range(256):
                     try:
@@ -129,7 +155,9 @@ class Network:
         identity = parts[0].bytes
         self.counters.inc("messages")
         try:
-            self._handle(identity, parts[1:])
+            # With CURVE, who sent it is the module its key belongs to (the ZAP handler's user id).
+            user = _user_id(parts[0]) if self.gatekeeper else None
+            self._handle(identity, parts[1:], user)
         except Exception as exc:
             self.counters.refuse("internal_error", malformed=False)
             self.warn(logging.ERROR, "internal", "ingest failed on a message: %s", exc, exc_info=True)
@@ -146,7 +174,7 @@ class Network:
         )
         self._send(identity, nack(reason, detail, ref))
 
-    def _handle(self, identity: bytes, frames: list[zmq.Frame]) -> None:
+    def _handle(self, identity: bytes, frames: list[zmq.Frame], user: str | None = None) -> None:
         t_mono, t_unix = time.monotonic(), time.time()
         try:
             msg, payload = wire.decode(
@@ -162,12 +190,21 @@ class Network:
             "boot": getattr(msg, "boot", None),
             "seq": getattr(msg, "seq", None),
         }
-        if identity != module.encode():
+        if user is not None and module != user:
+            self.counters.inc("impostor_messages")
+            self.refuse(
+                identity,
+                "wrong_identity",
+                f"module {module!r} on a connection whose key belongs to module {user!r}",
+                ref,
+            )
+            return
+        if route_module(identity) != module:
             self.refuse(
                 identity,
                 "wrong_identity",
                 f"module {module!r} on a connection whose routing id is {identity[:64]!r}: a module "
-                "sets its socket's routing id to its module id",
+                "sets its socket's routing id to its module id, '/' and random digits",
                 ref,
             )
             return
@@ -183,10 +220,21 @@ class Network:
                 ref,
             )
             return
+        dive = self.svc.dive.name
+        if msg.dive is not None and msg.dive != dive:
+            self.refuse(
+                identity,
+                "wrong_dive",
+                f"this ingest ({self.svc.instance}) records dive {dive!r}; module {module} was started "
+                f"for dive {msg.dive!r}: nothing of it is stored here",
+                ref,
+            )
+            return
         with self.links_lock:
             link = self.links.get(module)
             if link is None:
                 link = self.links[module] = Link(module, identity, boot=getattr(msg, "boot", ""))
+            link.identity = identity  # the route of the module's newest connection
             was_up = link.up
             link.up, link.down_reason = True, ""
             link.last_seen_mono, link.last_seen_unix_s = t_mono, t_unix
@@ -227,7 +275,13 @@ class Network:
         link.welcomed = True
         self._send(
             link.identity,
-            wire.Welcome(module="ship", window=self.svc.window, heartbeat_s=self.config.heartbeat_s),
+            wire.Welcome(
+                module="ship",
+                window=self.svc.window,
+                heartbeat_s=self.config.heartbeat_s,
+                ingest=self.svc.instance,
+                dive=self.svc.dive.name,
+            ),
         )
 
     # -- sending ---------------------------------------------------------

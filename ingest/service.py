@@ -34,6 +34,7 @@ import dataclasses
 import logging
 import os
 import queue
+import secrets
 import socket
 import threading
 import time
@@ -57,6 +58,7 @@ from ingest.alarms import AlarmLimits
 from ingest.commit import frame_meta_from_row
 from ingest.counters import Counters
 from ingest.events import EventBus
+from ingest.gatekeeper import Gatekeeper
 from ingest.network import Incoming, Link, Network
 from ingest.storeloop import run_store_loop
 from ingest.worker import analyse_stored_frame, warm_up
@@ -91,6 +93,8 @@ class IngestConfig:
     thumbnails: bool = True
     alarm_limits: AlarmLimits = field(default_factory=AlarmLimits)
     modules: tuple[str, ...] = ()  # the modules this process serves; empty: any module
+    keys_dir: Path | None = None  # the link's CURVE keys (`camcal.wire.keys`)
+    plaintext: bool = False  # no keys, no encryption: a lab bench only, and only when asked for
 
     @property
     def n_workers(self) -> int:
@@ -111,6 +115,12 @@ class IngestService:
             config.data_dir, config.db_url, sqlite_synchronous=config.sqlite_synchronous
         )
         self.ctx = ctx or zmq.Context.instance()
+        # The module link gets a context of its own: its ZAP handler is per context (a second
+        # ingest or any other socket of this process must not share it).
+        self.link_ctx: zmq.Context[Any] | None = None
+        self.gatekeeper: Gatekeeper | None = None
+        #: Which ingest this is: a new id at every start, told to each module in ``welcome``.
+        self.instance = secrets.token_hex(8)
         self._stop = threading.Event()
         self._q: queue.Queue[Incoming] = queue.Queue()
         self.out_endpoint = f"inproc://ingest-out-{uuid.uuid4().hex}"
@@ -142,13 +152,27 @@ class IngestService:
                     f"no calibration {self.config.calibration!r} in the store (see `camcal calibration list`)"
                 )
             self.config = dataclasses.replace(self.config, setup=setup_of(calibration))
+        ship_keys = self._link_keys()
         self.store.files.remove_temporaries(self.config.modules)
-        router = wire.ship_socket(
-            self.ctx,
-            self.config.bind,
-            max_message_bytes=self.config.max_payload_bytes + wire.MAX_HEADER_BYTES,
-        )
+        self.link_ctx = zmq.Context()
+        try:
+            if ship_keys is not None:  # the ZAP handler first: no handshake may pass unasked
+                assert self.config.keys_dir is not None
+                self.gatekeeper = Gatekeeper(self.link_ctx, self.config.keys_dir, self.counters)
+            router = wire.ship_socket(
+                self.link_ctx,
+                self.config.bind,
+                max_message_bytes=self.config.max_payload_bytes + wire.MAX_HEADER_BYTES,
+                keys=ship_keys,
+            )
+        except zmq.ZMQError:
+            if self.gatekeeper is not None:
+                self.gatekeeper.close()
+            self.link_ctx.term()
+            raise
         self.endpoint = router.getsockopt(zmq.LAST_ENDPOINT).decode()
+        if self.gatekeeper is not None:
+            self.gatekeeper.watch(router)
         pull = self.ctx.socket(zmq.PULL)
         pull.bind(self.out_endpoint)
         self._sockets = [router, pull]
@@ -177,7 +201,7 @@ class IngestService:
         # In a thread: each start waits for the fork server's imports, and the ingest is ready
         # (bound, storing) without them.
         threading.Thread(target=self._warm_pool, name="ingest-pool-start", daemon=True).start()
-        self.network = Network(self, router, pull, self._q)
+        self.network = Network(self, router, pull, self._q, self.gatekeeper)
         threads: list[tuple[str, Callable[[], None]]] = [
             ("ingest-net", lambda: self.network.run(self._stop, self.started)),  # type: ignore[union-attr]
             ("ingest-store", lambda: run_store_loop(self, self._q, self._stop)),
@@ -201,6 +225,22 @@ class IngestService:
         except RuntimeError:  # stopped before the pool was up
             pass
 
+    def _link_keys(self) -> wire.KeyPair | None:
+        """The ship's key pair, or None for a plaintext link, which must be asked for explicitly."""
+        if self.config.plaintext:
+            log.warning(
+                "the module link is PLAINTEXT: anyone who reaches %s can claim any module id and read "
+                "every frame; use it on a lab bench only (create keys with `camcal keys create`)",
+                self.config.bind,
+            )
+            return None
+        if self.config.keys_dir is None:
+            raise ValueError(
+                "the module link needs keys: create them with `camcal keys create A B` (or, on a lab "
+                "bench only, allow a plaintext link with CAMCAL_LINK_PLAINTEXT=true)"
+            )
+        return wire.ship_pair(self.config.keys_dir)
+
     def _guard(self, fn: Callable[[], None]) -> Callable[[], None]:
         def run() -> None:
             try:
@@ -219,8 +259,13 @@ class IngestService:
             t.join(timeout)
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
+        if self.gatekeeper is not None:
+            self._sockets[0].disable_monitor()
+            self.gatekeeper.close()
         for sock in getattr(self, "_sockets", []):
             sock.close(0)
+        if self.link_ctx is not None:
+            self.link_ctx.term()
         self.store.close()
 
     def wait(self) -> None:
@@ -320,6 +365,9 @@ class IngestService:
         counts = self.counters.snapshot()
         return {
             "ingest_id": self.ingest_id,
+            "instance": self.instance,
+            "link_security": "plaintext" if self.gatekeeper is None else "curve",
+            "refused_connections": self.gatekeeper.refused.summary() if self.gatekeeper else None,
             "modules": modules,
             "queues": {
                 "store": self._q.qsize(),

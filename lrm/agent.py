@@ -6,7 +6,10 @@ second), and **comm**, which alone owns the ZeroMQ DEALER socket. Every
 frame and sensor packet goes to the outbox (SD card) first and is sent
 afterwards; it stays pending until the ship acknowledges it, and everything
 pending is sent again after a reconnect or when its acknowledgement is late.
-Commands from the ship are answered and applied exactly once.
+Commands from the ship are answered and applied exactly once. Before it
+sends anything but ``hello``, the comm thread checks that the peer is the
+right ship (`lrm.shipcheck`): one that speaks the protocol, over CURVE with
+the ship's key, and records the dive the module was started for.
 """
 
 from __future__ import annotations
@@ -29,8 +32,10 @@ from pydantic import ValidationError
 from camcal import __version__, wire
 from camcal.frameset import encode_png
 from camcal.schedule import CameraLimits, Schedule
+from lrm.commands import CommandHandling
 from lrm.outbox import Outbox
 from lrm.runner import Capture, ScheduleRunner
+from lrm.shipcheck import ShipCheck
 
 log = logging.getLogger("camcal.lrm")
 
@@ -58,9 +63,15 @@ class AgentConfig:
     sensor_batch_s: float = 1.0
     initial_window: int = 2
     fsync: bool = True
+    #: The dive this module is started for: it refuses an ingest of another dive (None: any).
+    dive: str | None = None
+    #: The link's CURVE keys (`camcal.wire.keys`); without them the link is plaintext, which must
+    #: be asked for (``plaintext``): a lab bench only.
+    keys: wire.ModuleKeys | None = None
+    plaintext: bool = False
 
 
-class Agent:
+class Agent(CommandHandling):
     """One module's agent. `start` runs it in background threads; `stop` ends it cleanly."""
 
     def __init__(
@@ -77,7 +88,13 @@ class Agent:
     ) -> None:
         if (runner is None) == (source is None):
             raise ValueError("give the agent either a schedule runner or a replay source")
+        if config.keys is None and not config.plaintext:
+            raise ValueError(
+                "the module link needs keys (camcal keys create, then --keys) or, on a lab bench "
+                "only, plaintext=True"
+            )
         self.config = config
+        self.check = ShipCheck(config.module, config.connect, config.dive, config.keys)
         self.clock = clock
         self.runner = runner
         self._source = source or (lambda stop: runner.next_capture(stop))  # type: ignore[union-attr]
@@ -113,20 +130,6 @@ class Agent:
             self._restore_pending(runner)
             runner.on_change = self._schedule_changed
             self._schedule_changed(runner.schedule, runner.state)
-
-    def _restore_pending(self, runner: ScheduleRunner) -> None:
-        """Re-arm a schedule change that was waiting for the end of a setting when the module stopped."""
-        waiting = []
-        for rec in self._commands.values():
-            if rec.get("state") != "in_progress" or not rec.get("schedule"):
-                continue
-            try:
-                waiting.append(Schedule.model_validate(rec["schedule"]))
-            except ValidationError:
-                continue
-        for sched in sorted(waiting, key=lambda s: s.version):
-            if sched.version > runner.schedule.version:
-                runner.set_schedule(sched, "end_of_setting")
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -165,6 +168,11 @@ class Agent:
     @property
     def stopped(self) -> bool:
         return self._stop.is_set()
+
+    @property
+    def refusal(self) -> Any:
+        """Why the module refuses the peer it is connected to (`lrm.shipcheck.Refusal`), or None."""
+        return self.check.refusal
 
     def capture_done(self) -> bool:
         """True when the capture thread has finished (a replay reached its end)."""
@@ -252,7 +260,8 @@ class Agent:
     # ------------------------------------------------------------ comm
     def _comm_loop(self) -> None:
         cfg = self.config
-        sock = wire.module_socket(self.ctx, cfg.connect, cfg.module)
+        check = self.check
+        sock = check.open(self.ctx)
         send_q: deque[tuple[str, int]] = deque((e.boot, e.seq) for e in self.outbox.pending())
         queued = set(send_q)
         in_flight: dict[tuple[str, int], float] = {}
@@ -263,6 +272,7 @@ class Agent:
         last_ship = last_hello = last_beat = 0.0
         poller = zmq.Poller()
         poller.register(sock, zmq.POLLIN)
+        dive = {"dive": cfg.dive} if cfg.dive else {}
 
         def requeue(keys: list[tuple[str, int]]) -> None:
             for k in sorted(keys, reverse=True):
@@ -283,6 +293,12 @@ class Agent:
                         send_q.append(k)
                         queued.add(k)
                 now = time.monotonic()
+                check.watch()
+                if check.renew_due():  # a failed handshake libzmq may not retry: a new socket
+                    poller.unregister(sock)
+                    check.close(sock)
+                    sock = check.open(self.ctx)
+                    poller.register(sock, zmq.POLLIN)
                 if dict(poller.poll(20)).get(sock):
                     for _ in range(256):
                         try:
@@ -293,9 +309,15 @@ class Agent:
                             msg, _ = wire.decode(parts, allowed=wire.SHIP_TYPES)
                         except wire.ProtocolError as exc:
                             self.counters[f"bad_{exc.kind}"] += 1
+                            check.foreign_message(welcomed)
                             continue
                         last_ship = time.monotonic()
                         if msg.type == "welcome":
+                            if not check.accept_welcome(msg):
+                                welcomed = False
+                                self.linked.clear()
+                                requeue(list(in_flight))
+                                continue
                             window = msg.window
                             if in_flight:
                                 requeue(list(in_flight))
@@ -310,7 +332,10 @@ class Agent:
                                         self.counters["acked"] += 1
                         elif msg.type == "nack":
                             self._on_nack(msg, in_flight, retry_at, tries)
-                            if msg.reason == "not_served":  # the wrong ingest: say hello until the right one
+                            if msg.reason == "wrong_dive":
+                                check.wrong_dive(msg)
+                            if msg.reason in ("not_served", "wrong_dive"):
+                                # The wrong ingest: keep everything, say hello until the right one.
                                 welcomed = False
                                 self.linked.clear()
                                 requeue(list(in_flight))
@@ -335,6 +360,7 @@ class Agent:
                             schedule=self._schedule_state(),
                             outbox_pending=self.outbox.pending_count(),
                             last_seq=self._seq,
+                            **dive,
                         ),
                     )
                 if now - last_beat >= cfg.heartbeat_s:
@@ -348,6 +374,7 @@ class Agent:
                             outbox_pending=self.outbox.pending_count(),
                             in_flight=len(in_flight),
                             last_seq=self._seq,
+                            **dive,
                         ),
                     )
                 late = [k for k, t in in_flight.items() if now - t > cfg.ack_timeout_s]
@@ -372,6 +399,8 @@ class Agent:
                         continue
                     try:
                         header, payload = self.outbox.message(entry, cfg.module)
+                        if dive:  # the ship refuses a message of another dive than its own
+                            header = header.model_copy(update=dive)
                     except (OSError, ValueError) as exc:  # the SD card lost or damaged it
                         log.error("outbox entry %s/%d cannot be sent, skipped: %s", key[0], key[1], exc)
                         self.outbox.discard(*key)
@@ -386,10 +415,10 @@ class Agent:
                     in_flight[key] = time.monotonic()
                     self.counters["sent"] += 1
             if welcomed:
-                self._send(sock, wire.Bye(module=cfg.module, boot=self.boot))
+                self._send(sock, wire.Bye(module=cfg.module, boot=self.boot, **dive))
                 time.sleep(0.05)
         finally:
-            sock.close(0)
+            check.close(sock)
 
     def _on_nack(
         self,
@@ -406,6 +435,10 @@ class Agent:
         """
         self.counters["nacked"] += 1
         self.counters[f"nacked_{msg.reason}"] += 1
+        if msg.reason == "wrong_dive":  # nothing to settle: the message waits for the right ingest
+            if msg.boot is not None and msg.seq is not None:
+                in_flight.pop((msg.boot, msg.seq), None)
+            return
         if msg.boot is None or msg.seq is None:  # not one of our data messages (a hello, a heartbeat...)
             log.warning("ship refused a %s: %s: %s", msg.of or "message", msg.reason, msg.detail)
             return
@@ -425,122 +458,3 @@ class Agent:
             sock.send_multipart(wire.encode(msg), zmq.NOBLOCK)
         except zmq.Again:
             self.counters["control_dropped"] += 1
-
-    # ------------------------------------------------------------ schedule and commands
-    def _schedule_state(self) -> wire.ScheduleState:
-        if self.runner is None:
-            return wire.ScheduleState(name="replay", version=0, state="running")
-        return wire.ScheduleState(**self.runner.status())
-
-    def _schedule_changed(self, schedule: Schedule, state: str) -> None:
-        self.outbox.save_json("schedule.json", {"schedule": schedule.model_dump(mode="json"), "state": state})
-        for cid, rec in list(self._commands.items()):
-            if rec.get("state") == "in_progress" and rec.get("target_version") == schedule.version:
-                self._status(cid, "done", target_version=schedule.version)
-
-    def _status(self, command_id: str, state: str, reason: str | None = None, **extra: Any) -> None:
-        rec = {
-            **self._commands.get(command_id, {}),
-            "command_id": command_id,
-            "state": state,
-            "reason": reason,
-            **extra,
-        }
-        self._commands[command_id] = rec
-        self.outbox.append_jsonl("commands.jsonl", rec)
-        self._status_out.put(
-            wire.CommandStatus(
-                module=self.config.module,
-                boot=self.boot,
-                command_id=command_id,
-                state=state,
-                reason=reason,
-                schedule=self._schedule_state(),
-            )
-        )
-
-    def _on_command(self, cmd: wire.Command) -> None:
-        """Validate and apply a command once; a repeated command only gets its status again."""
-        self.counters["commands"] += 1
-        known = self._commands.get(cmd.command_id)
-        if known is not None:
-            self.counters["commands_repeated"] += 1
-            self._status_out.put(
-                wire.CommandStatus(
-                    module=self.config.module,
-                    boot=self.boot,
-                    command_id=cmd.command_id,
-                    state=known["state"],
-                    reason=known.get("reason"),
-                    schedule=self._schedule_state(),
-                )
-            )
-            return
-        runner = self.runner
-        if runner is None:
-            self._status(cmd.command_id, "rejected", "this module replays a recorded frame set")
-            return
-        current = runner.schedule.version
-        if cmd.action == "set_schedule":
-            try:
-                sched = Schedule.model_validate(cmd.schedule or {})
-            except ValidationError as exc:
-                e = exc.errors()[0]
-                self._status(
-                    cmd.command_id, "rejected", f"schedule.{'.'.join(str(p) for p in e['loc'])}: {e['msg']}"
-                )
-                return
-            problem = self._check_limits(sched)
-            if problem:
-                self._status(cmd.command_id, "rejected", problem)
-                return
-            if sched.version != cmd.target_version:
-                self._status(
-                    cmd.command_id,
-                    "rejected",
-                    f"target_version {cmd.target_version} differs from the schedule's "
-                    f"version {sched.version}",
-                )
-                return
-            if sched.version <= current:
-                self._status(
-                    cmd.command_id,
-                    "rejected",
-                    f"version {sched.version} is not newer than the running version {current}",
-                )
-                return
-            self._commands[cmd.command_id] = {"command_id": cmd.command_id, "target_version": sched.version}
-            self._status(cmd.command_id, "accepted", target_version=sched.version)
-            if cmd.apply == "end_of_setting":
-                # The schedule is kept with the status, so that a reboot before the switch re-arms it.
-                self._status(
-                    cmd.command_id,
-                    "in_progress",
-                    target_version=sched.version,
-                    schedule=sched.model_dump(mode="json"),
-                )
-                runner.set_schedule(sched, "end_of_setting")
-            else:
-                self._commands[cmd.command_id]["state"] = "in_progress"
-                runner.set_schedule(sched, "now")
-                if self._commands[cmd.command_id].get("state") != "done":
-                    self._status(cmd.command_id, "done", target_version=sched.version)
-            return
-        if cmd.target_version and cmd.target_version != current:
-            self._status(
-                cmd.command_id,
-                "rejected",
-                f"{cmd.action} targets schedule version {cmd.target_version}, the module runs {current}",
-            )
-            return
-        self._status(cmd.command_id, "accepted")
-        {"start": runner.start, "pause": runner.pause, "resume": runner.resume, "stop": runner.stop}[
-            cmd.action
-        ]()
-        self._status(cmd.command_id, "done")
-
-    def _check_limits(self, sched: Schedule) -> str | None:
-        if self.camera_limits is None:
-            return None
-        problems = self.camera_limits.problems(sched)
-        return problems[0][1] if problems else None

@@ -12,7 +12,9 @@ from fastapi.staticfiles import StaticFiles
 
 from camcal import __version__
 from frontend import STATIC_DIR
-from server import errors
+from server import errors, openapi
+from server.guard import Guard, TokenThrottle
+from server.jobs import ExportSlots, ReanalysisQueue
 from server.relay import LiveHub
 from server.routers import (
     alarms,
@@ -47,11 +49,13 @@ def create_app(settings: ServerSettings | None = None, *, store: Store | None = 
             st, settings.events, client_queue=settings.client_queue, station_depth_m=settings.station_depth_m
         )
         app.state.store, app.state.hub = st, hub
+        app.state.reanalyses = ReanalysisQueue(st, settings.max_reanalyses_queued)
         hub.start(asyncio.get_running_loop())
         try:
             yield
         finally:
             hub.stop()
+            app.state.reanalyses.stop()
             if own:
                 st.close()
 
@@ -60,10 +64,16 @@ def create_app(settings: ServerSettings | None = None, *, store: Store | None = 
         version=__version__,
         description="Camera-based optical calibration: live deck view, dive review and control.",
         lifespan=lifespan,
+        docs_url=None,  # served by `server.routers.pages` from installed files, never from a CDN
+        redoc_url=None,
     )
     app.state.settings = settings
+    app.state.throttle = TokenThrottle(settings.token_failures, settings.token_window_s)
+    app.state.exports = ExportSlots(settings.exports_at_once)
     errors.install(app)
+    openapi.install(app)
     app.add_middleware(GZipMiddleware, minimum_size=2048)
+    app.add_middleware(Guard, fastapi_app=app)  # outermost: every response gets its headers
     for r in (
         health.router,
         dives.router,

@@ -45,6 +45,7 @@ class Client:
     dropped: Counter[str] = field(default_factory=Counter)
     resync: bool = False
     batch: bool = False
+    address: str = ""
 
     def next_seq(self) -> int:
         self.seq += 1
@@ -211,10 +212,14 @@ class LiveHub:
             return
         q.put_nowait(message)
 
-    def register(self) -> Client:
-        client = Client(asyncio.Queue(self.client_queue))
+    def register(self, address: str = "") -> Client:
+        client = Client(asyncio.Queue(self.client_queue), address=address)
         self.clients.add(client)
         return client
+
+    def connections_of(self, address: str) -> int:
+        """Live connections of one client address."""
+        return sum(1 for c in self.clients if c.address == address)
 
     def unregister(self, client: Client) -> None:
         self.clients.discard(client)
@@ -268,6 +273,20 @@ def merge_health(payloads: list[dict[str, Any]]) -> dict[str, Any]:
                     total[k] = total.get(k, 0) + v
         out[key] = total
     out["served_modules"] = [m for p in payloads for m in p.get("served_modules") or []]
+    refused = [p["refused_connections"] for p in payloads if p.get("refused_connections")]
+    out["refused_connections"] = (
+        {
+            "total": sum(r.get("total", 0) for r in refused),
+            "last_minute": sum(r.get("last_minute", 0) for r in refused),
+            "sources": sorted(
+                (s for r in refused for s in r.get("sources", [])), key=lambda s: -s.get("last_unix_s", 0)
+            )[:16],
+        }
+        if refused
+        else None
+    )
+    security = {p.get("link_security") for p in payloads}
+    out["link_security"] = "plaintext" if "plaintext" in security else next(iter(security), None)
     out["dive"] = payloads[0].get("dive")
     out["window"] = payloads[0].get("window")
     disk = [p["disk_free_gb"] for p in payloads if p.get("disk_free_gb") is not None]

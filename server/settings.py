@@ -17,6 +17,13 @@ class ServerSettings:
     ``operator_tokens`` maps operator names to tokens; without any, nobody
     can change anything (watching needs no token). ``station_depth_m``, the
     dive plan's station depth, tells the live view's station from test stops.
+
+    The bounds (`server.guard`, `server.jobs`, the live WebSocket): request
+    bodies up to ``max_body_bytes`` (a route may allow more), at most
+    ``max_requests_per_client`` requests and ``max_websockets_per_client``
+    live connections of one address at once, ``exports_at_once`` exports
+    and one re-analysis at a time (``max_reanalyses_queued`` waiting),
+    ``token_failures`` wrong tokens of one address within ``token_window_s``.
     """
 
     data_dir: Path = Path("camcal-data")
@@ -32,3 +39,11 @@ class ServerSettings:
     readout_s: float = 0.8
     lem_dwell_s: float | None = 60.0
     station_depth_m: float | None = None
+    max_body_bytes: int = 1 << 20
+    max_requests_per_client: int = 32
+    max_websockets_per_client: int = 16
+    max_ws_message_bytes: int = 4096
+    exports_at_once: int = 1
+    max_reanalyses_queued: int = 4
+    token_failures: int = 10
+    token_window_s: float = 60.0

@@ -8,13 +8,16 @@ workers need no shared file system.
 
 from __future__ import annotations
 
+import errno
 import os
+import stat
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
 from camcal.frameset import fsync_dir, write_atomic
+from camcal.wire.models import is_id
 
 
 class UnsafePath(ValueError):
@@ -35,6 +38,9 @@ class FrameFiles:
         self._pool: ThreadPoolExecutor | None = None
 
     def relative_path(self, dive_id: int, module: str, boot: str, seq: int, encoding: str = "png") -> str:
+        """Where a frame is stored; `UnsafePath` for a module or boot that is not an id (``..``)."""
+        if not is_id(module) or not is_id(boot):
+            raise UnsafePath(f"module {module!r} and boot {boot!r} must be ids (not only dots)")
         ext = "tif" if encoding == "tiff" else "png"
         return f"frames/{dive_id}/{module}/{boot}/{seq:08d}.{ext}"
 
@@ -47,6 +53,43 @@ class FrameFiles:
         if root != path and root not in path.parents:
             raise UnsafePath(f"path leaves the data folder: {relative!r}")
         return path
+
+    def read_regular(self, relative: str, under: str) -> bytes:
+        """The bytes of a stored file in folder ``under`` (``frames``, ``thumbs``), for serving.
+
+        Every component of the path is opened with ``O_NOFOLLOW`` relative to
+        the folder before it: a symbolic link anywhere on the way (a frame
+        file, a module's folder, ``thumbs`` itself) is refused, as is anything
+        but a regular file, and no path can leave ``under``. Raises
+        `FileNotFoundError` for a missing file and `UnsafePath` otherwise.
+        """
+        parts = relative.split("/")
+        if parts[0] != under or len(parts) < 2 or any(not p or p in (".", "..") for p in parts):
+            raise UnsafePath(f"not a path inside {under}/: {relative!r}")
+        flags = os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC
+        fd = os.open(self.root, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+        try:
+            for name in parts[:-1]:
+                try:
+                    nxt = os.open(name, flags | os.O_DIRECTORY, dir_fd=fd)
+                except OSError as exc:
+                    if exc.errno in (errno.ELOOP, errno.ENOTDIR):
+                        raise UnsafePath(f"{relative}: {name} is not a folder (a symbolic link?)") from None
+                    raise
+                os.close(fd)
+                fd = nxt
+            try:
+                file_fd = os.open(parts[-1], flags | os.O_NONBLOCK, dir_fd=fd)  # a FIFO must not block
+            except OSError as exc:
+                if exc.errno == errno.ELOOP:
+                    raise UnsafePath(f"{relative} is a symbolic link") from None
+                raise
+        finally:
+            os.close(fd)
+        with os.fdopen(file_fd, "rb") as fh:
+            if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
+                raise UnsafePath(f"{relative} is not a regular file")
+            return fh.read()
 
     def write(self, relative: str, data: bytes | memoryview, *, fsync: bool = True) -> Path:
         """Write to a temporary name, fsync, rename, fsync the folder."""

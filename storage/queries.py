@@ -181,6 +181,12 @@ def frame_dict(fr: Frame, res: FrameResult | None, *, full: bool = False) -> dic
     return out
 
 
+def frame_file(s: Session, frame_id: int) -> tuple[str, int, int] | None:
+    """The stored path, width and height of a frame, or None if there is no such frame."""
+    row = s.execute(select(Frame.path, Frame.width_px, Frame.height_px).where(Frame.id == frame_id)).first()
+    return (row[0], row[1], row[2]) if row is not None else None
+
+
 def frame_with_result(
     s: Session, frame_id: int, run_id: int | None
 ) -> tuple[Frame, FrameResult | None] | None:

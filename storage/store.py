@@ -762,7 +762,8 @@ class Store:
                 alarm.cleared_unix_s = now_unix_s()
             return alarm
 
-    def ack_alarm(self, alarm_id: int, user: str) -> Alarm | None:
+    def ack_alarm(self, alarm_id: int, user: str, note: str = "") -> Alarm | None:
+        """Acknowledge an alarm once; the audit log keeps who, when, and the operator's ``note``."""
         with self.session() as s:
             alarm = s.get(Alarm, alarm_id)
             if alarm is None:
@@ -775,7 +776,7 @@ class Store:
                         actor=user,
                         action="alarm.ack",
                         target=f"alarm:{alarm_id}",
-                        details={"kind": alarm.kind, "key": alarm.key},
+                        details={"kind": alarm.kind, "key": alarm.key, "note": note},
                     )
                 )
             return alarm

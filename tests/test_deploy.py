@@ -192,3 +192,36 @@ def test_systemd_accepts_the_unit(tmp_path: Path) -> None:
         timeout=60,
     )
     assert proc.returncode == 0 and not proc.stderr.strip(), proc.stderr
+
+
+def test_doctor_checks_the_module_link(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("CAMCAL_DATA_DIR", str(tmp_path))
+    ingest_port, events_port = free_ports(2)
+    monkeypatch.setenv("CAMCAL_INGEST_BIND", f"tcp://*:{ingest_port}")
+    monkeypatch.setenv("CAMCAL_EVENTS_CONNECT", f"tcp://127.0.0.1:{events_port}")
+    monkeypatch.setenv("COLUMNS", "300")
+
+    def link() -> str:
+        res = runner.invoke(app, ["doctor", "--check", "ingest", "--wait", "0.1"])
+        return re.sub(r"\s+", " ", res.output)
+
+    assert "no ship key pair" in link() and "camcal keys create" in link()
+    assert runner.invoke(app, ["keys", "create", "A", "B"]).exit_code == 0
+    assert "CURVE; keys in" in link() and "modules let in: A, B" in link()
+    monkeypatch.setenv("CAMCAL_LINK_PLAINTEXT", "true")
+    assert "PLAINTEXT: no encryption" in link()
+
+
+def test_operator_tokens_come_from_a_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    as_json = tmp_path / "tokens.json"
+    as_json.write_text('{"alice": "secret-token-123"}')
+    monkeypatch.setenv("CAMCAL_OPERATOR_TOKENS_FILE", str(as_json))
+    assert Settings().tokens() == {"alice": "secret-token-123"}
+    as_lines = tmp_path / "tokens"
+    as_lines.write_text("# operators\nalice = secret-token-123\nbob=another-token-456\n")
+    monkeypatch.setenv("CAMCAL_OPERATOR_TOKENS_FILE", str(as_lines))
+    assert Settings().tokens() == {"alice": "secret-token-123", "bob": "another-token-456"}
+    assert "secret-token" not in json.dumps(Settings().masked())
+    as_lines.write_text("alice secret-token-123\n")
+    with pytest.raises(ValueError, match="line 1: expected NAME=TOKEN"):
+        Settings().tokens()

@@ -18,6 +18,7 @@ from camcal.cli import (
     doctor,
     fit,
     ingest,
+    keys,
     lrm,
     reanalyze,
     report,
@@ -44,6 +45,7 @@ transport.register(app)
 report.register(app)
 # The live system.
 ingest.register(app)
+keys.register(app)
 lrm.register(app)
 serve.register(app)
 up.register(app)

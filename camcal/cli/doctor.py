@@ -126,6 +126,45 @@ def check_ingest(s: Settings, wait_s: float) -> tuple[list[tuple[str, str, str]]
     return out, health
 
 
+def check_link(s: Settings, health: dict[str, Any] | None) -> list[tuple[str, str, str]]:
+    """The module link's security: keys, or a plaintext link (a warning), and refused connections."""
+    from camcal.wire.keys import list_keys
+
+    plaintext = s.link_plaintext or (health or {}).get("link_security") == "plaintext"
+    if plaintext:
+        out = [
+            (
+                "module link",
+                WARN,
+                "PLAINTEXT: no encryption, and anyone on the ship's network can claim any module id. "
+                "For a lab bench only: create keys with `camcal keys create A B` and unset "
+                "CAMCAL_LINK_PLAINTEXT",
+            )
+        ]
+    else:
+        keys = list_keys(s.keys_path())
+        ship = [k for k in keys if k.owner == "ship" and k.has_secret]
+        modules = sorted(k.owner for k in keys if k.owner != "ship")
+        if not ship:
+            fix = f"no ship key pair in {s.keys_path()}: run `camcal keys create A B`"
+            out = [("module link", FAIL, fix)]
+        else:
+            which = ", ".join(modules) or "none yet: `camcal keys create ID`"
+            out = [("module link", OK, f"CURVE; keys in {s.keys_path()}; modules let in: {which}")]
+    refused = (health or {}).get("refused_connections") or {}
+    if refused.get("last_minute"):
+        src = (refused.get("sources") or [{}])[0]
+        out.append(
+            (
+                "refused connections",
+                WARN,
+                f"{refused['last_minute']} in the last minute; newest: {src.get('reason')} from "
+                f"{src.get('address') or 'an unknown address'} {src.get('key') or ''}".rstrip(),
+            )
+        )
+    return out
+
+
 def check_modules(s: Settings, health: dict[str, Any] | None) -> list[tuple[str, str, str]]:
     out = []
     live = (health or {}).get("modules", {})
@@ -234,7 +273,7 @@ def doctor(
     health = None
     if wanted & {"ingest", "modules"}:
         ingest_rows, health = check_ingest(s, wait)
-        rows += ingest_rows if "ingest" in wanted else []
+        rows += ingest_rows + check_link(s, health) if "ingest" in wanted else []
     if "modules" in wanted:
         rows += check_modules(s, health)
     if "dashboard" in wanted:

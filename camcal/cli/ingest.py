@@ -96,7 +96,8 @@ def ingest(
         Path | None, typer.Option(help="setup.json with distances, I0'/I0, linear range.")
     ] = None,
     dive: Annotated[
-        str | None, typer.Option(help="Name of the dive to record into (default: the open one).")
+        str | None,
+        typer.Option(help="Name of the dive to record into [CAMCAL_DIVE; default: the open one]."),
     ] = None,
     modules: Annotated[
         str | None,
@@ -112,10 +113,21 @@ def ingest(
     fsync: Annotated[
         bool | None, typer.Option(help="fsync frame files before acknowledging [CAMCAL_FSYNC].")
     ] = None,
+    keys: Annotated[
+        Path | None,
+        typer.Option(help="The link's CURVE keys, `camcal keys create` [CAMCAL_KEYS_DIR; <data>/keys]."),
+    ] = None,
+    plaintext: Annotated[
+        bool | None,
+        typer.Option(help="No keys, no encryption: a lab bench only [CAMCAL_LINK_PLAINTEXT]."),
+    ] = None,
     config: Annotated[Path | None, typer.Option(help="A TOML configuration file [CAMCAL_CONFIG].")] = None,
     log_level: Annotated[str | None, typer.Option(help="debug, info, warning [CAMCAL_LOG_LEVEL].")] = None,
 ) -> None:
-    """Receive frames and sensor packets from the modules, store, analyse and publish them."""
+    """Receive frames and sensor packets from the modules, store, analyse and publish them.
+
+    Modules connect over ZeroMQ CURVE: each with its own key, which the ingest lets in as
+    that module only (`camcal keys create A B` makes the keys)."""
     from ingest.service import IngestConfig
 
     served = parse_modules(modules)
@@ -129,6 +141,8 @@ def ingest(
         window=window,
         fsync=fsync,
         log_level=log_level,
+        keys_dir=keys,
+        link_plaintext=plaintext,
     )
     configure_logging(s.log_level, s.log_format)
     cfg = IngestConfig(
@@ -137,7 +151,7 @@ def ingest(
         events_bind=s.events_bind,
         db_url=s.database_url,
         setup=load_setup(setup, s),
-        dive_name=dive,
+        dive_name=dive or s.dive,
         workers=s.workers,
         window=s.window,
         max_payload_bytes=int(s.max_payload_mb * 1024 * 1024),
@@ -146,6 +160,8 @@ def ingest(
         alarm_limits=alarm_limits(s),
         retention_days=s.retention_days,
         modules=served,
+        keys_dir=s.keys_path(),
+        plaintext=s.link_plaintext,
     )
     done = threading.Event()  # SIGTERM or Ctrl-C, even while starting: stop in order, exit 0
 
@@ -157,7 +173,9 @@ def ingest(
     svc = start_service(cfg)
     console.print(
         f"ingest: modules connect to {svc.endpoint}; events on {svc.events_endpoint}; "
-        f"dive {svc.dive.name}; data in {s.data_dir}" + (f"; serving {', '.join(served)}" if served else "")
+        f"dive {svc.dive.name}; data in {s.data_dir}"
+        + (f"; serving {', '.join(served)}" if served else "")
+        + ("; PLAINTEXT link (lab bench only)" if s.link_plaintext else f"; keys in {s.keys_path()}")
     )
     supervise.notify_ready(
         f"dive {svc.dive.name}, modules connect to {svc.endpoint}",

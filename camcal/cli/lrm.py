@@ -25,6 +25,50 @@ app = typer.Typer(
 
 
 ConnectOption = Annotated[str, typer.Option(help="The ship's ingest: tcp://HOST:PORT.")]
+KeysOption = Annotated[
+    Path,
+    typer.Option(
+        envvar="CAMCAL_KEYS_DIR",
+        help="Keys folder: ship.key and modules/<camera>.key_secret (`camcal keys create` on the ship).",
+    ),
+]
+PlaintextOption = Annotated[
+    bool,
+    typer.Option(
+        envvar="CAMCAL_LINK_PLAINTEXT",
+        help="No keys, no encryption: only for a lab bench whose ingest allows it too.",
+    ),
+]
+DiveOption = Annotated[
+    str | None,
+    typer.Option(
+        envvar="CAMCAL_DIVE",
+        help="The dive this module is started for: it refuses an ingest that records another.",
+    ),
+]
+#: Exit status of a module that refused the ship it was pointed at (another dive, not a camcal ship).
+REFUSED_EXIT = 3
+#: How long a handshake may keep failing before a simulated or replaying module gives up.
+REFUSAL_GRACE_S = 10.0
+
+
+def link_keys(keys: Path, camera: str, plaintext: bool) -> Any:
+    """The module's CURVE keys from ``keys``, or None for an explicitly plaintext link."""
+    from camcal import wire
+
+    if plaintext:
+        console.print("[yellow]warning:[/] plaintext link: no encryption, no authentication (lab bench only)")
+        return None
+    try:
+        return wire.module_keys(keys, camera)
+    except wire.KeyFileError as exc:
+        raise fail(str(exc)) from None
+
+
+def refused(agent: Any) -> bool:
+    """A simulated or replaying module stops when it refuses the ship for good (or for a while)."""
+    r = agent.refusal
+    return r is not None and (r.definitive or time.monotonic() - r.since_mono >= REFUSAL_GRACE_S)
 
 
 def register(parent: typer.Typer) -> None:
@@ -47,17 +91,21 @@ def load_schedule(name: str) -> Schedule:
     raise fail(f"--schedule: {name!r} is neither a preset ({', '.join(table)}) nor a schedule file")
 
 
-def _run_module(agent: Any, finished: Callable[[], bool]) -> None:
+def _run_module(agent: Any, finished: Callable[[], bool], *, stop_on_refusal: bool = True) -> None:
     """Run a started module agent until SIGTERM/SIGINT or ``finished()``; stop it and say what is left.
 
-    Exit status 0 when stopped or finished, 1 when the agent stopped after a failure.
+    Exit status 0 when stopped or finished, 1 when the agent stopped after a failure; with
+    ``stop_on_refusal`` it also stops when the agent refuses the ship, and exits with
+    `REFUSED_EXIT` and the reason.
     """
-    failed = _run_until_signal(agent, finished)
+    failed = _run_until_signal(agent, lambda: finished() or (stop_on_refusal and refused(agent)))
     agent.stop()
     console.print(
         f"module {agent.config.module}: stopped; {agent.counters['frames_captured']} frames captured, "
         f"{agent.outbox.pending_count()} not yet acknowledged (kept in {agent.config.outbox})"
     )
+    if stop_on_refusal and refused(agent):
+        raise fail(f"module {agent.config.module}: {agent.refusal.message}", code=REFUSED_EXIT)
     if failed:
         raise fail(f"module {agent.config.module} stopped after a failure (see the log above)", code=1)
 
@@ -137,9 +185,15 @@ def simulate(
     exit_when_recovered: Annotated[
         bool, typer.Option(help="Exit once the dive is over and all is sent.")
     ] = True,
+    dive: DiveOption = None,
+    keys: KeysOption = Path("camcal-data/keys"),
+    plaintext: PlaintextOption = False,
     log_level: Annotated[str, typer.Option(help="debug, info, warning.")] = "info",
 ) -> None:
-    """Run a simulated module through a whole T-REX dive and stream it to the ship."""
+    """Run a simulated module through a whole T-REX dive and stream it to the ship.
+
+    Exits with status 3 if the ship at --connect is not the right one (another dive, or
+    not a camcal ingest)."""
     from lrm.agent import Agent, AgentConfig
     from lrm.camera import SimulatedCamera, SimulatedSensors
     from lrm.clock import SimClock
@@ -148,6 +202,7 @@ def simulate(
 
     logging.basicConfig(level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     sched = load_schedule(schedule)
+    module_keys = link_keys(keys, camera, plaintext)
     try:
         profile = DiveProfile(
             deck_s=deck_s,
@@ -200,6 +255,9 @@ def simulate(
         outbox=outbox or Path(f"lrm-{camera}-outbox"),
         sensor_rate_hz=sensor_rate_hz,
         fsync=fsync,
+        dive=dive,
+        keys=module_keys,
+        plaintext=plaintext,
     )
     agent = Agent(
         cfg,
@@ -235,9 +293,14 @@ def replay(
     speed: Annotated[
         float, typer.Option(help="1 = recorded pace, 10 = ten times faster, 0 = as fast as possible.")
     ] = 1.0,
+    dive: DiveOption = None,
+    keys: KeysOption = Path("camcal-data/keys"),
+    plaintext: PlaintextOption = False,
     log_level: Annotated[str, typer.Option(help="debug, info, warning.")] = "info",
 ) -> None:
-    """Stream a recorded frame set over the module protocol, then exit when the ship has it all."""
+    """Stream a recorded frame set over the module protocol, then exit when the ship has it all.
+
+    Exits with status 3 if the ship at --connect is not the right one."""
     from lrm.agent import Agent, AgentConfig
     from lrm.clock import SystemClock
     from lrm.replay import ReplaySource
@@ -245,6 +308,7 @@ def replay(
     logging.basicConfig(level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     if speed < 0:
         raise fail("--speed must be >= 0")
+    module_keys = link_keys(keys, camera, plaintext)
     clock = SystemClock()
     try:
         source = ReplaySource(folder, camera, clock, speed)
@@ -252,12 +316,24 @@ def replay(
         raise fail(str(exc)) from None
     if not len(source):
         raise fail(f"{folder}: no usable frame of camera {camera!r} in the manifest")
-    cfg = AgentConfig(module=camera, connect=connect, outbox=outbox or Path(f"lrm-{camera}-replay"))
+    cfg = AgentConfig(
+        module=camera,
+        connect=connect,
+        outbox=outbox or Path(f"lrm-{camera}-replay"),
+        dive=dive,
+        keys=module_keys,
+        plaintext=plaintext,
+    )
     agent = Agent(cfg, clock=clock, source=source)
     agent.start()
     console.print(f"replaying {len(source)} frames of camera {camera} from {folder} to {connect}")
-    failed = _run_until_signal(agent, lambda: agent.capture_done() and agent.outbox.pending_count() == 0)
+    failed = _run_until_signal(
+        agent,
+        lambda: (agent.capture_done() and agent.outbox.pending_count() == 0) or refused(agent),
+    )
     agent.stop()
+    if refused(agent):
+        raise fail(f"module {camera}: {agent.refusal.message}", code=REFUSED_EXIT)
     for name, why in source.skipped:
         console.print(f"[yellow]skipped[/] {name}: {why}")
     console.print(
@@ -295,6 +371,9 @@ def camera_module(
         float, typer.Option(help="Driver gain units per dB (10 for a driver in 0.1 dB steps).")
     ] = 1.0,
     gain_offset: Annotated[float, typer.Option(help="Driver gain value at 0 dB.")] = 0.0,
+    dive: DiveOption = None,
+    keys: KeysOption = Path("keys"),
+    plaintext: PlaintextOption = False,
     log_level: Annotated[str, typer.Option(help="debug, info, warning.")] = "info",
 ) -> None:
     """Run a real module: a V4L2 camera under the schedule, streaming to the ship.
@@ -302,7 +381,9 @@ def camera_module(
     The camera is driven through OpenCV's V4L2 backend with manual exposure
     and gain (check the driver's controls with ``v4l2-ctl --list-ctrls``).
     The housing sensors are not read here: their drivers depend on the
-    module's hardware (see lrm.camera.SensorBackend).
+    module's hardware (see lrm.camera.SensorBackend). A real module never
+    exits because the ship is the wrong one: it keeps capturing to the SD
+    card, says why in its log, and keeps looking for the right ship.
     """
     from camcal.cli.common import parse_floats
     from lrm.agent import Agent, AgentConfig
@@ -347,12 +428,24 @@ def camera_module(
     if problems:
         cam.close()
         raise fail("; ".join(f"schedule {field}: {why}" for field, why in problems))
+    try:  # after the camera: its problems are the ones to fix first
+        module_keys = link_keys(keys, camera, plaintext)
+    except typer.Exit:
+        cam.close()
+        raise
     runner = ScheduleRunner(cam, clock, sched, lem=lem)
-    cfg = AgentConfig(module=camera, connect=connect, outbox=outbox or Path(f"lrm-{camera}-outbox"))
+    cfg = AgentConfig(
+        module=camera,
+        connect=connect,
+        outbox=outbox or Path(f"lrm-{camera}-outbox"),
+        dive=dive,
+        keys=module_keys,
+        plaintext=plaintext,
+    )
     agent = Agent(cfg, clock=clock, runner=runner, camera_limits=limits)
     agent.start()
     console.print(
         f"module {camera}: camera {cam.device_path}, schedule {sched.name} v{sched.version}, "
         f"sending to {connect}, outbox {cfg.outbox}"
     )
-    _run_module(agent, lambda: False)
+    _run_module(agent, lambda: False, stop_on_refusal=False)

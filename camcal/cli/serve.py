@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import signal
 import socket
+import ssl
 import threading
 import time
 import urllib.request
@@ -16,26 +17,13 @@ import typer
 from camcal import supervise
 from camcal.cli.common import console, fail
 from camcal.cli.config import settings_or_fail
+from camcal.cli.credentials import operator_tokens
 from camcal.logs import configure_logging
 from camcal.settings import Settings
 
 
 def register(app: typer.Typer) -> None:
     app.command("serve")(serve)
-
-
-def operator_tokens(items: list[str] | None, settings: Settings) -> dict[str, str]:
-    """Configured tokens (``CAMCAL_OPERATOR_TOKENS``) plus ``NAME=TOKEN`` options."""
-    out = settings.tokens()
-    for item in items or []:
-        name, sep, token = item.strip().partition("=")
-        if not sep or not name or len(token) < 8:
-            raise fail("--operator-token: give NAME=TOKEN with a token of at least 8 characters")
-        out[name] = token
-    for name, token in out.items():
-        if len(token) < 8:
-            raise fail(f"operator token of {name!r} is shorter than 8 characters")
-    return out
 
 
 class HttpServer:
@@ -60,8 +48,12 @@ class HttpServer:
                 operator_tokens=tokens,
                 linear_range=settings.linear_range,
                 station_depth_m=settings.station_depth_m,
+                max_body_bytes=int(settings.http_max_body_mb * 1024 * 1024),
+                max_websockets_per_client=settings.http_max_connections_per_client,
+                max_requests_per_client=2 * settings.http_max_connections_per_client,
             )
         )
+        tls = tls_files(settings)
         # No permessage-deflate: compressing every event once per browser costs the ship more CPU than
         # the bytes it saves on its own network (events are a few hundred bytes of JSON).
         config = uvicorn.Config(
@@ -72,10 +64,17 @@ class HttpServer:
             ws_ping_interval=20,
             ws_per_message_deflate=False,
             timeout_graceful_shutdown=3,  # open WebSockets (browsers) do not hold up a stop
+            ws_max_size=64 * 1024,  # a browser sends a few small requests; nothing needs more
+            ssl_certfile=str(tls[0]) if tls else None,
+            ssl_keyfile=str(tls[1]) if tls else None,
         )
         self.server = uvicorn.Server(config)
         host = {"0.0.0.0": "127.0.0.1", "::": "::1"}.get(settings.http_host, settings.http_host)
-        self.url = f"http://{f'[{host}]' if ':' in host else host}:{settings.http_port}"
+        self.url = (
+            f"{'https' if tls else 'http'}://{f'[{host}]' if ':' in host else host}:{settings.http_port}"
+        )
+        # The health probe talks to this very server: its own certificate need not be checked.
+        self._probe_tls = ssl._create_unverified_context() if tls else None
         self.error: BaseException | None = None
         self._thread: threading.Thread | None = None
 
@@ -100,7 +99,9 @@ class HttpServer:
                 raise RuntimeError(f"the dashboard stopped while starting ({self.error!r}); see the log")
             if self.server.started:
                 try:
-                    with urllib.request.urlopen(self.url + "/healthz", timeout=2) as r:
+                    with urllib.request.urlopen(
+                        self.url + "/healthz", timeout=2, context=self._probe_tls
+                    ) as r:
                         if r.status == 200:
                             return
                 except OSError:
@@ -123,6 +124,19 @@ def bind_http(settings: Settings, setting: str = "--port (CAMCAL_HTTP_PORT)") ->
         raise fail(str(exc), code=supervise.EXIT_NOT_STARTED) from None
     except OSError as exc:
         raise fail(str(exc), code=supervise.EXIT_NOT_STARTED) from None
+
+
+def tls_files(settings: Settings) -> tuple[Path, Path] | None:
+    """The TLS certificate and key (``http_tls_cert``, ``http_tls_key``), both or neither, readable."""
+    cert, key = settings.http_tls_cert, settings.http_tls_key
+    if cert is None and key is None:
+        return None
+    if cert is None or key is None:
+        raise fail("TLS needs both http_tls_cert and http_tls_key (--tls-cert, --tls-key)")
+    for what, path in (("certificate", cert), ("key", key)):
+        if not path.is_file():
+            raise fail(f"TLS {what} {path} is not a readable file")
+    return cert, key
 
 
 def stop_signals() -> threading.Event:
@@ -148,13 +162,27 @@ def serve(
     ] = None,
     db_url: Annotated[str | None, typer.Option(help="SQLAlchemy URL [CAMCAL_DATABASE_URL].")] = None,
     operator_token: Annotated[
-        list[str] | None, typer.Option(help="NAME=TOKEN of an operator (repeat).")
+        list[str] | None,
+        typer.Option(help="NAME=TOKEN of an operator (repeat); shown by ps: use CAMCAL_OPERATOR_TOKENS."),
+    ] = None,
+    tls_cert: Annotated[
+        Path | None, typer.Option(help="TLS certificate (PEM): serve HTTPS [CAMCAL_HTTP_TLS_CERT].")
+    ] = None,
+    tls_key: Annotated[
+        Path | None, typer.Option(help="The certificate's private key (PEM) [CAMCAL_HTTP_TLS_KEY].")
     ] = None,
     config: Annotated[Path | None, typer.Option(help="A TOML configuration file [CAMCAL_CONFIG].")] = None,
 ) -> None:
     """Serve the dashboard and the API (OpenAPI at /docs) for a data folder."""
     s = settings_or_fail(
-        config, data_dir=data, http_host=host, http_port=port, events_connect=events, database_url=db_url
+        config,
+        data_dir=data,
+        http_host=host,
+        http_port=port,
+        events_connect=events,
+        database_url=db_url,
+        http_tls_cert=tls_cert,
+        http_tls_key=tls_key,
     )
     configure_logging(s.log_level, s.log_format)
     tokens = operator_tokens(operator_token, s)
@@ -167,9 +195,7 @@ def serve(
     except RuntimeError as exc:
         http.stop()
         raise fail(str(exc), code=supervise.EXIT_NOT_STARTED) from None
-    console.print(
-        f"camcal server: http://{s.http_host}:{s.http_port}  (API docs at /docs; data {s.data_dir})"
-    )
+    console.print(f"camcal server: {http.url}  (API docs at /docs; data {s.data_dir})")
     supervise.notify_ready(f"dashboard on {http.url}", url=http.url)
     while not stop.wait(0.5) and http.alive():
         pass

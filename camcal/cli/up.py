@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import os
-import secrets
 import threading
 import time
 from pathlib import Path
@@ -26,7 +25,8 @@ import typer
 from camcal import supervise
 from camcal.cli.common import console, err_console, fail
 from camcal.cli.config import settings_or_fail
-from camcal.cli.serve import HttpServer, bind_http, operator_tokens, stop_signals
+from camcal.cli.credentials import child_environment, ship_key, simulated_link, tokens_or_generated
+from camcal.cli.serve import HttpServer, bind_http, stop_signals
 from camcal.logs import configure_logging
 from camcal.settings import Settings
 
@@ -79,7 +79,8 @@ def up(
         float, typer.Option(help="Simulated time on station at 3420 m, in seconds.")
     ] = 1800.0,
     operator_token: Annotated[
-        list[str] | None, typer.Option(help="NAME=TOKEN of an operator (repeat).")
+        list[str] | None,
+        typer.Option(help="NAME=TOKEN of an operator (repeat); shown by ps: use CAMCAL_OPERATOR_TOKENS."),
     ] = None,
     config: Annotated[Path | None, typer.Option(help="A TOML configuration file [CAMCAL_CONFIG].")] = None,
 ) -> None:
@@ -89,7 +90,7 @@ def up(
     if begin not in BEGINNINGS:
         raise fail(f"--begin: one of {', '.join(BEGINNINGS)}, got {begin!r}")
     profile = _dive_profile(deck_s, winch_m_per_s, test_stop_s, station_s) if simulate else None
-    tokens = operator_tokens(operator_token, s) or {"operator": secrets.token_urlsafe(12)}
+    tokens, generated = tokens_or_generated(operator_token, s)
     ingest_bind = f"tcp://{ingest_host}:{ingest_port}"
     connect = f"tcp://{'127.0.0.1' if ingest_host in ('0.0.0.0', '*') else ingest_host}:{ingest_port}"
     events = f"tcp://127.0.0.1:{events_port}"
@@ -105,14 +106,17 @@ def up(
     http_sock = bind_http(s, "--port (CAMCAL_HTTP_PORT)")
     data_dir = s.data_dir
     logs = data_dir / "logs"
-    from storage.store import Store
-
     try:
         logs.mkdir(parents=True, exist_ok=True)
-        Store.open(data_dir, s.database_url).close()  # create or migrate the database before anyone uses it
+        dive = up_dive(s)  # creates or migrates the database before anyone uses it
     except Exception as exc:
         http_sock.close()
         raise fail(f"cannot open the store in {data_dir}: {exc}", code=supervise.EXIT_NOT_STARTED) from None
+    # The simulated modules' link keys (made on first start) and the dive they are started for: a
+    # module refuses an ingest of another dive.
+    if profile is None:
+        ship_key(s)  # real modules: their keys come from `camcal keys create`
+    link = [*(simulated_link(s, list(MODULES)) if profile is not None else []), "--dive", dive]
     if profile is not None and s.station_depth_m is None:  # the simulated dive's plan
         s = s.model_copy(update={"station_depth_m": profile.station_depth_m})
 
@@ -125,7 +129,12 @@ def up(
     console.print(f"starting {parts} (data in {data_dir}) ...")
     try:
         t_spawn = time.monotonic()
-        ingest = sup.spawn("ingest", ingest_args(data_dir, ingest_bind, events), logs / "ingest.log")
+        ingest = sup.spawn(
+            "ingest",
+            ingest_args(data_dir, ingest_bind, events, dive),
+            logs / "ingest.log",
+            child_environment(),
+        )
         http = HttpServer(s, tokens, events)  # the dashboard starts while the ingest does
         http.start(http_sock)
         if sup.wait_ready(ingest, INGEST_READY_S, stop) is None:
@@ -142,12 +151,14 @@ def up(
                     schedule=schedule, seed=seed, epoch=epoch, begin_s=begin_s, deck_s=deck_s,
                     winch_m_per_s=winch_m_per_s, test_stop_s=test_stop_s, station_s=station_s,
                 )  # fmt: skip
-                modules.append(sup.spawn(f"module {m}", args, logs / f"module-{m}.log"))
+                modules.append(
+                    sup.spawn(f"module {m}", [*args, *link], logs / f"module-{m}.log", child_environment())
+                )
         http.wait_healthy(HTTP_READY_S, stop)
         wait_linked(events, MODULES if modules else (), sup, stop, MODULES_LINKED_S)
         if stop.is_set():
             raise Interrupted
-        _print_up(s, data_dir, logs, ingest_port, tokens)
+        _print_up(s, data_dir, logs, ingest_port, tokens if generated else {})
         supervise.notify_ready(f"dashboard http://{s.http_host}:{s.http_port}")
         code = watch(sup, http, stop)
     except Interrupted:
@@ -169,9 +180,23 @@ def up(
     raise typer.Exit(code)
 
 
-def ingest_args(data_dir: Path, bind: str, events: str) -> list[str]:
+def ingest_args(data_dir: Path, bind: str, events: str, dive: str) -> list[str]:
     """The ``camcal`` arguments of the ingest ``camcal up`` runs."""
-    return ["ingest", "--data", str(data_dir), "--bind", bind, "--events", events]
+    return ["ingest", "--data", str(data_dir), "--bind", bind, "--events", events, "--dive", dive]
+
+
+def up_dive(settings: Settings) -> str:
+    """The dive ``camcal up`` records into (the configured one, else the open one, else a new one),
+    named to the ingest and the simulated modules alike: a module refuses an ingest of another dive."""
+    from storage.store import Store
+
+    store = Store.open(settings.data_dir, settings.database_url)  # also creates or migrates it
+    try:
+        dive = store.current_dive(create=True, name=settings.dive)
+        assert dive is not None
+        return dive.name
+    finally:
+        store.close()
 
 
 def module_args(
@@ -317,6 +342,6 @@ def _print_up(s: Settings, data_dir: Path, logs: Path, ingest_port: int, tokens:
         f"[bold]camcal is up:[/] dashboard http://{s.http_host}:{s.http_port}  (review: /review, API: /docs)"
     )
     console.print(f"data: {data_dir}   logs: {logs}   modules connect to tcp://<this host>:{ingest_port}")
-    for name, token in tokens.items():
+    for name, token in tokens.items():  # only a token camcal made up: a configured one is never shown
         console.print(f"operator token for {name}: {token}")
     console.print("stop with Ctrl-C")

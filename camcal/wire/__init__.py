@@ -13,7 +13,8 @@ JSON headers and raw bytes only: never pickle.
 * `image`: what a frame payload's first bytes say it is;
 * `reasons`: why a message is refused (``nack``), and whether to resend;
 * `codec`: `encode` and `decode`;
-* `sockets`: the ship's and a module's socket;
+* `keys`: the link's CURVE keys (ship and modules) and their folder;
+* `sockets`: the ship's and a module's socket (CURVE with keys);
 * `schema`: the JSON Schema of the protocol.
 """
 
@@ -27,6 +28,7 @@ from camcal.wire.codec import (
     sensors_payload,
     sha256_hex,
 )
+from camcal.wire.keys import KeyFileError, KeyPair, ModuleKeys, module_keys, ship_pair
 from camcal.wire.limits import MAX_HEADER_BYTES, MAX_PAYLOAD_BYTES, MAX_SENSOR_ROWS
 from camcal.wire.models import (
     DATA_TYPES,
@@ -70,8 +72,11 @@ __all__ = [
     "CommandStatus",
     "FrameMsg",
     "Hello",
+    "KeyFileError",
+    "KeyPair",
     "Message",
     "ModuleHeartbeat",
+    "ModuleKeys",
     "Nack",
     "ProtocolError",
     "Reason",
@@ -82,10 +87,12 @@ __all__ = [
     "decode",
     "encode",
     "is_id",
+    "module_keys",
     "module_socket",
     "parse_sensor_rows",
     "sensors_payload",
     "sha256_hex",
+    "ship_pair",
     "ship_socket",
     "utc_now",
 ]

@@ -81,6 +81,8 @@ Timestamp = Annotated[
 ]
 #: A finite JSON number (integer or fraction); each field adds its bounds.
 _NUMBER = BeforeValidator(_number)
+#: A dive's name as the ship records it (``camcal ingest --dive NAME``): text, no control characters.
+DiveName = Annotated[str, Strict(), Field(min_length=1, max_length=120, pattern=r"^[^\x00-\x1f\x7f]+$")]
 
 
 class _Header(BaseModel):
@@ -88,6 +90,14 @@ class _Header(BaseModel):
     v: Literal[1] = PROTOCOL_VERSION
     module: Id
     sent_at: Timestamp = Field(default_factory=utc_now)
+
+
+class _ModuleHeader(_Header):
+    """What every message of a module may carry besides: the dive it was started for."""
+
+    #: The dive the module was started for (``--dive``); the ship refuses the message (``wrong_dive``)
+    #: if it records another. Absent: the module goes with whatever dive the ship records.
+    dive: DiveName | None = None
 
 
 class ScheduleState(BaseModel):
@@ -100,7 +110,7 @@ class ScheduleState(BaseModel):
 
 
 # ------------------------------------------------------------ module -> ship
-class Hello(_Header):
+class Hello(_ModuleHeader):
     """First message after (re)connecting; repeated until the ship answers ``welcome``."""
 
     type: Literal["hello"] = "hello"
@@ -111,7 +121,7 @@ class Hello(_Header):
     last_seq: Count = 0
 
 
-class FrameMsg(_Header):
+class FrameMsg(_ModuleHeader):
     """One camera frame; the payload is the encoded image (8-bit grayscale PNG or TIFF)."""
 
     type: Literal["frame"] = "frame"
@@ -132,7 +142,7 @@ class FrameMsg(_Header):
     file: Annotated[str, Strict(), Field(min_length=1, max_length=255, pattern=FILE_PATTERN)] | None = None
 
 
-class SensorsMsg(_Header):
+class SensorsMsg(_ModuleHeader):
     """A batch of sensor samples; the payload is a JSON array of rows in ``columns`` order."""
 
     type: Literal["sensors"] = "sensors"
@@ -146,7 +156,7 @@ class SensorsMsg(_Header):
     sha256: Annotated[str, Strict(), Field(pattern=r"^[0-9a-f]{64}$")]
 
 
-class ModuleHeartbeat(_Header):
+class ModuleHeartbeat(_ModuleHeader):
     """Sent every second or so; tells the ship the module lives and what it runs."""
 
     type: Literal["heartbeat"] = "heartbeat"
@@ -157,7 +167,7 @@ class ModuleHeartbeat(_Header):
     last_seq: Count = 0
 
 
-class CommandStatus(_Header):
+class CommandStatus(_ModuleHeader):
     """The module's answer to a command."""
 
     type: Literal["command_status"] = "command_status"
@@ -168,7 +178,7 @@ class CommandStatus(_Header):
     schedule: ScheduleState = ScheduleState()
 
 
-class Bye(_Header):
+class Bye(_ModuleHeader):
     """The module shuts down cleanly (the ship shows it as signed off, not as a lost link)."""
 
     type: Literal["bye"] = "bye"
@@ -177,12 +187,19 @@ class Bye(_Header):
 
 # ------------------------------------------------------------ ship -> module
 class Welcome(_Header):
-    """The ship's answer to ``hello``: its clock and the initial window."""
+    """The ship's answer to ``hello``: its clock, the initial window, and which ingest and dive it is.
+
+    ``ingest`` (a new id at every start of the ingest) and ``dive`` (the name
+    of the dive it records into) let a module check that it streams into the
+    dive it was started for (schema revision 1.2; absent from older ships).
+    """
 
     type: Literal["welcome"] = "welcome"
     ship_time: Timestamp = Field(default_factory=utc_now)
     window: Annotated[int, Strict(), Field(ge=1, le=65535)]
     heartbeat_s: Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False), _NUMBER] = 1.0
+    ingest: Id | None = None
+    dive: DiveName | None = None
 
 
 class Ack(_Header):

@@ -32,7 +32,18 @@ _ALL = (
         "(resend from the card a few times, then give up and keep it for `camcal import`)",
     ),
     Reason("bad_image", False, "frame payload is not an 8-bit grayscale PNG/TIFF of the stated size"),
-    Reason("wrong_identity", False, "the header's module differs from the connection's identity"),
+    Reason(
+        "wrong_identity",
+        False,
+        "the header's module differs from the module the connection's key belongs to (or, on a "
+        "plaintext link, from its routing id)",
+    ),
+    Reason(
+        "wrong_dive",
+        True,
+        "this ingest records another dive than the one the message names: keep everything in the "
+        "outbox and look for the ingest of that dive",
+    ),
     Reason(
         "not_served",
         True,

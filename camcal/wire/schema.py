@@ -19,7 +19,7 @@ from camcal.wire.reasons import REASONS
 from camcal.wire.sensors import SENSOR_SPEC
 
 #: Version of the schema document: the protocol version, then a revision for additions that keep it.
-SCHEMA_VERSION = "1.1"
+SCHEMA_VERSION = "1.2"
 
 
 def protocol_schema() -> dict[str, Any]:

@@ -2,9 +2,11 @@
 
 Sends ``--frames`` synthetic 8-bit PNG frames and a batch of sensor samples
 to a ship, resends what is not acknowledged, stops on a refusal that
-resending cannot help, says ``bye``. Run it against ``camcal ingest``:
+resending cannot help, says ``bye``. Run it against ``camcal ingest``, with
+the keys folder holding ``ship.key`` and ``modules/X.key_secret`` (``camcal
+keys create X`` on the ship makes them):
 
-    python docs/examples/minimal_module.py tcp://127.0.0.1:5555 --module X --frames 5
+    python docs/examples/minimal_module.py tcp://127.0.0.1:5555 --module X --frames 5 --keys KEYS
 
 Exit status 0 when every message was acknowledged. (A real module keeps
 each message on its SD card until the ack; this sketch keeps them in memory.)
@@ -13,6 +15,7 @@ each message on its SD card until the ack; this sketch keeps them in memory.)
 import argparse
 import hashlib
 import json
+import secrets
 import struct
 import sys
 import time
@@ -20,6 +23,7 @@ import zlib
 from datetime import UTC, datetime
 
 import zmq
+import zmq.auth
 
 
 def png_gray8(width, height, value):
@@ -48,10 +52,16 @@ def main():
     ap.add_argument("--module", default="X")
     ap.add_argument("--frames", type=int, default=5)
     ap.add_argument("--timeout", type=float, default=30.0)
+    ap.add_argument("--keys", help="keys folder: ship.key, modules/<module>.key_secret (none: plaintext)")
     args = ap.parse_args()
     boot = datetime.now(UTC).strftime("%Y%m%dT%H%M%S") + "-min"
     sock = zmq.Context.instance().socket(zmq.DEALER)
-    sock.setsockopt(zmq.ROUTING_ID, args.module.encode())  # the routing id IS the module id
+    if args.keys:  # CURVE: the ship knows this module by its key
+        sock.curve_serverkey, _ = zmq.auth.load_certificate(f"{args.keys}/ship.key")
+        public, secret = zmq.auth.load_certificate(f"{args.keys}/modules/{args.module}.key_secret")
+        sock.curve_publickey, sock.curve_secretkey = public, secret
+    route = f"{args.module}/{secrets.token_hex(16)}"  # module id, '/', digits nobody can guess
+    sock.setsockopt(zmq.ROUTING_ID, route.encode())
     sock.setsockopt(zmq.LINGER, 1000)
     sock.connect(args.ship)
 

@@ -33,12 +33,12 @@ async def list_alarms(
 async def ack(
     alarm_id: IdPath, store: StoreDep, hub: HubDep, who: OperatorDep, body: AckRequest | None = None
 ) -> dict[str, Any]:
-    """Acknowledge an alarm (operator token); recorded in the audit log.
+    """Acknowledge an alarm (operator token); recorded in the audit log with the operator's note.
 
     Every connected browser hears of it as a live ``alarm`` event with
     ``state: "acked"`` (not stored: the alarm row itself records the ack).
     """
-    alarm = await run_in_threadpool(store.ack_alarm, alarm_id, who)
+    alarm = await run_in_threadpool(store.ack_alarm, alarm_id, who, body.note if body else "")
     if alarm is None:
         raise NotFound(f"no alarm {alarm_id}")
     out = queries.alarm_dict(alarm)

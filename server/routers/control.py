@@ -12,12 +12,12 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from camcal.schedule import Schedule, presets
 from ingest.derived import predict_settings, result_row
-from server.deps import OperatorDep, SettingsDep, StoreDep
+from server.deps import ModuleId, OperatorDep, SettingsDep, StoreDep
 from server.errors import Conflict, Invalid, NotFound
+from server.openapi import CONFLICT
 from storage import queries
 
 router = APIRouter(tags=["control"])
-ModuleId = Annotated[str, Path(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")]
 
 
 class ScheduleCommand(BaseModel):
@@ -103,7 +103,7 @@ def _module_or_404(store: Any, module_id: str) -> None:
         raise NotFound(f"no module {module_id!r} has connected to this ship")
 
 
-@router.post("/api/modules/{module_id}/schedule", status_code=202)
+@router.post("/api/modules/{module_id}/schedule", status_code=202, responses={**CONFLICT})
 async def send_schedule(
     module_id: ModuleId, body: ScheduleCommand, store: StoreDep, settings: SettingsDep, who: OperatorDep
 ) -> dict[str, Any]:

@@ -2,16 +2,16 @@
 
 from __future__ import annotations
 
-import io
+import os
 import tempfile
-import threading
 import zipfile
 from pathlib import Path
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Query
+from fastapi import APIRouter, Query, Request
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import Response
+from fastapi.responses import FileResponse
+from starlette.background import BackgroundTask
 
 from camcal.calibrations import setup_of
 from camcal.frameset import Setup, parse_setup
@@ -19,6 +19,7 @@ from ingest.derived import Span, attenuation_dict, attenuation_over_span
 from ingest.reanalysis import ReanalysisOptions, reanalyse, start_run
 from server.deps import FloatQuery, IdPath, IdQuery, OperatorDep, SettingsDep, StoreDep
 from server.errors import Invalid, NotFound
+from server.openapi import BUSY, NOT_FOUND
 from server.schemas import DivePublic, ReanalysisCreate, RunPublic
 from storage import queries
 from storage.export import export_dive
@@ -165,14 +166,25 @@ async def latest_chisq_fit(dive_id: IdPath, store: StoreDep, run: IdQuery = None
     return fit
 
 
-@router.post("/api/dives/{dive_id}/reanalyses", status_code=202, response_model=RunPublic)
+@router.post(
+    "/api/dives/{dive_id}/reanalyses",
+    status_code=202,
+    response_model=RunPublic,
+    responses={**NOT_FOUND, **BUSY},
+)
 async def create_reanalysis(
-    dive_id: IdPath, body: ReanalysisCreate, store: StoreDep, settings: SettingsDep, who: OperatorDep
+    dive_id: IdPath,
+    body: ReanalysisCreate,
+    request: Request,
+    store: StoreDep,
+    settings: SettingsDep,
+    who: OperatorDep,
 ) -> dict[str, Any]:
     """Re-analyse the dive with other distances, I0'/I0 or linear range, beside the original results.
 
-    Returns the new run at once (status ``running``); poll ``GET
-    /api/dives/{id}/runs`` or watch the live events for its end.
+    Returns the new run at once (status ``queued``, then ``running``): re-analyses run one at a
+    time, in the order asked for, and a few may wait (503 beyond). Poll ``GET
+    /api/dives/{id}/runs`` for its end.
     """
     dive_or_404(store, dive_id)
     _, base = run_setup(store, dive_id, None)
@@ -205,38 +217,54 @@ async def create_reanalysis(
     )
 
     def job() -> None:
-        try:
-            reanalyse(store, dive_id, run_id, setup, ReanalysisOptions(workers=settings.reanalysis_workers))
-        except Exception:  # recorded as a failed run (and logged); the API stays up
-            return
+        reanalyse(store, dive_id, run_id, setup, ReanalysisOptions(workers=settings.reanalysis_workers))
 
-    threading.Thread(target=job, name=f"reanalysis-{run_id}", daemon=True).start()
+    request.app.state.reanalyses.submit(run_id, job)
     with store.read() as s:
         return next(r for r in queries.runs(s, dive_id) if r["id"] == run_id)
 
 
-@router.get("/api/dives/{dive_id}/export")
+@router.get(
+    "/api/dives/{dive_id}/export",
+    response_class=FileResponse,
+    responses={200: {"content": {"application/zip": {}}}, **NOT_FOUND, **BUSY},
+)
 async def export(
     dive_id: IdPath,
+    request: Request,
     store: StoreDep,
     fmt: Annotated[str, Query(alias="format", pattern="^(csv|parquet)$")] = "csv",
     run: IdQuery = None,
-) -> Response:
-    """The dive's tables as a ZIP of CSV or Parquet files."""
+) -> FileResponse:
+    """The dive's tables as a ZIP of CSV or Parquet files, streamed from a temporary file.
+
+    Exports run a few at a time (``exports_at_once``, default 1): another is refused with 503
+    and ``Retry-After`` while they do.
+    """
     dive = dive_or_404(store, dive_id)
     run_id, _ = run_setup(store, dive_id, run)
+    slots = request.app.state.exports
+    slots.take()
 
-    def build() -> bytes:
-        with tempfile.TemporaryDirectory() as tmp:
-            files = export_dive(store, dive_id, Path(tmp), (fmt,), run_id)
-            buf = io.BytesIO()
-            with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
-                for f in files:
+    def build() -> str:
+        fd, name = tempfile.mkstemp(prefix="camcal-export-", suffix=".zip")
+        os.close(fd)
+        try:
+            with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(name, "w", zipfile.ZIP_DEFLATED) as zf:
+                for f in export_dive(store, dive_id, Path(tmp), (fmt,), run_id):
                     zf.write(f, f.name)
-            return buf.getvalue()
+        except BaseException:
+            os.unlink(name)
+            raise
+        return name
 
-    data = await run_in_threadpool(build)
-    name = f"{dive.name}-{fmt}.zip"
-    return Response(
-        data, media_type="application/zip", headers={"Content-Disposition": f'attachment; filename="{name}"'}
+    try:
+        path = await run_in_threadpool(build)
+    finally:
+        slots.give()
+    return FileResponse(
+        path,
+        media_type="application/zip",
+        filename=f"{dive.name}-{fmt}.zip",
+        background=BackgroundTask(os.unlink, path),
     )

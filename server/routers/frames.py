@@ -2,17 +2,18 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import FileResponse, Response
+from fastapi.responses import Response
 
-from camcal.frameset import FrameReadError, read_frame, write_atomic
+from camcal.frameset import FrameReadError, decode_frame, write_atomic
+from camcal.wire.image import ImageHeaderError, check_frame
 from ingest.worker import thumbnail_jpeg
 from server.deps import FloatQuery, IdPath, IdQuery, StoreDep, WavelengthQuery
 from server.errors import Gone, NotFound, Unreadable
+from server.openapi import GONE, NOT_FOUND, UNREADABLE
 from server.schemas import FramePage
 from storage import queries
 from storage.files import UnsafePath
@@ -110,71 +111,96 @@ async def frame_analysis(frame_id: IdPath, store: StoreDep, run: IdQuery = None)
     return {k: f.get(k) for k in keys}
 
 
-def _file_there(path: Path) -> bool:
-    try:
-        return path.is_file()
-    except OSError:  # a name the file system cannot hold
-        return False
-
-
-def _stored_path(store: Any, frame_id: IdPath) -> tuple[Path, Path]:
+def _stored(store: Any, frame_id: int) -> tuple[str, int, int]:
+    """The stored path, width and height of a frame (404 if there is no such frame)."""
     with store.read() as s:
-        found = queries.frame_with_result(s, frame_id, None)
+        found = queries.frame_file(s, frame_id)
     if found is None:
         raise NotFound(f"no frame {frame_id}")
+    return found
+
+
+def _read(store: Any, frame_id: int, relative: str, under: str) -> bytes:
+    """A file of the frame, read safely (`storage.files.FrameFiles.read_regular`)."""
     try:
-        image = store.files.resolve(found[0].path)
-    except UnsafePath:
-        raise NotFound(f"frame {frame_id} has no valid file") from None
-    return image, store.files.root / "thumbs" / f"{frame_id}.jpg"
+        return store.files.read_regular(relative, under)
+    except FileNotFoundError:
+        raise Gone(
+            f"frame {frame_id}: its file is no longer in the data folder (removed by retention?)"
+        ) from None
+    except UnsafePath as exc:
+        raise NotFound(f"frame {frame_id} has no valid file: {exc}") from None
+
+
+def _is_jpeg(data: bytes) -> bool:
+    return data[:3] == b"\xff\xd8\xff" and data[-2:] == b"\xff\xd9"
+
+
+FILE_CACHE = {"Cache-Control": "public, max-age=86400, immutable"}
 
 
 @router.get(
     "/api/frames/{frame_id}/thumbnail",
     response_class=Response,
-    responses={200: {"content": {"image/jpeg": {}}}},
+    responses={200: {"content": {"image/jpeg": {}}}, **NOT_FOUND, **GONE, **UNREADABLE},
 )
 async def thumbnail(frame_id: IdPath, store: StoreDep) -> Response:
-    """A 512 px JPEG of the frame, made once and cached.
+    """A 512 px JPEG of the frame, made once and cached in ``thumbs/<id>.jpg``.
 
-    A cached thumbnail is served straight from ``thumbs/<id>.jpg`` (the id is
-    an integer, so the name cannot leave that folder) without a database
-    query: every live browser asks for every new one.
+    The frame must be in the database; the cached file is read without
+    following symbolic links and served only if it is a JPEG (else it is
+    made again from the frame).
     """
-    headers = {"Cache-Control": "public, max-age=86400, immutable"}
-    cached = store.files.root / "thumbs" / f"{frame_id}.jpg"
-    try:
-        return Response(cached.read_bytes(), media_type="image/jpeg", headers=headers)
-    except FileNotFoundError:
-        pass
 
     def make() -> bytes:
-        image, thumb = _stored_path(store, frame_id)
-        if thumb.exists():
-            return thumb.read_bytes()
-        if not _file_there(image):
-            raise Gone(f"frame {frame_id}: its file is no longer in the data folder (removed by retention?)")
+        relative, width, height = _stored(store, frame_id)
+        thumb = f"thumbs/{frame_id}.jpg"
         try:
-            data = thumbnail_jpeg(read_frame(image))
+            cached = store.files.read_regular(thumb, "thumbs")
+            if _is_jpeg(cached):
+                return cached
+        except (FileNotFoundError, UnsafePath):
+            pass
+        data = _read(store, frame_id, relative, "frames")
+        _check_image(frame_id, relative, data, width, height)
+        try:
+            jpeg = thumbnail_jpeg(decode_frame(data, relative))
         except FrameReadError as exc:
             raise Unreadable(f"frame {frame_id}: {exc.detail}") from None
-        thumb.parent.mkdir(parents=True, exist_ok=True)
-        write_atomic(thumb, data, fsync=False)
-        return data
+        path = store.files.root / "thumbs" / f"{frame_id}.jpg"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_atomic(path, jpeg, fsync=False)  # a rename: replaces a link, never writes through one
+        return jpeg
 
-    data = await run_in_threadpool(make)
-    return Response(data, media_type="image/jpeg", headers=headers)
+    return Response(await run_in_threadpool(make), media_type="image/jpeg", headers=FILE_CACHE)
+
+
+def _check_image(frame_id: int, relative: str, data: bytes, width: int, height: int) -> str:
+    """The media type of a frame file, if it is the 8-bit grey PNG or TIFF its row says; else 422."""
+    encoding = "tiff" if relative.endswith(".tif") else "png"
+    try:
+        check_frame(data, encoding, width, height)
+    except ImageHeaderError as exc:
+        raise Unreadable(f"frame {frame_id}: its file is not the image it claims to be ({exc})") from None
+    return "image/tiff" if encoding == "tiff" else "image/png"
 
 
 @router.get(
     "/api/frames/{frame_id}/image",
-    response_class=FileResponse,
-    responses={200: {"content": {"image/png": {}}}},
+    response_class=Response,
+    responses={200: {"content": {"image/png": {}, "image/tiff": {}}}, **NOT_FOUND, **GONE, **UNREADABLE},
 )
-async def image(frame_id: IdPath, store: StoreDep) -> FileResponse:
-    """The full frame as stored (lossless PNG, exactly the module's bytes)."""
-    path, _ = await run_in_threadpool(_stored_path, store, frame_id)
-    if not _file_there(path):
-        raise Gone(f"frame {frame_id}: its file is no longer in the data folder (removed by retention?)")
-    media = "image/tiff" if path.suffix == ".tif" else "image/png"
-    return FileResponse(path, media_type=media, headers={"Cache-Control": "public, max-age=86400, immutable"})
+async def image(frame_id: IdPath, store: StoreDep) -> Response:
+    """The full frame as stored (lossless PNG, exactly the module's bytes).
+
+    Read without following symbolic links, and served only if it is the
+    8-bit grey PNG (or TIFF) of the size its row says.
+    """
+
+    def load() -> tuple[bytes, str]:
+        relative, width, height = _stored(store, frame_id)
+        data = _read(store, frame_id, relative, "frames")
+        return data, _check_image(frame_id, relative, data, width, height)
+
+    data, media = await run_in_threadpool(load)
+    return Response(data, media_type=media, headers=FILE_CACHE)

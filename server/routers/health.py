@@ -66,5 +66,7 @@ async def health(hub: HubDep, store: StoreDep, settings: SettingsDep) -> dict[st
         "counters": (health or {}).get("counters"),
         "malformed": (health or {}).get("malformed"),
         "nacked": (health or {}).get("nacked"),
+        "link_security": (health or {}).get("link_security"),
+        "refused_connections": (health or {}).get("refused_connections"),
         "latency_p95_s": (health or {}).get("latency_p95_s"),
     }

@@ -21,6 +21,10 @@ router = APIRouter(tags=["live"])
 #: How long a batching connection gathers events after the first one, and how many at most.
 BATCH_WINDOW_S = 0.05
 BATCH_MAX = 200
+#: A connection gets at most one snapshot per this many seconds, however often it asks.
+RESYNC_EVERY_S = 1.0
+#: WebSocket close codes: a message too big, too many connections of one address.
+CLOSE_TOO_BIG, CLOSE_POLICY = 1009, 1008
 
 
 def build_snapshot(store: Store, hub: LiveHub, settings: ServerSettings) -> dict[str, Any]:
@@ -74,6 +78,7 @@ def build_snapshot(store: Store, hub: LiveHub, settings: ServerSettings) -> dict
         "modules": out_modules,
         "attenuation": {str(k): v[-300:] for k, v in attenuation.items()},
         "alarms": alarms,
+        "refused_connections": (hub.live_health(settings.stale_after_s) or {}).get("refused_connections"),
         "last_event_id": hub.last_event_id,
     }
 
@@ -93,6 +98,12 @@ async def live(ws: WebSocket) -> None:
     with ``resync`` it should ask for a new snapshot by sending
     ``{"type": "resync"}``. The ingest never waits for a browser.
 
+    Bounds: requests for snapshots are coalesced (at most one snapshot in
+    the making and one per `RESYNC_EVERY_S` per connection, however many
+    are asked for); a message from the browser over ``max_ws_message_bytes``
+    closes the connection (1009); an address holds at most
+    ``max_websockets_per_client`` connections (more are closed, 1008).
+
     A browser that sends ``{"type": "batch"}`` gets the events that arrive
     within ``BATCH_WINDOW_S`` of each other in one WebSocket message,
     ``{"type": "batch", "messages": [...]}`` (each with its own ``seq``): one
@@ -103,29 +114,51 @@ async def live(ws: WebSocket) -> None:
     hub: LiveHub = app.state.hub
     store: Store = app.state.store
     settings: ServerSettings = app.state.settings
+    address = ws.client.host if ws.client else "unknown"
+    if hub.connections_of(address) >= settings.max_websockets_per_client:
+        await ws.close(CLOSE_POLICY, "too many live connections from this address")
+        return
     await ws.accept()
-    client = hub.register()
+    client = hub.register(address)
+    wanted = asyncio.Event()  # a snapshot was asked for (set again while one is made: one more)
+    sending = asyncio.Lock()  # one sender at a time on the socket
+
+    async def send_snapshot() -> None:
+        data = await run_in_threadpool(build_snapshot, store, hub, settings)
+        async with sending:
+            await ws.send_text(
+                json.dumps({"type": "snapshot", "seq": client.next_seq(), "data": data}, default=str)
+            )
+
     try:
-        snap = await run_in_threadpool(build_snapshot, store, hub, settings)
-        await ws.send_text(
-            json.dumps({"type": "snapshot", "seq": client.next_seq(), "data": snap}, default=str)
-        )
+        await send_snapshot()
 
         async def receive() -> None:
             while True:
-                msg = await ws.receive_text()
+                msg = await ws.receive()
+                if msg["type"] == "websocket.disconnect":
+                    raise WebSocketDisconnect(msg.get("code", 1000))
+                text = msg.get("text") or (msg.get("bytes") or b"").decode("utf-8", "replace")
+                if len(text) > settings.max_ws_message_bytes:
+                    await ws.close(CLOSE_TOO_BIG, "message too big")
+                    return
                 try:
-                    req = json.loads(msg)
+                    req = json.loads(text)
                 except json.JSONDecodeError:
                     continue
                 if isinstance(req, dict) and req.get("type") == "batch":
                     client.batch = True
                 elif isinstance(req, dict) and req.get("type") == "resync":
                     client.resync = False
-                    data = await run_in_threadpool(build_snapshot, store, hub, settings)
-                    await ws.send_text(
-                        json.dumps({"type": "snapshot", "seq": client.next_seq(), "data": data}, default=str)
-                    )
+                    wanted.set()
+
+        async def snapshots() -> None:
+            """Answer requests for snapshots, coalesced: at most one per `RESYNC_EVERY_S`."""
+            while True:
+                await wanted.wait()
+                wanted.clear()
+                await send_snapshot()
+                await asyncio.sleep(RESYNC_EVERY_S)
 
         async def send() -> None:
             while True:
@@ -135,26 +168,24 @@ async def live(ws: WebSocket) -> None:
                     await asyncio.sleep(BATCH_WINDOW_S)
                     while len(batch) < BATCH_MAX and not client.queue.empty():
                         batch.append(client.queue.get_nowait())
-                if client.dropped:
-                    dropped, client.dropped = dict(client.dropped), type(client.dropped)()
-                    await ws.send_text(
-                        json.dumps(
-                            {
-                                "type": "missed",
-                                "seq": client.next_seq(),
-                                "dropped": dropped,
-                                "resync": client.resync,
-                            }
-                        )
-                    )
-                if len(batch) == 1:
-                    await ws.send_text(encode_for(message, client.next_seq()))
-                else:
-                    texts = ",".join(encode_for(m, client.next_seq()) for m in batch)
-                    await ws.send_text(f'{{"type":"batch","messages":[{texts}]}}')
+                async with sending:
+                    if client.dropped:
+                        dropped, client.dropped = dict(client.dropped), type(client.dropped)()
+                        missed = {
+                            "type": "missed",
+                            "seq": client.next_seq(),
+                            "dropped": dropped,
+                            "resync": client.resync,
+                        }
+                        await ws.send_text(json.dumps(missed))
+                    if len(batch) == 1:
+                        await ws.send_text(encode_for(message, client.next_seq()))
+                    else:
+                        texts = ",".join(encode_for(m, client.next_seq()) for m in batch)
+                        await ws.send_text(f'{{"type":"batch","messages":[{texts}]}}')
 
-        tasks = [asyncio.create_task(receive()), asyncio.create_task(send())]
-        done, pending = await asyncio.wait(tasks, return_when=asyncio.FIRST_EXCEPTION)
+        tasks = [asyncio.create_task(t) for t in (receive(), send(), snapshots())]
+        done, pending = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
         for t in pending:
             t.cancel()
         for t in done:

@@ -7,7 +7,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Query
 from fastapi.concurrency import run_in_threadpool
 
-from server.deps import MAX_ID, FloatQuery, IdQuery, StoreDep, WavelengthQuery
+from server.deps import MAX_ID, FloatQuery, IdQuery, ModuleId, StoreDep, WavelengthQuery
 from server.errors import NotFound
 from storage import queries
 
@@ -137,7 +137,7 @@ async def modules(store: StoreDep) -> list[dict[str, Any]]:
 
 
 @router.get("/api/modules/{module_id}")
-async def module(module_id: str, store: StoreDep) -> dict[str, Any]:
+async def module(module_id: ModuleId, store: StoreDep) -> dict[str, Any]:
     for m in await modules(store):
         if m["id"] == module_id:
             return m

@@ -20,6 +20,7 @@ def ingest_config(data: Path, **over) -> IngestConfig:
         sqlite_synchronous="NORMAL",
         link_timeout_s=2.0,
         alarm_limits=AlarmLimits(link_timeout_s=2.0),
+        plaintext=True,  # in-process tests of the ingest's logic; the link's keys have their own tests
     )
     base.update(over)
     return IngestConfig(**base)

@@ -16,7 +16,6 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
-import zmq
 
 from camcal import wire
 from tests.live.test_ingest import wait_for
@@ -38,7 +37,7 @@ def ship(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[IngestProbe
     root = tmp_path_factory.mktemp("conformance")
     probe = IngestProbe(root / "data")
     probe.wait_ready()
-    agent, _ = make_agent("A", probe.endpoint, root / "outbox-A")
+    agent, _ = make_agent("A", probe.endpoint, root / "outbox-A", keys_dir=probe.keys)
     agent.start()
     yield probe, agent
     agent.stop()
@@ -51,7 +50,7 @@ def nacks(rogue: Rogue) -> list[wire.Nack]:
 
 def test_each_malformed_case_gets_its_nack_and_the_ingest_goes_on(ship) -> None:
     probe, agent = ship
-    rogue = Rogue(zmq.Context.instance(), probe.endpoint, "R")
+    rogue = probe.rogue("R")
     try:
         for what, parts, reason in CASES:
             replies = rogue.send(as_module(parts, "R"))
@@ -59,7 +58,7 @@ def test_each_malformed_case_gets_its_nack_and_the_ingest_goes_on(ship) -> None:
             assert replies[0].retry == wire.REASONS[reason].retry
         assert probe.alive()
         # A header no module id could even be read from, from a socket with no routing id of ours.
-        anon = Rogue(zmq.Context.instance(), probe.endpoint, "anonymous-socket")
+        anon = probe.rogue("anonymous-socket")
         assert [r.reason for r in anon.send([b'{"v":1,"x":' + b"[" * 30000 + b"]" * 30000 + b"}"])] == [
             "bad_header"
         ]
@@ -71,8 +70,7 @@ def test_each_malformed_case_gets_its_nack_and_the_ingest_goes_on(ship) -> None:
 
 def test_well_formed_but_wrong_messages_get_one_true_answer(ship) -> None:
     probe, _ = ship
-    ctx = zmq.Context.instance()
-    r = Rogue(ctx, probe.endpoint, "R2")
+    r = probe.rogue("R2")
     try:
         assert [
             m.type
@@ -155,7 +153,7 @@ def test_a_message_that_fails_twice_while_others_are_stored_is_quarantined(ship)
     blocker = probe.data / "frames" / str(dive_id) / "Q" / "bad"
     blocker.parent.mkdir(parents=True, exist_ok=True)
     blocker.write_text("not a folder")
-    q = Rogue(zmq.Context.instance(), probe.endpoint, "Q")
+    q = probe.rogue("Q")
     try:
         poisoned = as_module(frame_parts(boot="bad", seq=1), "Q")
         (reply,) = q.send(poisoned)
@@ -178,7 +176,7 @@ def test_a_message_that_fails_twice_while_others_are_stored_is_quarantined(ship)
 def test_counters_add_up_events_are_json_and_nothing_of_the_good_module_is_lost(ship) -> None:
     """Last in this file: it restarts the ingest."""
     probe, agent = ship
-    rogue = Rogue(zmq.Context.instance(), probe.endpoint, "R3")
+    rogue = probe.rogue("R3")
     for _, parts, _ in CASES[:10]:
         rogue.send(as_module(parts, "R3"))
     refused_here = len(nacks(rogue))

@@ -62,6 +62,7 @@ def test_simulated_dive_everything_stored_once_and_lambda_att_tracks_the_water(t
                 # 2 Hz of simulated time is 40 Hz real at this speed: enough for attitude and the
                 # heave period, and it leaves the CPU (and the GIL of this one process) to the frames.
                 sensor_rate_hz=2.0,
+                plaintext=True,
             ),
             clock=clock,
             runner=runner,

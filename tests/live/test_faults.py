@@ -35,7 +35,12 @@ def test_sigkill_the_ingest_repeatedly_and_every_frame_is_stored_exactly_once(tm
     proc = start_ingest(data, port, events_port)
     agents = [
         make_agent(
-            m, f"tcp://127.0.0.1:{port}", tmp_path / f"outbox-{m}", link_timeout_s=2.0, ack_timeout_s=4.0
+            m,
+            f"tcp://127.0.0.1:{port}",
+            tmp_path / f"outbox-{m}",
+            keys_dir=data / "keys",  # made by start_ingest
+            link_timeout_s=2.0,
+            ack_timeout_s=4.0,
         )[0]
         for m in ("A", "B")
     ]

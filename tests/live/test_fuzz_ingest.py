@@ -27,13 +27,13 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-import zmq
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from camcal import wire
+from camcal.wire.keys import create_module_key
 from tests.utils.live import cli_env
-from tests.utils.rogue import IngestProbe, Rogue, invalid_json_events
+from tests.utils.rogue import IngestProbe, invalid_json_events
 from tests.utils.schema_strategies import strategy
 
 REPO = Path(__file__).resolve().parents[2]
@@ -110,7 +110,8 @@ def messages(draw: st.DrawFn) -> list[bytes]:
 class Oracle:
     """What the ship must answer, from the protocol: ``(type, nack reason)``, or None for no answer."""
 
-    def __init__(self) -> None:
+    def __init__(self, dive: str) -> None:
+        self.dive = dive  # the dive the ship records: a message naming another is refused
         self.stored: dict[tuple[str, int], str] = {}  # (boot, seq) -> sha256 of what was acknowledged
 
     def expected(self, parts: list[bytes]) -> tuple[str, str | None] | None:
@@ -120,6 +121,8 @@ class Oracle:
             return ("nack", exc.kind)
         if msg.module != MODULE:
             return ("nack", "wrong_identity")
+        if msg.dive is not None and msg.dive != self.dive:
+            return ("nack", "wrong_dive")
         if msg.type == "hello":
             return ("welcome", None)
         if msg.type in ("frame", "sensors"):
@@ -140,10 +143,11 @@ def fuzz_ship(tmp_path_factory: pytest.TempPathFactory) -> Iterator[IngestProbe]
 
 def test_fuzzed_messages_get_the_promised_answer_and_the_counters_add_up(fuzz_ship: IngestProbe) -> None:
     probe = fuzz_ship
-    rogue = Rogue(zmq.Context.instance(), probe.endpoint, MODULE)
-    before = probe.health()["counters"].get("nacked", 0)
+    rogue = probe.rogue(MODULE)
+    health = probe.health()
+    before = health["counters"].get("nacked", 0)
     seen: Counter[str] = Counter()
-    oracle = Oracle()
+    oracle = Oracle(health["dive"]["name"])
 
     @settings(max_examples=MESSAGES, deadline=None, database=None, suppress_health_check=list(HealthCheck))
     @given(messages())
@@ -175,8 +179,10 @@ def test_fuzzed_messages_get_the_promised_answer_and_the_counters_add_up(fuzz_sh
 
 def test_the_minimal_module_in_the_docs_delivers_everything(fuzz_ship: IngestProbe) -> None:
     example = REPO / "docs" / "examples" / "minimal_module.py"
+    create_module_key(fuzz_ship.keys, "MIN")
+    args = [fuzz_ship.endpoint, "--module", "MIN", "--frames", "6", "--keys", str(fuzz_ship.keys)]
     res = subprocess.run(
-        [sys.executable, str(example), fuzz_ship.endpoint, "--module", "MIN", "--frames", "6"],
+        [sys.executable, str(example), *args],
         capture_output=True,
         text=True,
         timeout=60,

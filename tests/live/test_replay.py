@@ -42,6 +42,7 @@ def replay(folder: Path, camera: str, endpoint: str, outbox: Path, speed: float)
             str(outbox),
             "--log-level",
             "warning",
+            "--plaintext",  # the in-process ingest of these tests (ingest_config) is a plaintext one
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,

@@ -86,7 +86,7 @@ def test_nothing_of_camcal_ingest_and_its_worker_pool_outlives_it(tmp_path: Path
             proc = subprocess.Popen(
                 [sys.executable, "-c", "from camcal.cli import main; main()", "ingest",
                  "--data", str(tmp_path / "data"), "--bind", f"tcp://127.0.0.1:{port}",
-                 "--events", f"tcp://127.0.0.1:{events}", "--workers", "2"],
+                 "--events", f"tcp://127.0.0.1:{events}", "--workers", "2", "--plaintext"],
                 env=marked_env(mark), stdout=out, stderr=subprocess.STDOUT,
             )  # fmt: skip
         try:

@@ -84,6 +84,7 @@ def test_two_ingests_share_a_database_and_one_survives_sigkill(tmp_path: Path, p
             m,
             f"tcp://127.0.0.1:{ports[m][0]}",
             tmp_path / f"outbox-{m}",
+            keys_dir=data / "keys",  # made by start_ingest
             link_timeout_s=2.0,
             ack_timeout_s=4.0,
         )[0]

@@ -31,7 +31,7 @@ from camcal.schedule import Schedule
 from lrm.dive import DiveProfile, DiveSimulation, LEMTimetable, WaterColumn
 from storage.models import AttenuationPoint, Frame, FrameResult
 from storage.store import Store
-from tests.utils.live import camcal_cli, cli_env
+from tests.utils.live import camcal_cli, cli_env, link_keys
 from tests.utils.series_check import check_series
 from tests.utils.system import free_ports
 
@@ -81,6 +81,7 @@ def station(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     root = tmp_path_factory.mktemp("station")
     data = root / "data"
     port, events = free_ports(2)
+    keys = link_keys(data)  # the link is CURVE, as on a ship: the ship's key pair and A's and B's
     t_wall = time.monotonic()
     ingest = _cli(
         "ingest",
@@ -139,6 +140,8 @@ def station(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
             "--sensor-rate-hz",
             "0.5",
             "--no-fsync",
+            "--keys",
+            str(keys),
             "--log-level",
             "warning",
             log=root / f"module-{cam}.log",

@@ -62,7 +62,9 @@ class Module:
             self.camera.exposure_range_s, self.camera.gain_range_db, self.camera.gain_step_db
         )
         self.agent = Agent(
-            AgentConfig(module="A", connect=endpoint, outbox=outbox, fsync=False, heartbeat_s=0.2),
+            AgentConfig(
+                module="A", connect=endpoint, outbox=outbox, fsync=False, heartbeat_s=0.2, plaintext=True
+            ),
             clock=clock,
             runner=self.runner,
             camera_limits=limits,

@@ -34,7 +34,7 @@ def dive_copy(dive_data, tmp_path: Path) -> Path:
 def wait_run(client: TestClient, dive_id: int, run_id: int) -> dict:
     for _ in range(600):
         run = next(r for r in client.get(f"/api/dives/{dive_id}/runs").json() if r["id"] == run_id)
-        if run["status"] != "running":
+        if run["status"] not in ("queued", "running"):
             return run
         time.sleep(0.1)
     raise AssertionError("re-analysis did not finish")
@@ -157,6 +157,7 @@ def test_cli_builds_versions_from_lab_results_and_the_ingest_records_its_calibra
             workers=1,
             sqlite_synchronous="NORMAL",
             calibration="lab@2",
+            plaintext=True,
         ),
         store=store,
     )
@@ -172,5 +173,11 @@ def test_cli_builds_versions_from_lab_results_and_the_ingest_records_its_calibra
         svc.stop()
     with pytest.raises(ValueError, match="no calibration"):
         IngestService(
-            IngestConfig(data_dir=data, bind="tcp://127.0.0.1:*", events_bind=None, calibration="missing")
+            IngestConfig(
+                data_dir=data,
+                bind="tcp://127.0.0.1:*",
+                events_bind=None,
+                calibration="missing",
+                plaintext=True,
+            )
         ).start()

@@ -128,6 +128,7 @@ def test_every_get_route_copes_with_any_stored_row(tmp_path: Path, db_url: str |
         "module_id": keys["modules"],
         "command_id": keys["commands"],
         "calibration_id": keys["calibrations"],
+        "name": ["swagger-ui.css", "not-an-asset.js"],  # /vendor/docs/{name}
     }
     failures = []
     calls = 0

@@ -42,6 +42,7 @@ def run_simulated_dive(data: Path, *, station_s: float = 240.0, seed: int = 5) -
             workers=2,
             sqlite_synchronous="NORMAL",
             alarm_limits=AlarmLimits(link_timeout_s=3.0),
+            plaintext=True,
         )
     )
     svc.start()
@@ -68,6 +69,7 @@ def run_simulated_dive(data: Path, *, station_s: float = 240.0, seed: int = 5) -
                 # 2 Hz of simulated time is 40 Hz real at this speed: enough for attitude and the
                 # heave period, and it leaves the CPU (and the GIL of this one process) to the frames.
                 sensor_rate_hz=2.0,
+                plaintext=True,
             ),
             clock=clock,
             runner=runner,

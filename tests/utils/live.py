@@ -122,11 +122,18 @@ def make_agent(
     *,
     schedule: Schedule | None = None,
     sensors: bool = True,
+    keys_dir: Path | None = None,
     **config: Any,
 ) -> tuple[Agent, SmallSimCamera]:
+    """A module agent on a simulated camera: CURVE with the keys of ``keys_dir`` (see `link_keys`),
+    else a plaintext link (for an in-process ingest started with ``plaintext=True``)."""
     camera = SmallSimCamera(module)
     clock = RealClock()
     runner = ScheduleRunner(camera, clock, schedule or quick_schedule())
+    if keys_dir is not None:
+        config["keys"] = wire.module_keys(keys_dir, module)
+    else:
+        config.setdefault("plaintext", True)
     cfg = AgentConfig(module=module, connect=endpoint, outbox=outbox, fsync=False, **config)
     agent = Agent(
         cfg,
@@ -329,10 +336,28 @@ def cli_env() -> dict[str, str]:
     return env
 
 
+def link_keys(data: Path, *modules: str) -> Path:
+    """The link's keys in ``data/keys`` (the ingest's default): the ship's and ``modules``' (A, B if none)."""
+    from camcal.wire.keys import create_module_key, create_ship_key
+
+    folder = data / "keys"
+    create_ship_key(folder)
+    for m in modules or ("A", "B"):
+        create_module_key(folder, m)
+    return folder
+
+
 def start_ingest(
     data: Path, port: int, events_port: int, *extra: str, log: str = "ingest.log"
 ) -> subprocess.Popen[bytes]:
-    """``camcal ingest`` as its own process (one analysis worker) on 127.0.0.1; output to ``data/../log``."""
+    """``camcal ingest`` as its own process (one analysis worker) on 127.0.0.1; output to ``data/../log``.
+
+    The link is CURVE with the keys of ``data/keys`` (made for A and B if missing, see `link_keys`),
+    unless ``extra`` says ``--plaintext``.
+    """
+    if "--plaintext" not in extra:
+        data.mkdir(parents=True, exist_ok=True)
+        link_keys(data)
     with (data.parent / log).open("ab") as out:
         return subprocess.Popen(
             [

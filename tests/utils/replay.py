@@ -37,13 +37,16 @@ def stream_frame_set(
             dive_name=dive,
             setup=read_setup(folder),
             alarm_limits=AlarmLimits(link_timeout_s=5.0),
+            plaintext=True,
         )
     )
     svc.start()
     clock = RealClock()
     agents = [
         Agent(
-            AgentConfig(m, svc.endpoint, data.parent / f"replay-{m}", fsync=False, initial_window=8),
+            AgentConfig(
+                m, svc.endpoint, data.parent / f"replay-{m}", fsync=False, initial_window=8, plaintext=True
+            ),
             clock=clock,
             source=ReplaySource(folder, m, clock, speed=0),
         )

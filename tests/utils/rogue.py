@@ -1,9 +1,11 @@
 """A client that speaks the protocol badly on purpose, and a probe of a real ingest's state.
 
 `Rogue` is a DEALER with a chosen routing id that sends raw frames and
-collects the ship's replies; `IngestProbe` starts a real ``camcal ingest``
-process, follows its event stream (for its health: counters) and reads its
-database.
+collects the ship's replies: by default over CURVE with a key the ship lets
+in as the module of that id (made on the fly in the ingest's keys folder),
+or with any key pair, or none (plaintext). `IngestProbe` starts a real
+``camcal ingest`` process, follows its event stream (for its health:
+counters) and reads its database.
 """
 
 from __future__ import annotations
@@ -22,15 +24,39 @@ from typing import Any
 import zmq
 
 from camcal import wire
-from tests.utils.live import start_ingest
+from camcal.wire.keys import KeyPair, create_module_key, ship_public
+from tests.utils.live import link_keys, start_ingest
 from tests.utils.system import free_ports
 
 
 class Rogue:
-    """A DEALER connected to the ship as ``identity``; `send` returns the ship's replies."""
+    """A DEALER connected to the ship as ``identity``; `send` returns the ship's replies.
 
-    def __init__(self, ctx: zmq.Context[Any], endpoint: str, identity: str) -> None:
+    ``keys_dir``: the ingest's keys folder; the rogue gets (a new if need be) key of module
+    ``key_of`` (default ``identity``) from it. ``pair``: any key pair instead (an unknown key).
+    Neither: a plaintext client.
+    """
+
+    def __init__(
+        self,
+        ctx: zmq.Context[Any],
+        endpoint: str,
+        identity: str,
+        *,
+        keys_dir: Path | None = None,
+        key_of: str | None = None,
+        pair: KeyPair | None = None,
+    ) -> None:
         self.sock = ctx.socket(zmq.DEALER)
+        if keys_dir is not None and pair is None:
+            module = key_of or identity
+            create_module_key(keys_dir, module)
+            pair = wire.module_keys(keys_dir, module).pair
+        if pair is not None:
+            assert keys_dir is not None, "an encrypted rogue needs the ship's public key (keys_dir)"
+            self.sock.setsockopt(zmq.CURVE_SERVERKEY, ship_public(keys_dir))
+            self.sock.setsockopt(zmq.CURVE_PUBLICKEY, pair.public)
+            self.sock.setsockopt(zmq.CURVE_SECRETKEY, pair.secret)
         self.sock.setsockopt(zmq.ROUTING_ID, identity.encode())
         self.sock.setsockopt(zmq.LINGER, 0)
         self.sock.connect(endpoint)
@@ -44,8 +70,12 @@ class Rogue:
         expect: int = 1,
         skip: tuple[str, ...] = ("ship_heartbeat",),
     ) -> list[Any]:
-        """Send one message; collect replies until ``expect`` arrived or ``wait_s`` (``skip``: ignored)."""
-        self.sock.send_multipart(parts)
+        """Send one message; collect replies until ``expect`` arrived or ``wait_s`` (``skip``: ignored).
+
+        A message the socket cannot send (no connection: the ship refused the handshake) is dropped.
+        """
+        with contextlib.suppress(zmq.Again):
+            self.sock.send_multipart(parts, zmq.NOBLOCK)
         return self.collect(wait_s, expect, skip)
 
     def collect(
@@ -73,6 +103,7 @@ class IngestProbe:
         self.data = data
         self.port, self.events_port = ports or free_ports(2)
         self.endpoint = f"tcp://127.0.0.1:{self.port}"
+        self.keys = link_keys(data)
         self.proc = start_ingest(data, self.port, self.events_port, *extra)
         self.ctx = zmq.Context.instance()
         self.sub = self.ctx.socket(zmq.SUB)
@@ -97,6 +128,10 @@ class IngestProbe:
 
     def wait_ready(self, timeout_s: float = 30.0) -> None:
         self.health(timeout_s)
+
+    def rogue(self, identity: str, **kw: Any) -> Rogue:
+        """A rogue client of this ingest, over CURVE with a key of module ``identity`` (see `Rogue`)."""
+        return Rogue(zmq.Context.instance(), self.endpoint, identity, keys_dir=self.keys, **kw)
 
     def alive(self) -> bool:
         return self.proc.poll() is None

@@ -11,6 +11,7 @@ left after a test is killed, so a failed test never leaves a dive running.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import signal
 import socket
@@ -22,6 +23,8 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+import httpx
 
 REPO = Path(__file__).resolve().parents[2]
 CHROMIUM = Path("/usr/bin/chromium")
@@ -173,6 +176,10 @@ class System:
     def url(self, path: str) -> str:
         return f"{self.base_url}{path}"
 
+    @property
+    def ingest_port(self) -> int:
+        return self.ports[1]
+
 
 def _children(pid: int) -> list[int]:
     out = []
@@ -265,14 +272,12 @@ def camcal_up(
         "--events-port",
         str(events_port),
         *(w for kv in dive_options.items() for w in kv),
-        "--operator-token",
-        f"tester={token}",
         *(extra or []),
     ]
+    env = marked_env(mark)
+    env["CAMCAL_OPERATOR_TOKENS"] = json.dumps({"tester": token})  # never on a command line
     with log.open("wb") as fh:
-        proc = subprocess.Popen(
-            args, cwd=data.parent, env=marked_env(mark), stdout=fh, stderr=subprocess.STDOUT
-        )
+        proc = subprocess.Popen(args, cwd=data.parent, env=env, stdout=fh, stderr=subprocess.STDOUT)
     system = System(
         f"http://127.0.0.1:{port}", data, token, "tester", proc, log, mark, (port, ingest_port, events_port)
     )
@@ -291,3 +296,39 @@ def camcal_up(
     finally:
         stop_system(proc)
         kill_tree(mark)
+
+
+@contextlib.contextmanager
+def camcal_serve(
+    data: Path, *extra: str, env: dict[str, str] | None = None, scheme: str = "http", verify: Any = False
+) -> Iterator[tuple[str, subprocess.Popen[bytes]]]:
+    """``camcal serve --events none`` of ``data`` on a free port; yields its base URL and process."""
+    (port,) = free_ports(1)
+    base = {k: v for k, v in os.environ.items() if not k.startswith("CAMCAL_")}
+    full_env = {**base, "PYTHONPATH": str(REPO), **(env or {})}
+    log = data.parent / f"serve-{port}.log"
+    args = [sys.executable, "-c", "from camcal.cli import main; main()", "serve", "--data", str(data)]
+    args += ["--port", str(port), "--events", "none", *extra]
+    with log.open("wb") as fh:
+        proc = subprocess.Popen(args, env=full_env, stdout=fh, stderr=subprocess.STDOUT)
+    url = f"{scheme}://127.0.0.1:{port}"
+    try:
+
+        def up() -> bool:
+            if proc.poll() is not None:
+                raise RuntimeError(f"camcal serve exited with {proc.returncode}: {log.read_text()[-2000:]}")
+            try:
+                return httpx.get(f"{url}/api/health", timeout=2, verify=verify).status_code == 200
+            except httpx.HTTPError:
+                return False
+
+        wait_until(up, 60, "camcal serve to answer", every_s=0.2)
+        yield url, proc
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(5)

@@ -5,6 +5,21 @@ import { drawVisitSeries } from "./lambda-profile.js";
 import { el, toast } from "./ui.js";
 
 /** The alarm list: active ones first (worst, then newest), then the five last cleared. */
+/** The ingest's refused connections, in one line: counted, never shown as modules or alarms. */
+export function renderRefused(box, refused) {
+  const recent = refused?.last_minute || 0;
+  box.hidden = !recent;
+  if (!recent) return;
+  const s = (refused.sources || [])[0] || {};
+  const why = { unknown_key: "unknown key", plaintext: "no encryption", no_handshake: "broken handshake", not_curve: "not CURVE" }[s.reason] || s.reason;
+  const text =
+    `Refused connections: ${recent} in the last minute (${refused.total} in all); newest: ${why}` +
+    (s.key ? ` ${s.key}` : "") +
+    (s.address ? ` from ${s.address}` : "") +
+    ". Nobody without a module's key gets in (a module's key is added with camcal keys create).";
+  if (box.textContent !== text) box.textContent = text;
+}
+
 export function renderAlarms(list, alarms, { operator, onAck }) {
   const all = [...alarms.values()];
   const active = all

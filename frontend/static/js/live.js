@@ -8,7 +8,7 @@ import { SEVERITY_RANK as RANK, fmtAge } from "./format.js";
 import { createCard, showThumbnail, updateCard, updateQuality } from "./live-cards.js";
 import { LiveSocket } from "./livesocket.js";
 import { upsertVisit } from "./lambda-profile.js";
-import { drawLambda, renderAlarms, renderLambdaNow } from "./live-panels.js";
+import { drawLambda, renderAlarms, renderLambdaNow, renderRefused } from "./live-panels.js";
 import { $, initTheme, mountOperator, setText, toast } from "./ui.js";
 
 const RECENT = 40; // ticks in a card's strip of latest frames
@@ -25,6 +25,8 @@ const state = {
   alarms: new Map(),
   ingestUp: false,
   healthAt: null,
+  refused: null, // the ingest's refused connections (unknown keys, plaintext): not modules, not alarms
+  linkSecurity: null,
   conn: "connecting",
   connInfo: {},
   lastLiveAt: null,
@@ -83,6 +85,7 @@ function onSnapshot(d) {
   state.stationDepth = d.station_depth_m ?? null;
   state.ingestUp = Boolean(d.ingest?.up);
   state.healthAt = state.ingestUp ? now - (d.ingest.age_s || 0) * 1000 : null;
+  state.refused = d.refused_connections || null;
   state.lastLiveAt = now;
   const seen = new Set();
   for (const [mid, sm] of Object.entries(d.modules || {})) {
@@ -176,6 +179,8 @@ function onEvent(msg) {
     case "health":
       state.ingestUp = true;
       state.healthAt = now;
+      state.refused = p.refused_connections || null;
+      state.linkSecurity = p.link_security || null;
       for (const [mid, h] of Object.entries(p.modules || {})) {
         const hm = moduleState(mid);
         hm.link = h.link;
@@ -391,7 +396,8 @@ function renderHeader(now) {
       banner.hidden = true;
     }
   }
-  setText($("#ingest-state"), `ingest ${ingestUp ? "up" : "down"}`);
+  setText($("#ingest-state"), `ingest ${ingestUp ? "up" : "down"}` + (state.linkSecurity === "plaintext" ? " · PLAINTEXT link" : ""));
+  renderRefused($("#refused"), state.refused);
   setText($("#dive-name"), state.dive ? `${state.dive.name}` : "no dive yet");
 }
 

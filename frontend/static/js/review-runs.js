@@ -187,7 +187,7 @@ async function refreshRuns(ctx) {
   renderRuns(ctx);
   fillCompare(ctx);
   await compare(ctx);
-  if (ctx.runs.some((r) => r.kind !== "live" && r.status === "running")) {
+  if (ctx.runs.some((r) => r.kind !== "live" && (r.status === "running" || r.status === "queued"))) {
     poll = setTimeout(() => refreshRuns(ctx), 1500);
   }
 }

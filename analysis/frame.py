@@ -57,7 +57,7 @@ class FrameConfig:
     ``saturated_pixel_fraction`` is the fraction of disk pixels allowed at 255
     before the frame counts as saturated even if the centre is in range.
     ``expected_radius_px`` is the LEM's radius the geometry predicts for this
-    camera (`camcal.frameset.Setup.disk_radius_px`): the size of the disk
+    camera (`camcal.core.frameset.Setup.disk_radius_px`): the size of the disk
     filter that finds a faint LEM (`analysis.detect.find_disk`); None tries
     several sizes.
     """

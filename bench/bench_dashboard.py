@@ -44,7 +44,7 @@ import httpx  # noqa: E402
 import numpy as np  # noqa: E402
 import zmq  # noqa: E402
 
-from camcal import wire  # noqa: E402
+from camcal.core import wire  # noqa: E402
 from tests.utils.system import CHROMIUM, CHROMIUM_ARGS, camcal_up, free_ports, stop_system, wait_until  # noqa: E402
 
 

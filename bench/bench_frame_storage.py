@@ -26,7 +26,7 @@ import numpy as np
 import pyarrow as pa
 from bench_ingest import frame_set  # bench/ is on the path when this file runs
 
-from camcal.frameset import PNG_PARAMS, decode_frame, read_manifest
+from camcal.core.frameset import PNG_PARAMS, decode_frame, read_manifest
 
 
 def write_fsync(path: Path, data: bytes) -> None:

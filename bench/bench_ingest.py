@@ -42,11 +42,11 @@ import zmq
 from sqlalchemy import func, select
 
 from analysis import FrameConfig
-from camcal import wire
-from camcal.frameset import read_manifest, read_setup
-from camcal.parallel import process_pool
-from camcal.schedule import Schedule
-from camcal.wire.keys import create_module_key, create_ship_key
+from camcal.core import wire
+from camcal.core.frameset import read_manifest, read_setup
+from camcal.core.parallel import process_pool
+from camcal.core.schedule import Schedule
+from camcal.core.wire.keys import create_module_key, create_ship_key
 from ingest.service import IngestConfig, IngestService
 from ingest.worker import analyse_stored_frame
 from lrm.simset import SimulationSpec, simulate_frame_set

@@ -19,7 +19,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from camcal.schedule import Schedule
+from camcal.core.schedule import Schedule
 from ingest.importer import import_frame_set
 from ingest.reanalysis import ReanalysisOptions, reanalyse, start_run
 from ingest.runners import DaskRunner, LocalRunner

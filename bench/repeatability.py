@@ -28,7 +28,7 @@ import time
 
 import numpy as np
 
-from camcal.frameset import SeriesSetup, Setup
+from camcal.core.frameset import SeriesSetup, Setup
 from ingest.rolling import Sample, VisitSeries
 from lrm.dive import DiveProfile, DiveSimulation, LEMTimetable, WaterColumn
 from lrm.dive.station import station_results

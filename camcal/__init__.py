@@ -1,7 +1,11 @@
 """camcal: camera-based optical calibration for deep-sea neutrino telescopes.
 
-This package holds the command line and what the module side and the ship
-side share: the frame-set format, the wire protocol and the schedule model.
+Layers, top to bottom (``pyproject.toml`` holds the contract ``make test`` checks):
+the command line and the applications (`camcal.cli`, `camcal.pipeline`,
+`camcal.fitset`, `camcal.report`, …) → ``server`` → ``ingest``, ``lrm`` →
+``storage`` → ``analysis`` → `camcal.core`, the ground both sides stand on.
 """
 
-__version__ = "0.1.0"
+from camcal.core import __version__
+
+__all__ = ["__version__"]

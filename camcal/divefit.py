@@ -18,10 +18,10 @@ from pathlib import Path
 from typing import Any
 
 from analysis.chisq import FitInputError
-from camcal import __version__
-from camcal.calibrations import setup_of
+from camcal.core import __version__
+from camcal.core.calibrations import setup_of
+from camcal.core.frameset import FrameSetError, ManifestRow, Setup, parse_setup
 from camcal.fitset import FitOptions, FolderFit, fit_analysis, to_json
-from camcal.frameset import FrameSetError, ManifestRow, Setup, parse_setup
 from camcal.pipeline import Overrides, analyze_rows
 from ingest.derived import Span
 from storage import queries

@@ -35,8 +35,8 @@ from analysis.transport.templates import (
     TemplateSettings,
     build_template_grid,
 )
-from camcal import __version__
-from camcal.frameset import FrameSetError
+from camcal.core import __version__
+from camcal.core.frameset import FrameSetError
 from camcal.pipeline import FrameSetAnalysis, Overrides, analyze_folder
 
 #: Focal length in pixels of the T-REX camera (2448 px across a 16° field of view in water).

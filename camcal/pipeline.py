@@ -23,8 +23,8 @@ from analysis import (
     analyze_records,
     rejected,
 )
-from camcal import __version__
-from camcal.frameset import (
+from camcal.core import __version__
+from camcal.core.frameset import (
     FrameReadError,
     FrameSetError,
     ManifestRow,
@@ -33,7 +33,7 @@ from camcal.frameset import (
     read_manifest,
     read_setup,
 )
-from camcal.parallel import map_in_order
+from camcal.core.parallel import map_in_order
 
 
 @dataclass(frozen=True)
@@ -58,7 +58,7 @@ class Overrides:
             data["emission_ratio"][wl] = {"value": v, "err": e}
         if self.linear_range is not None:
             data["linear_range"] = self.linear_range
-        from camcal.frameset import parse_setup
+        from camcal.core.frameset import parse_setup
 
         return parse_setup(data, "options")
 
@@ -156,8 +156,8 @@ def analyze_rows(
 ) -> FrameSetAnalysis:
     """Analyse the given rows of a frame set (see `analyze_folder`)."""
     folder = Path(folder)
-    configs = {cam: setup.frame_config(cam) for cam in {r.camera for r in rows}}
-    configs[""] = setup.frame_config(None)
+    configs = {cam: FrameConfig(**setup.frame_settings(cam)) for cam in {r.camera for r in rows}}
+    configs[""] = FrameConfig(**setup.frame_settings(None))
     workers = workers or os.cpu_count() or 1
     frames: list[FrameAnalysis] = []
     batch = 4

@@ -12,7 +12,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from analysis import FrameAnalysis, SetResult
-from camcal.frameset import ManifestRow
+from camcal.core.frameset import ManifestRow
 
 WAVELENGTH_COLORS = {405: "#7b4fff", 460: "#1f8fff", 525: "#22b34c"}
 

@@ -23,7 +23,7 @@ import time
 from collections import OrderedDict, defaultdict
 from typing import TYPE_CHECKING, Any
 
-from camcal import wire
+from camcal.core import wire
 from ingest.counters import RateLimitedLog
 from ingest.network import Incoming, nack
 from ingest.quarantine import Quarantine

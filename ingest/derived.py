@@ -16,7 +16,7 @@ import numpy as np
 
 from analysis import AttenuationResult, EmissionRatio, Geometry, combine_pairs, linearity_fit, pair_result
 from analysis.linearity import gain_factor
-from camcal.frameset import Setup
+from camcal.core.frameset import Setup
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """Who may connect to the ingest: the ZAP handler of the module link, and what it turned away.
 
-With CURVE (`camcal.wire.sockets`), libzmq asks a ZAP handler about every
+With CURVE (`camcal.core.wire.sockets`), libzmq asks a ZAP handler about every
 client that completes the CURVE handshake: the client proves it holds the
 secret of a public key, and the handler says whether that key may in, and
 as which module (the ZAP "user id", which every message of the connection
@@ -31,8 +31,8 @@ from typing import Any
 import zmq
 from zmq.utils.monitor import parse_monitor_message
 
-from camcal.wire.keys import authorised_modules, fingerprint, z85_of
-from camcal.wire.sockets import ZAP_DOMAIN
+from camcal.core.wire.keys import authorised_modules, fingerprint, z85_of
+from camcal.core.wire.sockets import ZAP_DOMAIN
 from ingest.counters import Counters, RateLimitedLog
 
 log = logging.getLogger("camcal.ingest")

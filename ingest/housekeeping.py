@@ -17,7 +17,7 @@ from collections import defaultdict
 from typing import TYPE_CHECKING, Any
 
 from analysis.attitude import attitude_from_samples
-from camcal import wire
+from camcal.core import wire
 from ingest.network import Incoming, nack
 
 if TYPE_CHECKING:

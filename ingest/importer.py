@@ -16,10 +16,10 @@ from functools import partial
 from pathlib import Path
 
 from analysis import FrameConfig
-from camcal.frameset import FrameReadError, ManifestRow, Setup, decode_frame, parse_manifest, parse_setup
-from camcal.parallel import process_pool
-from camcal.wire.models import is_id
-from camcal.wire.sensors import check_columns, check_rows
+from camcal.core.frameset import FrameReadError, ManifestRow, Setup, decode_frame, parse_manifest, parse_setup
+from camcal.core.parallel import process_pool
+from camcal.core.wire.models import is_id
+from camcal.core.wire.sensors import check_columns, check_rows
 from ingest.seqtrack import SeqTracker
 from ingest.worker import analyse_stored_frame
 from storage.files import RemoteFolder, UnsafePath
@@ -59,7 +59,7 @@ def read_frame_set(folder: RemoteFolder) -> tuple[RemoteFolder, bytes, list[Mani
 
     Raises `FrameSetError` for a missing or unusable manifest or setup.
     """
-    from camcal.frameset import MANIFEST, SETUP, FrameSetError
+    from camcal.core.frameset import MANIFEST, SETUP, FrameSetError
 
     frames_dir = _frames_folder(folder)
     try:

@@ -23,9 +23,9 @@ from typing import TYPE_CHECKING, Any
 
 import zmq
 
-from camcal import wire
-from camcal.wire.reasons import REASONS
-from camcal.wire.sockets import route_module
+from camcal.core import wire
+from camcal.core.wire.reasons import REASONS
+from camcal.core.wire.sockets import route_module
 from ingest.counters import RateLimitedLog
 
 if TYPE_CHECKING:

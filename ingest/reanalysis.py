@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from analysis import FrameConfig
-from camcal import __version__
-from camcal.frameset import Setup
+from camcal.core import __version__
+from camcal.core.frameset import Setup
 from ingest.derived import linearity_rows, mean_gray_by_setting, result_row
 from ingest.rolling import Sample, series_rows
 from ingest.runners import BatchRunner, LocalRunner
@@ -104,8 +104,8 @@ def reanalyse(
                     for fid, path in store.dive_frames(dive_id, options.t_from, options.t_to)
                 ]
             modules = store.frame_modules(fid for fid, _ in tasks)
-            configs = {m: setup.frame_config(m) for m in set(modules.values())}
-            configs[""] = setup.frame_config(None)
+            configs = {m: FrameConfig(**setup.frame_settings(m)) for m in set(modules.values())}
+            configs[""] = FrameConfig(**setup.frame_settings(None))
             n = analyse_into_run(
                 store,
                 run_id,

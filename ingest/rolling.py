@@ -35,7 +35,7 @@ from typing import Any
 
 from analysis import EmissionRatio, Geometry
 from analysis.visit import VisitFrame, VisitResult, visit_attenuation
-from camcal.frameset import SeriesSetup, Setup
+from camcal.core.frameset import SeriesSetup, Setup
 from ingest.derived import geometry_and_ratios
 
 #: Most frame results a series keeps in memory; the oldest are forgotten beyond it.

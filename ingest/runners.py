@@ -37,7 +37,7 @@ class LocalRunner:
             for b in batches:
                 yield fn(b, **kwargs)
             return
-        from camcal.parallel import process_pool
+        from camcal.core.parallel import process_pool
 
         with process_pool(min(self.workers, len(batches))) as pool:
             futures = [pool.submit(fn, b, **kwargs) for b in batches]

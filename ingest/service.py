@@ -50,10 +50,10 @@ import numpy as np
 import zmq
 
 from analysis import FrameConfig
-from camcal import __version__, wire
-from camcal.calibrations import setup_of
-from camcal.frameset import Setup
-from camcal.parallel import process_pool
+from camcal.core import __version__, wire
+from camcal.core.calibrations import setup_of
+from camcal.core.frameset import Setup
+from camcal.core.parallel import process_pool
 from ingest.alarms import AlarmLimits
 from ingest.commit import frame_meta_from_row
 from ingest.counters import Counters
@@ -93,7 +93,7 @@ class IngestConfig:
     thumbnails: bool = True
     alarm_limits: AlarmLimits = field(default_factory=AlarmLimits)
     modules: tuple[str, ...] = ()  # the modules this process serves; empty: any module
-    keys_dir: Path | None = None  # the link's CURVE keys (`camcal.wire.keys`)
+    keys_dir: Path | None = None  # the link's CURVE keys (`camcal.core.wire.keys`)
     plaintext: bool = False  # no keys, no encryption: a lab bench only, and only when asked for
 
     @property
@@ -284,7 +284,7 @@ class IngestService:
 
     # -- analysis pool ---------------------------------------------------
     def _analysis_config(self, module: str) -> FrameConfig:
-        return self.config.setup.frame_config(module)
+        return FrameConfig(**self.config.setup.frame_settings(module))
 
     def queue_analysis(self, frame_id: int, path: str, meta: dict[str, Any]) -> None:
         self._analysis_backlog.append((frame_id, path, meta))

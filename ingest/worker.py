@@ -16,7 +16,8 @@ import cv2
 import numpy as np
 
 from analysis import FrameAnalysis, FrameConfig, analyze_frame, rejected
-from camcal.frameset import FrameReadError, decode_frame, read_frame, write_atomic
+from camcal.core.files import write_atomic
+from camcal.core.frameset import FrameReadError, decode_frame, read_frame
 
 THUMB_WIDTH_PX = 512
 

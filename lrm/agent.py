@@ -29,9 +29,9 @@ from typing import Any
 import zmq
 from pydantic import ValidationError
 
-from camcal import __version__, wire
-from camcal.frameset import encode_png
-from camcal.schedule import CameraLimits, Schedule
+from camcal.core import __version__, wire
+from camcal.core.frameset import encode_png
+from camcal.core.schedule import CameraLimits, Schedule
 from lrm.commands import CommandHandling
 from lrm.outbox import Outbox
 from lrm.runner import Capture, ScheduleRunner
@@ -65,7 +65,7 @@ class AgentConfig:
     fsync: bool = True
     #: The dive this module is started for: it refuses an ingest of another dive (None: any).
     dive: str | None = None
-    #: The link's CURVE keys (`camcal.wire.keys`); without them the link is plaintext, which must
+    #: The link's CURVE keys (`camcal.core.wire.keys`); without them the link is plaintext, which must
     #: be asked for (``plaintext``): a lab bench only.
     keys: wire.ModuleKeys | None = None
     plaintext: bool = False

@@ -15,8 +15,8 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from camcal import wire
-from camcal.schedule import CameraLimits, Schedule
+from camcal.core import wire
+from camcal.core.schedule import CameraLimits, Schedule
 from lrm.outbox import Outbox
 from lrm.runner import ScheduleRunner
 

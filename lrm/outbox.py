@@ -27,8 +27,8 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from camcal import wire
-from camcal.frameset import MANIFEST, FrameSetWriter, ManifestRow, Setup, read_manifest
+from camcal.core import wire
+from camcal.core.frameset import MANIFEST, FrameSetWriter, ManifestRow, Setup, read_manifest
 
 
 @dataclass(frozen=True)
@@ -291,7 +291,7 @@ class Outbox:
             return None
 
     def save_json(self, name: str, obj: Any) -> None:
-        from camcal.frameset import write_atomic
+        from camcal.core.files import write_atomic
 
         write_atomic(
             self.root / name, (json.dumps(obj, indent=1, default=str) + "\n").encode(), fsync=self.fsync

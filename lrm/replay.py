@@ -9,8 +9,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from camcal.frameset import FrameReadError, ManifestRow, decode_frame, encode_png, read_manifest
-from camcal.schedule import Shot
+from camcal.core.frameset import FrameReadError, ManifestRow, decode_frame, encode_png, read_manifest
+from camcal.core.schedule import Shot
 from lrm.runner import Capture
 
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any, Protocol
 
-from camcal.schedule import Schedule, Shot
+from camcal.core.schedule import Schedule, Shot
 
 
 class LemClock(Protocol):

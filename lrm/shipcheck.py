@@ -31,7 +31,7 @@ from typing import Any
 import zmq
 from zmq.utils.monitor import parse_monitor_message
 
-from camcal import wire
+from camcal.core import wire
 
 log = logging.getLogger("camcal.lrm")
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from camcal.frameset import (
+from camcal.core.frameset import (
     MANIFEST,
     CameraSetup,
     FrameSetWriter,
@@ -27,8 +27,8 @@ from camcal.frameset import (
     encode_png,
     write_atomic,
 )
-from camcal.parallel import process_pool
-from camcal.schedule import Schedule, trex_subsampled
+from camcal.core.parallel import process_pool
+from camcal.core.schedule import Schedule, trex_subsampled
 from lrm.sim.camera import CameraModel
 from lrm.sim.render import FrameRenderer, TransportHalo
 from lrm.sim.scene import TREX_PLACEMENTS, LEMModel, Placement, Water, water_preset

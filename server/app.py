@@ -10,7 +10,7 @@ from fastapi import FastAPI
 from fastapi.middleware.gzip import GZipMiddleware
 from fastapi.staticfiles import StaticFiles
 
-from camcal import __version__
+from camcal.core import __version__
 from frontend import STATIC_DIR
 from server import errors, openapi
 from server.guard import Guard, TokenThrottle

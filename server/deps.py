@@ -8,7 +8,7 @@ from typing import Annotated, Any
 from fastapi import Depends, Path, Query, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from camcal.wire.models import ID_PATTERN
+from camcal.core.wire.models import ID_PATTERN
 from server.errors import ApiError
 from server.relay import LiveHub
 from server.settings import ServerSettings

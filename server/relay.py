@@ -22,7 +22,7 @@ from typing import Any
 
 import zmq
 
-from camcal.settings import endpoint_list
+from camcal.core.settings import endpoint_list
 from ingest.derived import dive_phase
 from storage import queries
 from storage.store import Store

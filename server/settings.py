@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from camcal.schedule import CameraLimits
+from camcal.core.schedule import CameraLimits
 
 
 @dataclass(frozen=True)

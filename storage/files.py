@@ -16,8 +16,8 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from camcal.frameset import fsync_dir, write_atomic
-from camcal.wire.models import is_id
+from camcal.core.files import fsync_dir, write_atomic
+from camcal.core.wire.models import is_id
 
 
 class UnsafePath(ValueError):

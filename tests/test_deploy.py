@@ -14,7 +14,7 @@ import yaml
 from typer.testing import CliRunner
 
 from camcal.cli import app
-from camcal.settings import Settings, field_names, load_settings
+from camcal.core.settings import Settings, field_names, load_settings
 from tests.utils.system import free_ports
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -173,7 +173,7 @@ def test_systemd_unit_runs_a_real_camcal_command_and_uses_its_readiness() -> Non
         assert opt in helptext, f"ExecStart: {opt} is not an option of `camcal up`"
     # camcal up notifies READY=1 once healthy and pings the watchdog; exit 2 is a configuration error
     assert unit["Type"] == "notify" and unit["NotifyAccess"] == "main" and "WatchdogSec" in unit
-    from camcal import supervise
+    from camcal.core import supervise
 
     assert unit["RestartPreventExitStatus"] == str(supervise.EXIT_USAGE)
 

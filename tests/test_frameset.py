@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from camcal.frameset import (
+from camcal.core.frameset import (
     FrameReadError,
     FrameSetError,
     FrameSetWriter,

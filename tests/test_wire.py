@@ -13,9 +13,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from camcal import wire
-from camcal.wire import dialect
-from camcal.wire.schema import schema_text
+from camcal.core import wire
+from camcal.core.wire import dialect
+from camcal.core.wire.schema import schema_text
 from tests.utils.wiremsgs import frame_parts, png_bytes, sensors_parts
 
 REPO = Path(__file__).resolve().parents[1]
@@ -175,7 +175,7 @@ def test_the_dialect_limits() -> None:
 def test_the_published_schema_is_generated_from_the_models() -> None:
     published = (REPO / "docs" / "protocol-v1.schema.json").read_text()
     assert published == schema_text(), (
-        "regenerate: python -m camcal.wire.schema > docs/protocol-v1.schema.json"
+        "regenerate: python -m camcal.core.wire.schema > docs/protocol-v1.schema.json"
     )
 
 

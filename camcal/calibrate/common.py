@@ -23,8 +23,8 @@ import numpy as np
 
 from analysis import REASON_HELP
 from analysis.linearity import gain_factor
-from camcal import __version__
-from camcal.frameset import (
+from camcal.core import __version__
+from camcal.core.frameset import (
     MANIFEST,
     SETUP,
     FrameReadError,
@@ -84,7 +84,7 @@ def select_rows(folder: Path, command: str, camera: str | None = None) -> Select
     """Read the manifest and setup, and keep the rows of one camera.
 
     A lab frame set normally holds one camera; with several, ``camera``
-    must name one. Raises `CalibrationError` (or `camcal.frameset.FrameSetError`
+    must name one. Raises `CalibrationError` (or `camcal.core.frameset.FrameSetError`
     for an unreadable set) with a one-line message.
     """
     folder = Path(folder)

@@ -26,7 +26,7 @@ from camcal.calibrate.common import (
     select_rows,
     value,
 )
-from camcal.frameset import ManifestRow
+from camcal.core.frameset import ManifestRow
 
 NAME = "emission_ratio"
 

@@ -33,7 +33,7 @@ from camcal.calibrate.common import (
     select_rows,
     value,
 )
-from camcal.frameset import ManifestRow
+from camcal.core.frameset import ManifestRow
 
 NAME = "linearity"
 SWEEP_UNITS = {"exposure": ("s", "gray/s"), "gain": ("gain factor", "gray per unit gain")}

@@ -24,7 +24,7 @@ from camcal.calibrate.common import (
     select_rows,
     value,
 )
-from camcal.frameset import ManifestRow, read_frame
+from camcal.core.frameset import ManifestRow, read_frame
 
 NAME = "psf"
 

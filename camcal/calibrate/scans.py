@@ -49,7 +49,7 @@ from camcal.calibrate.common import (
     value,
 )
 from camcal.calibrate.emission import measure_i_center
-from camcal.frameset import ManifestRow
+from camcal.core.frameset import ManifestRow
 
 #: Errors of a Hough radius. On simulated disks of 12-93 px radius behind a
 #: 1.2 px PSF, single fits scatter by 0.01-0.03 px (statistical, per frame)

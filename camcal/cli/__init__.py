@@ -7,7 +7,6 @@ import sys
 
 import typer
 
-from camcal import supervise
 from camcal.cli import (
     analyze,
     calibrate,
@@ -28,6 +27,7 @@ from camcal.cli import (
     transport,
     up,
 )
+from camcal.core import supervise
 
 app = typer.Typer(
     name="camcal",

@@ -17,7 +17,8 @@ from camcal.cli.overrides import (
     RatioOption,
     overrides_from,
 )
-from camcal.frameset import FrameSetError, write_atomic
+from camcal.core.files import write_atomic
+from camcal.core.frameset import FrameSetError
 
 if TYPE_CHECKING:
     from camcal.pipeline import FrameSetAnalysis

@@ -32,7 +32,8 @@ from camcal.calibrate.common import FrameOutcome, reason_counts
 from camcal.calibrate.psf import in_focus
 from camcal.calibrate.scans import LEM_DIAMETER_M
 from camcal.cli.common import console, err_console, fail
-from camcal.frameset import FrameSetError, write_atomic
+from camcal.core.files import write_atomic
+from camcal.core.frameset import FrameSetError
 
 calibrate_app = typer.Typer(
     help="Lab calibrations of the camera system: one subcommand per experiment, each on a frame set.",

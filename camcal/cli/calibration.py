@@ -10,10 +10,10 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from camcal.calibrations import CalibrationError, load_json, merge_results, record_values
 from camcal.cli.common import console, fail
 from camcal.cli.data import open_store
-from camcal.frameset import FrameSetError, Setup, parse_setup
+from camcal.core.calibrations import CalibrationError, load_json, merge_results, record_values
+from camcal.core.frameset import FrameSetError, Setup, parse_setup
 
 app = typer.Typer(help="Versioned calibration records: add, list, show.", no_args_is_help=True)
 

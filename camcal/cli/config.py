@@ -10,7 +10,7 @@ import typer
 from pydantic import ValidationError
 
 from camcal.cli.common import console, fail
-from camcal.settings import Settings, load_settings
+from camcal.core.settings import Settings, load_settings
 
 app = typer.Typer(
     help="The configuration: CAMCAL_ environment variables and an optional TOML file.", no_args_is_help=True

@@ -13,7 +13,7 @@ import secrets
 from pathlib import Path
 
 from camcal.cli.common import err_console, fail
-from camcal.settings import Settings
+from camcal.core.settings import Settings
 
 #: Environment variables the children of ``camcal up`` never get.
 SECRET_VARIABLES = ("CAMCAL_OPERATOR_TOKENS", "CAMCAL_OPERATOR_TOKENS_FILE")
@@ -60,8 +60,8 @@ def ship_key(settings: Settings) -> None:
     keys create A B`) nothing can connect yet, but the ingest starts and says so."""
     if settings.link_plaintext:
         return
-    from camcal import wire
-    from camcal.wire.keys import create_ship_key
+    from camcal.core import wire
+    from camcal.core.wire.keys import create_ship_key
 
     folder: Path = settings.keys_path()
     try:
@@ -79,8 +79,8 @@ def simulated_link(settings: Settings, modules: list[str]) -> list[str]:
     """
     if settings.link_plaintext:
         return ["--plaintext"]
-    from camcal import wire
-    from camcal.wire.keys import create_module_key, create_ship_key
+    from camcal.core import wire
+    from camcal.core.wire.keys import create_module_key, create_ship_key
 
     folder: Path = settings.keys_path()
     try:

@@ -9,7 +9,7 @@ import typer
 from rich.table import Table
 
 from camcal.cli.common import console, fail, progress_bar
-from camcal.frameset import FrameSetError
+from camcal.core.frameset import FrameSetError
 
 
 def register(app: typer.Typer) -> None:
@@ -62,7 +62,7 @@ def import_cmd(
     analyse: Annotated[bool, typer.Option(help="Analyse the imported frames.")] = True,
 ) -> None:
     """Load an SD-card frame set into a dive: frames already stored are skipped, gaps are filled."""
-    from camcal import __version__
+    from camcal.core import __version__
     from ingest.importer import import_frame_set
 
     store = open_store(data, db_url, create=True)

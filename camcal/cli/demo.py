@@ -27,10 +27,10 @@ def demo(
     repeats: Annotated[int, typer.Option(help="Frames per setting.")] = 3,
 ) -> None:
     """Simulate a T-REX frame set at 3420 m, analyse it and compare λ_att with the truth."""
-    from camcal.frameset import write_atomic
+    from camcal.core.files import write_atomic
+    from camcal.core.schedule import Schedule
     from camcal.pipeline import analyze_folder, to_json
     from camcal.plots import write_plots
-    from camcal.schedule import Schedule
     from lrm.sim.scene import water_preset
     from lrm.simset import SimulationSpec, simulate_frame_set
 

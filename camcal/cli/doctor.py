@@ -16,7 +16,7 @@ from rich.table import Table
 
 from camcal.cli.common import console
 from camcal.cli.config import settings_or_fail
-from camcal.settings import Settings, endpoint_list
+from camcal.core.settings import Settings, endpoint_list
 
 OK, WARN, FAIL = "ok", "warn", "FAIL"
 
@@ -128,7 +128,7 @@ def check_ingest(s: Settings, wait_s: float) -> tuple[list[tuple[str, str, str]]
 
 def check_link(s: Settings, health: dict[str, Any] | None) -> list[tuple[str, str, str]]:
     """The module link's security: keys, or a plaintext link (a warning), and refused connections."""
-    from camcal.wire.keys import list_keys
+    from camcal.core.wire.keys import list_keys
 
     plaintext = s.link_plaintext or (health or {}).get("link_security") == "plaintext"
     if plaintext:
@@ -221,7 +221,7 @@ def check_http(s: Settings) -> list[tuple[str, str, str]]:
 
 def check_processes(s: Settings) -> list[tuple[str, str, str]]:
     """camcal's processes on this machine and the ports they hold; those left behind are a warning."""
-    from camcal import procinfo
+    from camcal.core import procinfo
 
     wanted = {p for p in (_port_of(s.ingest_bind), _port_of(s.events_connect.split(",")[0])) if p}
     configured = {port for _, port in wanted} | {s.http_port}

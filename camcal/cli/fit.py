@@ -14,7 +14,8 @@ from rich.table import Table
 
 from camcal.cli.common import console, err_console, fail, parse_floats
 from camcal.cli.overrides import DistanceErrOption, DistanceOption, RatioOption, overrides_from
-from camcal.frameset import FrameSetError, write_atomic
+from camcal.core.files import write_atomic
+from camcal.core.frameset import FrameSetError
 from lrm.sim.camera import CameraModel
 
 if TYPE_CHECKING:

@@ -13,12 +13,12 @@ from typing import Annotated, Any
 
 import typer
 
-from camcal import supervise
 from camcal.cli.common import console, fail
 from camcal.cli.config import settings_or_fail
-from camcal.frameset import FrameSetError, Setup, parse_setup, read_setup
-from camcal.logs import configure_logging
-from camcal.settings import Settings
+from camcal.core import supervise
+from camcal.core.frameset import FrameSetError, Setup, parse_setup, read_setup
+from camcal.core.logs import configure_logging
+from camcal.core.settings import Settings
 
 
 def register(app: typer.Typer) -> None:

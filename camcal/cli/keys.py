@@ -44,8 +44,8 @@ def create(
     in a keys folder of the same layout, then delete the module's secret
     file from the ship. A running ingest lets a new module key in at once.
     """
-    from camcal import wire
-    from camcal.wire.keys import create_module_key, create_ship_key
+    from camcal.core import wire
+    from camcal.core.wire.keys import create_module_key, create_ship_key
 
     folder = _folder(keys, data)
     try:
@@ -68,7 +68,7 @@ def create(
 @app.command("list")
 def list_(keys: KeysDirOption = None, data: DataOption = None) -> None:
     """The ship's key and every module key the ship lets in: owner, public key (Z85), secret here or not."""
-    from camcal.wire.keys import list_keys
+    from camcal.core.wire.keys import list_keys
 
     folder = _folder(keys, data)
     found = list_keys(folder)

@@ -15,8 +15,8 @@ from typing import Annotated, Any
 import typer
 
 from camcal.cli.common import console, fail
-from camcal.frameset import FrameSetError
-from camcal.schedule import CameraLimits, Schedule
+from camcal.core.frameset import FrameSetError
+from camcal.core.schedule import CameraLimits, Schedule
 
 app = typer.Typer(
     help="Run a light receiver module: a real camera, simulated, or replaying a frame set.",
@@ -54,7 +54,7 @@ REFUSAL_GRACE_S = 10.0
 
 def link_keys(keys: Path, camera: str, plaintext: bool) -> Any:
     """The module's CURVE keys from ``keys``, or None for an explicitly plaintext link."""
-    from camcal import wire
+    from camcal.core import wire
 
     if plaintext:
         console.print("[yellow]warning:[/] plaintext link: no encryption, no authentication (lab bench only)")
@@ -77,7 +77,7 @@ def register(parent: typer.Typer) -> None:
 
 def load_schedule(name: str) -> Schedule:
     """A preset name or a JSON file with a schedule."""
-    from camcal.schedule import presets
+    from camcal.core.schedule import presets
 
     table = presets()
     if name in table:

@@ -11,7 +11,6 @@ from typing import Annotated, Any
 import typer
 from rich.table import Table
 
-from camcal.calibrations import setup_of
 from camcal.cli.common import console, fail
 from camcal.cli.overrides import (
     DistanceErrOption,
@@ -20,7 +19,9 @@ from camcal.cli.overrides import (
     RatioOption,
     overrides_from,
 )
-from camcal.frameset import FrameSetError, Setup, parse_setup, write_atomic
+from camcal.core.calibrations import setup_of
+from camcal.core.files import write_atomic
+from camcal.core.frameset import FrameSetError, Setup, parse_setup
 
 
 def register(app: typer.Typer) -> None:

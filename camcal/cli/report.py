@@ -38,8 +38,8 @@ def report(
     PNG; the file loads nothing from anywhere.
     """
     from camcal.cli.data import open_store
+    from camcal.core.frameset import FrameSetError
     from camcal.divefit import DiveLookupError
-    from camcal.frameset import FrameSetError
     from camcal.report import write_report
 
     target = out or Path(f"report-{dive}.html")

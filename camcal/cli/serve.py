@@ -14,12 +14,12 @@ from typing import Annotated
 
 import typer
 
-from camcal import supervise
 from camcal.cli.common import console, fail
 from camcal.cli.config import settings_or_fail
 from camcal.cli.credentials import operator_tokens
-from camcal.logs import configure_logging
-from camcal.settings import Settings
+from camcal.core import supervise
+from camcal.core.logs import configure_logging
+from camcal.core.settings import Settings
 
 
 def register(app: typer.Typer) -> None:

@@ -9,7 +9,7 @@ import typer
 
 from analysis.scattering import WaterOptics
 from camcal.cli.common import console, fail, parse_floats, parse_mapping, progress_bar
-from camcal.schedule import Schedule, trex_schedule, trex_subsampled
+from camcal.core.schedule import Schedule, trex_schedule, trex_subsampled
 from lrm.sim.camera import CameraModel
 from lrm.sim.scene import TREX_PLACEMENTS, Placement, Water, water_preset
 from lrm.simset import SimulationSpec, simulate_frame_set

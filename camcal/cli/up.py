@@ -1,6 +1,6 @@
 """``camcal up``: the whole system on one machine, started and ended as one.
 
-The ingest and the simulated modules run as children (`camcal.supervise`):
+The ingest and the simulated modules run as children (`camcal.core.supervise`):
 each ends with this process however it ends. ``camcal is up`` is printed
 only once every part reports healthy: the ingest bound (its ready report)
 and publishing (a health event), the dashboard answering ``/healthz``, and
@@ -22,13 +22,13 @@ from typing import Annotated, Any
 
 import typer
 
-from camcal import supervise
 from camcal.cli.common import console, err_console, fail
 from camcal.cli.config import settings_or_fail
 from camcal.cli.credentials import child_environment, ship_key, simulated_link, tokens_or_generated
 from camcal.cli.serve import HttpServer, bind_http, stop_signals
-from camcal.logs import configure_logging
-from camcal.settings import Settings
+from camcal.core import supervise
+from camcal.core.logs import configure_logging
+from camcal.core.settings import Settings
 
 MODULES = ("A", "B")
 #: Where the simulated dive begins: on deck (the real-time descent first), at the first test stop, on station.

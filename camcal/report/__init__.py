@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from camcal.frameset import write_atomic
+from camcal.core.files import write_atomic
 from camcal.report.collect import ReportData, collect
 from camcal.report.render import SECTIONS, render
 from storage.store import Store

@@ -9,9 +9,9 @@ from dataclasses import dataclass, field
 from importlib import metadata
 from typing import Any
 
-from camcal import __version__
+from camcal.core import __version__
+from camcal.core.frameset import Setup
 from camcal.divefit import DiveLookupError, pick_run, run_calibration
-from camcal.frameset import Setup
 from ingest.derived import Span, attenuation_dict, attenuation_over_span
 from storage import queries
 from storage.store import Store

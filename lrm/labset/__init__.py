@@ -25,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from camcal.frameset import MANIFEST, FrameSetWriter, ManifestRow, Setup, write_atomic
+from camcal.core.files import write_atomic
+from camcal.core.frameset import MANIFEST, FrameSetWriter, ManifestRow, Setup
 from lrm.labset.base import LabBase, LabShot
 from lrm.labset.darkroom import LINEARITY_EXPOSURES_S, EmissionRatioLab, LinearityLab, PSFLab
 from lrm.labset.scans import AirScanLab, TankScanLab

@@ -8,8 +8,8 @@ from fastapi import APIRouter, Path
 from fastapi.concurrency import run_in_threadpool
 from pydantic import BaseModel, ConfigDict, Field
 
-from camcal.calibrations import record_values
-from camcal.frameset import FrameSetError, parse_setup
+from camcal.core.calibrations import record_values
+from camcal.core.frameset import FrameSetError, parse_setup
 from server.deps import MAX_ID, OperatorDep, StoreDep
 from server.errors import Invalid, NotFound
 

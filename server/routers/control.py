@@ -10,7 +10,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
 from pydantic import BaseModel, ConfigDict, Field
 
-from camcal.schedule import Schedule, presets
+from camcal.core.schedule import Schedule, presets
 from ingest.derived import predict_settings, result_row
 from server.deps import ModuleId, OperatorDep, SettingsDep, StoreDep
 from server.errors import Conflict, Invalid, NotFound

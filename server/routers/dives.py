@@ -13,8 +13,8 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse
 from starlette.background import BackgroundTask
 
-from camcal.calibrations import setup_of
-from camcal.frameset import Setup, parse_setup
+from camcal.core.calibrations import setup_of
+from camcal.core.frameset import Setup, parse_setup
 from ingest.derived import Span, attenuation_dict, attenuation_over_span
 from ingest.reanalysis import ReanalysisOptions, reanalyse, start_run
 from server.deps import FloatQuery, IdPath, IdQuery, OperatorDep, SettingsDep, StoreDep

@@ -8,8 +8,9 @@ from fastapi import APIRouter, Query
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
 
-from camcal.frameset import FrameReadError, decode_frame, write_atomic
-from camcal.wire.image import ImageHeaderError, check_frame
+from camcal.core.files import write_atomic
+from camcal.core.frameset import FrameReadError, decode_frame
+from camcal.core.wire.image import ImageHeaderError, check_frame
 from ingest.worker import thumbnail_jpeg
 from server.deps import FloatQuery, IdPath, IdQuery, StoreDep, WavelengthQuery
 from server.errors import Gone, NotFound, Unreadable

@@ -10,7 +10,7 @@ from typing import Any
 from fastapi import APIRouter
 from fastapi.concurrency import run_in_threadpool
 
-from camcal import __version__
+from camcal.core import __version__
 from server.deps import HubDep, SettingsDep, StoreDep
 from storage import queries
 

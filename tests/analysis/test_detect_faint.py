@@ -7,7 +7,7 @@ LEM lost in the noise to a bright one, at two gains, with camcal's default
 sensor and a noisier one (dark offset 3 DN, ~1 DN read noise: the faint
 frames of issue 12), each LEM displaced at random in the frame. The frame
 analysis knows the LEM's size only from the geometry (distance, focal
-length: `Setup.frame_config`).
+length: `Setup.frame_settings`).
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from analysis import analyze_frame
-from camcal.frameset import Setup
+from analysis import FrameConfig, analyze_frame
+from camcal.core.frameset import Setup
 from lrm.sim import CameraModel, FrameRenderer, Placement
 from lrm.sim.scene import water_preset
 from tests.utils.sim import SMALL_CAMERA
@@ -49,7 +49,7 @@ def classified() -> list[dict[str, object]]:
     for cam in (SMALL_CAMERA, NOISY):
         for pl in (Placement("A", 21.56, 0.02, False), Placement("B", 41.62, 0.04, True)):
             r = FrameRenderer(cam, pl, water, seed=4)
-            config = setup.frame_config(pl.camera)
+            config = FrameConfig(**setup.frame_settings(pl.camera))
             assert config.expected_radius_px == pytest.approx(r.disk_radius_px, rel=1e-6)
             n_disk = math.pi * r.disk_radius_px**2
             for gain in (0.0, 6.0):
@@ -104,5 +104,5 @@ def test_without_a_lem_the_frame_is_no_source(classified: list[dict[str, object]
 
 def test_the_no_source_detail_says_how_far_the_best_disk_stood_out() -> None:
     frame = np.full((512, 640), 3, np.uint8)
-    res = analyze_frame(frame, Setup().frame_config("B"))
+    res = analyze_frame(frame, FrameConfig(**Setup().frame_settings("B")))
     assert res.reason == "no_source" and "45 px" in res.detail and "σ" in res.detail

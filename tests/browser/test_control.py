@@ -19,7 +19,7 @@ from typing import Any
 import httpx
 import pytest
 
-from camcal.schedule import linearity_scan, trex_subsampled
+from camcal.core.schedule import linearity_scan, trex_subsampled
 from storage.store import Store
 from tests.browser.conftest import camcal_page
 from tests.utils.system import SHORT_DIVE, System, camcal_up, module_pid, wait_until

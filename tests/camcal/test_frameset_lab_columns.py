@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camcal.frameset import FrameSetError, FrameSetWriter, ManifestRow, read_manifest
+from camcal.core.frameset import FrameSetError, FrameSetWriter, ManifestRow, read_manifest
 
 HEADER = (
     "file,camera,wavelength_nm,exposure_s,gain_db,distance_m,distance_err_m,temperature_c,medium,hemisphere\n"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 import time
 
-from camcal.parallel import map_in_order
+from camcal.core.parallel import map_in_order
 
 
 def _square_and_pid(x: int) -> tuple[int, int]:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from camcal import procinfo, supervise
+from camcal.core import procinfo, supervise
 
 pytestmark = pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="Linux /proc")
 

@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from analysis.scattering import WaterOptics
 from camcal.cli import app
-from camcal.schedule import Schedule
+from camcal.core.schedule import Schedule
 from lrm.sim.camera import CameraModel
 from lrm.sim.render import TransportHalo
 from lrm.sim.scene import Water

@@ -11,9 +11,9 @@ import pytest
 from sqlalchemy import select
 from typer.testing import CliRunner
 
-from camcal.calibrations import record_values
 from camcal.cli import app
-from camcal.frameset import parse_setup, read_manifest, read_setup
+from camcal.core.calibrations import record_values
+from camcal.core.frameset import parse_setup, read_manifest, read_setup
 from ingest.runners import DaskRunner
 from storage.models import AnalysisRun, Frame, FrameResult
 from storage.store import Store

@@ -18,8 +18,8 @@ import pytest
 from fastapi.testclient import TestClient
 from typer.testing import CliRunner
 
-from camcal import __version__
 from camcal.cli import app
+from camcal.core import __version__
 from camcal.report import SECTIONS
 from server.app import create_app
 from server.settings import ServerSettings

@@ -10,7 +10,7 @@ from typing import Any
 import pytest
 from sqlalchemy import select
 
-from camcal.frameset import Setup, read_setup
+from camcal.core.frameset import Setup, read_setup
 from ingest.reanalysis import ReanalysisOptions, reanalyse, start_run
 from ingest.runners import DaskRunner
 from storage.models import AnalysisRun, AttenuationPoint, FrameResult, LinearityCheck

@@ -8,7 +8,7 @@ import random
 
 import pytest
 
-from camcal.frameset import SeriesSetup, Setup
+from camcal.core.frameset import SeriesSetup, Setup
 from ingest.rolling import Sample, VisitSeries, series_rows
 
 SETTINGS = ((0.05, 8.0), (0.07, 8.0), (0.11, 8.0))

@@ -21,7 +21,7 @@ import math
 
 import pytest
 
-from camcal.frameset import Setup
+from camcal.core.frameset import Setup
 from ingest.rolling import Sample, VisitSeries
 from lrm.dive import DiveProfile, DiveSimulation, LEMTimetable, WaterColumn
 from lrm.dive.station import station_results

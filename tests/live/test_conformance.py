@@ -17,7 +17,7 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from camcal import wire
+from camcal.core import wire
 from tests.live.test_ingest import wait_for
 from tests.test_wire import CASES
 from tests.utils.live import make_agent

@@ -9,8 +9,8 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import select
 
-from camcal import wire
-from camcal.schedule import presets
+from camcal.core import wire
+from camcal.core.schedule import presets
 from server.app import create_app
 from server.settings import ServerSettings
 from storage.models import Event, Frame
@@ -156,7 +156,7 @@ def test_bad_requests_get_clear_errors(system) -> None:
 
 
 def scan_frames(s: dict) -> int:
-    from camcal.schedule import Schedule
+    from camcal.core.schedule import Schedule
 
     return Schedule.model_validate(s).n_frames
 

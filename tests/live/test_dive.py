@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from sqlalchemy import func, select
 
-from camcal.schedule import Schedule
+from camcal.core.schedule import Schedule
 from ingest.service import IngestService
 from lrm.agent import Agent, AgentConfig
 from lrm.camera import SimulatedCamera, SimulatedSensors

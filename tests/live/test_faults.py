@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from sqlalchemy import func, select
 
-from camcal.frameset import read_manifest
+from camcal.core.frameset import read_manifest
 from storage.models import Event, Frame, FrameResult
 from storage.store import Store
 from tests.live.test_ingest import wait_for

@@ -30,8 +30,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from camcal import wire
-from camcal.wire.keys import create_module_key
+from camcal.core import wire
+from camcal.core.wire.keys import create_module_key
 from tests.utils.live import cli_env
 from tests.utils.rogue import IngestProbe, invalid_json_events
 from tests.utils.schema_strategies import strategy

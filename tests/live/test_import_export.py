@@ -15,7 +15,7 @@ from sqlalchemy import func, select
 from typer.testing import CliRunner
 
 from camcal.cli import app
-from camcal.frameset import read_manifest
+from camcal.core.frameset import read_manifest
 from ingest.service import IngestService
 from storage.models import Frame, FrameResult, SensorBatch
 from storage.store import Store

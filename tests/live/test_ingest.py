@@ -10,7 +10,7 @@ import pytest
 import zmq
 from sqlalchemy import func, select
 
-from camcal import wire
+from camcal.core import wire
 from ingest.service import IngestService
 from storage.models import AttenuationPoint, Event, Frame, FrameResult, SensorSample
 from tests.utils.live import TcpProxy, make_agent

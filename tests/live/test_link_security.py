@@ -18,8 +18,8 @@ from pathlib import Path
 import pytest
 import zmq
 
-from camcal import wire
-from camcal.wire.keys import KeyPair
+from camcal.core import wire
+from camcal.core.wire.keys import KeyPair
 from storage.store import Store
 from tests.live.test_ingest import wait_for
 from tests.utils.live import make_agent

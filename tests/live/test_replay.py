@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from sqlalchemy import func, select
 
-from camcal.frameset import read_manifest, read_setup
+from camcal.core.frameset import read_manifest, read_setup
 from ingest.service import IngestService
 from storage.models import AttenuationPoint, Frame, FrameResult
 from tests.live.conftest import ingest_config

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from camcal.wire.keys import create_module_key, create_ship_key
+from camcal.core.wire.keys import create_module_key, create_ship_key
 from ingest.service import IngestService
 from tests.live.conftest import ingest_config
 from tests.live.test_ingest import wait_for

@@ -108,7 +108,7 @@ def test_nothing_of_camcal_ingest_and_its_worker_pool_outlives_it(tmp_path: Path
 
 def test_exit_statuses_are_documented() -> None:
     """Every status a long-running command exits with is in docs/operations.md, with its meaning."""
-    from camcal import supervise
+    from camcal.core import supervise
 
     doc = (Path(__file__).resolve().parents[2] / "docs" / "operations.md").read_text()
     for name in ("EXIT_OK", "EXIT_FAILED", "EXIT_USAGE", "EXIT_NOT_STARTED"):

@@ -15,7 +15,7 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import func, select
 
-from camcal.frameset import read_manifest
+from camcal.core.frameset import read_manifest
 from ingest.service import IngestService
 from server.app import create_app
 from server.settings import ServerSettings

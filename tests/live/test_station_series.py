@@ -27,7 +27,7 @@ import pyarrow.parquet as pq
 import pytest
 from sqlalchemy import func, select
 
-from camcal.schedule import Schedule
+from camcal.core.schedule import Schedule
 from lrm.dive import DiveProfile, DiveSimulation, LEMTimetable, WaterColumn
 from storage.models import AttenuationPoint, Frame, FrameResult
 from storage.store import Store

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import zmq
 
-from camcal.schedule import CameraLimits, Schedule
+from camcal.core.schedule import CameraLimits, Schedule
 from lrm.agent import Agent, AgentConfig
 from lrm.runner import ScheduleRunner
 from tests.utils.live import FakeShip, Frame, RealClock

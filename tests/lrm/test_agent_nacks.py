@@ -10,8 +10,8 @@ from pathlib import Path
 
 import zmq
 
-from camcal import wire
-from camcal.frameset import read_manifest
+from camcal.core import wire
+from camcal.core.frameset import read_manifest
 from lrm.agent import MAX_RESENDS
 from lrm.outbox import Outbox
 from tests.lrm.test_agent_commands import Module, schedule

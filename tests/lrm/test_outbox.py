@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camcal import wire
-from camcal.frameset import encode_png, read_manifest
+from camcal.core import wire
+from camcal.core.frameset import encode_png, read_manifest
 from lrm.outbox import Outbox
 
 T0 = datetime(2021, 9, 10, 4, 0, 0, tzinfo=UTC)

@@ -12,7 +12,7 @@ from datetime import UTC, datetime, timedelta
 
 import pytest
 
-from camcal.schedule import Schedule
+from camcal.core.schedule import Schedule
 from lrm.runner import Capture, ScheduleRunner
 
 EPOCH = datetime(2021, 9, 10, 4, 0, 0, tzinfo=UTC)

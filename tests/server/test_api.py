@@ -7,7 +7,7 @@ import math
 import pytest
 from fastapi.testclient import TestClient
 
-from camcal.schedule import Schedule
+from camcal.core.schedule import Schedule
 from tests.server.conftest import TOKEN
 
 

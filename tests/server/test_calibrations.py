@@ -13,7 +13,7 @@ from fastapi.testclient import TestClient
 from typer.testing import CliRunner
 
 from camcal.cli import app as cli
-from camcal.frameset import Setup
+from camcal.core.frameset import Setup
 from ingest.service import IngestConfig, IngestService
 from server.app import create_app
 from server.settings import ServerSettings

@@ -7,7 +7,7 @@ import time
 from datetime import UTC, datetime
 from pathlib import Path
 
-from camcal.schedule import Schedule
+from camcal.core.schedule import Schedule
 from ingest.alarms import AlarmLimits
 from ingest.service import IngestConfig, IngestService
 from lrm.agent import Agent, AgentConfig

@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 import zmq
 
-from camcal import wire
-from camcal.schedule import CameraLimits, Schedule
+from camcal.core import wire
+from camcal.core.schedule import CameraLimits, Schedule
 from lrm.agent import Agent, AgentConfig
 from lrm.runner import ScheduleRunner
 from tests.utils.sim import SMALL_CAMERA, renderer
@@ -338,7 +338,7 @@ def cli_env() -> dict[str, str]:
 
 def link_keys(data: Path, *modules: str) -> Path:
     """The link's keys in ``data/keys`` (the ingest's default): the ship's and ``modules``' (A, B if none)."""
-    from camcal.wire.keys import create_module_key, create_ship_key
+    from camcal.core.wire.keys import create_module_key, create_ship_key
 
     folder = data / "keys"
     create_ship_key(folder)

@@ -8,7 +8,7 @@ from typing import Any
 
 from sqlalchemy import func, select
 
-from camcal.frameset import read_setup
+from camcal.core.frameset import read_setup
 from ingest.alarms import AlarmLimits
 from ingest.service import IngestConfig, IngestService
 from lrm.agent import Agent, AgentConfig

@@ -23,8 +23,8 @@ from typing import Any
 
 import zmq
 
-from camcal import wire
-from camcal.wire.keys import KeyPair, create_module_key, ship_public
+from camcal.core import wire
+from camcal.core.wire.keys import KeyPair, create_module_key, ship_public
 from tests.utils.live import link_keys, start_ingest
 from tests.utils.system import free_ports
 

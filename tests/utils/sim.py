@@ -89,7 +89,7 @@ def small_frame_set(
     gains: tuple[float, ...] = (2.0, 8.0),
 ) -> dict[str, object]:
     """A quick frame set on the small sensor: T-REX geometry, a few settings."""
-    from camcal.schedule import Schedule
+    from camcal.core.schedule import Schedule
 
     spec = SimulationSpec(
         water=water or water_preset("trex"),

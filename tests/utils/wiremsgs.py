@@ -14,7 +14,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from camcal import wire
+from camcal.core import wire
 
 T0 = datetime(2026, 11, 25, 3, 0, tzinfo=UTC)
 

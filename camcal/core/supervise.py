@@ -6,7 +6,7 @@ OOM killer or a power cut. This module gives them one way to behave:
 
 * **Ports first.** `check_port` tries a port the way the service will bind
   it; if it is taken, `PortInUse` says which part wanted it, who holds it
-  (from /proc, `camcal.procinfo`) and which setting to change.
+  (from /proc, `camcal.core.procinfo`) and which setting to change.
 * **Children report.** `Supervisor.spawn` starts a ``camcal`` command with one
   end of a socket pair; the child (`attach`, called first thing by the CLI)
   writes one JSON line on it when it is ready (`notify_ready`) or why it
@@ -15,7 +15,7 @@ OOM killer or a power cut. This module gives them one way to behave:
   when its parent dies (``PR_SET_PDEATHSIG``) and watches the socket pair:
   end of file means the parent is gone, however it ended. It then stops as for
   SIGTERM and exits for good after `ORPHAN_GRACE_S` at the latest. Analysis
-  workers do the same towards their fork server (`camcal.parallel`); the fork
+  workers do the same towards their fork server (`camcal.core.parallel`); the fork
   server and the resource tracker end when their own parent's pipe closes.
 * **Exit statuses say what happened** (``EXIT_*``; docs/operations.md).
 
@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from camcal import procinfo
+from camcal.core import procinfo
 
 #: Stopped as asked (SIGINT, SIGTERM), or the work is done.
 EXIT_OK = 0

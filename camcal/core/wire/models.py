@@ -1,7 +1,7 @@
 """Every message of the module protocol as a strict model: types, units, ranges, lengths.
 
 The models are the protocol: ``docs/protocol-v1.schema.json`` is generated
-from them (`camcal.wire.schema`) and ``docs/protocol.md`` explains them. A
+from them (`camcal.core.wire.schema`) and ``docs/protocol.md`` explains them. A
 header field that is missing, of another JSON type, out of its range or too
 long makes the message ``invalid_field``. Unknown fields are ignored, so a
 later minor version can add fields without breaking older ships.
@@ -15,13 +15,13 @@ from typing import Annotated, Any, Literal
 
 from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, Strict
 
-from camcal.wire.limits import (
+from camcal.core.wire.limits import (
     INT_MAX,
     MAX_SENSOR_ROWS,
     TIME_MAX,
     TIME_MIN,
 )
-from camcal.wire.sensors import SENSOR_COLUMNS
+from camcal.core.wire.sensors import SENSOR_COLUMNS
 
 PROTOCOL_VERSION: Literal[1] = 1
 ID_PATTERN = r"^[A-Za-z0-9_.-]*[A-Za-z0-9_-][A-Za-z0-9_.-]*$"  # at least one character not a dot
@@ -211,7 +211,7 @@ class Ack(_Header):
 
 
 class Nack(_Header):
-    """A message the ship refused, with why (`camcal.wire.reasons`) and whether resending can help.
+    """A message the ship refused, with why (`camcal.core.wire.reasons`) and whether resending can help.
 
     ``boot`` and ``seq`` identify the refused data message where the ship
     could read them; ``of`` is the refused message's type where known.

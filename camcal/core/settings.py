@@ -22,7 +22,7 @@ from pydantic_settings import (
     TomlConfigSettingsSource,
 )
 
-from camcal.frameset import CameraSetup, RatioSetup, SeriesSetup, Setup
+from camcal.core.frameset import CameraSetup, RatioSetup, SeriesSetup, Setup
 
 
 class AlarmSettings(BaseModel):

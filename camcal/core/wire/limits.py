@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from datetime import UTC, datetime
 
-from camcal.wire.dialect import INT_MAX, INT_MIN
+from camcal.core.wire.dialect import INT_MAX, INT_MIN
 
 #: Largest header accepted (bytes of JSON).
 MAX_HEADER_BYTES = 64 * 1024

@@ -11,7 +11,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from camcal.frameset import FrameSetError, Setup, parse_setup
+from camcal.core.frameset import FrameSetError, Setup, parse_setup
 
 
 class CalibrationError(ValueError):

@@ -8,10 +8,10 @@ from typing import Annotated, Any
 import zmq
 from pydantic import BaseModel, Field, TypeAdapter, ValidationError
 
-from camcal.wire import dialect, models, sensors
-from camcal.wire.image import ImageHeaderError, check_frame
-from camcal.wire.limits import MAX_HEADER_BYTES, MAX_PAYLOAD_BYTES
-from camcal.wire.models import (
+from camcal.core.wire import dialect, models, sensors
+from camcal.core.wire.image import ImageHeaderError, check_frame
+from camcal.core.wire.limits import MAX_HEADER_BYTES, MAX_PAYLOAD_BYTES
+from camcal.core.wire.models import (
     DATA_TYPES,
     MODULE_TYPES,
     PROTOCOL_VERSION,
@@ -39,7 +39,7 @@ _SENSOR_DEPTH = 2
 
 
 class ProtocolError(Exception):
-    """A message that cannot be accepted. ``kind`` is its reason (`camcal.wire.reasons`).
+    """A message that cannot be accepted. ``kind`` is its reason (`camcal.core.wire.reasons`).
 
     ``ref`` holds what could be read of the refused message (``type``,
     ``module``, ``boot``, ``seq``) so that the refusal can name it.

@@ -7,7 +7,7 @@ fork server instead, which has the heavy modules already imported.
 
 Nothing outlives the process that made the pool, however it ends (even
 SIGKILL): each worker leaves as soon as that process is gone
-(`camcal.supervise.exit_when_gone`) — it would otherwise wait forever on its
+(`camcal.core.supervise.exit_when_gone`) — it would otherwise wait forever on its
 task queue, whose writing end it holds itself, and keep the fork server
 alive, which serves as long as any of its clients lives. The fork server and
 the resource tracker then see their pipes close and exit.
@@ -23,12 +23,12 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any, TypeVar
 
-from camcal.supervise import exit_when_gone
+from camcal.core.supervise import exit_when_gone
 
 T = TypeVar("T")
 R = TypeVar("R")
 
-_PRELOAD = ["numpy", "cv2", "scipy.optimize", "analysis", "camcal.frameset"]
+_PRELOAD = ["numpy", "cv2", "scipy.optimize", "analysis", "camcal.core.frameset"]
 _context: Any = None
 
 

@@ -1,6 +1,6 @@
 """The protocol as a JSON Schema, generated from the models (``docs/protocol-v1.schema.json``).
 
-Regenerate the published file with ``python -m camcal.wire.schema >
+Regenerate the published file with ``python -m camcal.core.wire.schema >
 docs/protocol-v1.schema.json``; a test fails when it is out of date. The
 schema describes headers; the payloads (an image, or rows of sensor values)
 and the dialect's limits are described in its ``description`` and in
@@ -12,11 +12,11 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from camcal.wire.codec import ADAPTER
-from camcal.wire.dialect import MAX_HEADER_DEPTH, MAX_NUMBER_CHARS
-from camcal.wire.limits import MAX_HEADER_BYTES
-from camcal.wire.reasons import REASONS
-from camcal.wire.sensors import SENSOR_SPEC
+from camcal.core.wire.codec import ADAPTER
+from camcal.core.wire.dialect import MAX_HEADER_DEPTH, MAX_NUMBER_CHARS
+from camcal.core.wire.limits import MAX_HEADER_BYTES
+from camcal.core.wire.reasons import REASONS
+from camcal.core.wire.sensors import SENSOR_SPEC
 
 #: Version of the schema document: the protocol version, then a revision for additions that keep it.
 SCHEMA_VERSION = "1.2"

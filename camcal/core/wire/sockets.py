@@ -1,6 +1,6 @@
 """The sockets of the link: the ship's ROUTER and a module's DEALER, with the recommended options.
 
-With keys (`camcal.wire.keys`) both speak ZeroMQ CURVE: the ship is the
+With keys (`camcal.core.wire.keys`) both speak ZeroMQ CURVE: the ship is the
 CURVE server and asks its ZAP handler (``inproc://zeromq.zap.01`` of its
 context, domain ``camcal``) which module each client key belongs to; a
 module is a CURVE client that knows the ship's public key. Without keys the
@@ -14,8 +14,8 @@ from typing import Any
 
 import zmq
 
-from camcal.wire.keys import KeyPair, ModuleKeys
-from camcal.wire.limits import MAX_PAYLOAD_BYTES
+from camcal.core.wire.keys import KeyPair, ModuleKeys
+from camcal.core.wire.limits import MAX_PAYLOAD_BYTES
 
 #: The ZAP domain of the module link.
 ZAP_DOMAIN = b"camcal"

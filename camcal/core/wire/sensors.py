@@ -14,7 +14,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from camcal.wire.limits import TIME_MAX_UNIX_S, TIME_MIN_UNIX_S
+from camcal.core.wire.limits import TIME_MAX_UNIX_S, TIME_MIN_UNIX_S
 
 
 @dataclass(frozen=True)

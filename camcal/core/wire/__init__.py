@@ -4,7 +4,7 @@ ZeroMQ DEALER (module) to ROUTER (ship) over TCP. Every message is a
 multipart message of one UTF-8 JSON header and at most one binary payload.
 ``docs/protocol.md`` describes it for someone writing a module in another
 language, ``docs/protocol-v1.schema.json`` is its JSON Schema (generated
-from `camcal.wire.models`); this package is the reference implementation.
+from `camcal.core.wire.models`); this package is the reference implementation.
 JSON headers and raw bytes only: never pickle.
 
 * `dialect`: the JSON dialect (limits on numbers and depth, no NaN);
@@ -18,7 +18,7 @@ JSON headers and raw bytes only: never pickle.
 * `schema`: the JSON Schema of the protocol.
 """
 
-from camcal.wire.codec import (
+from camcal.core.wire.codec import (
     ADAPTER,
     Message,
     ProtocolError,
@@ -28,9 +28,9 @@ from camcal.wire.codec import (
     sensors_payload,
     sha256_hex,
 )
-from camcal.wire.keys import KeyFileError, KeyPair, ModuleKeys, module_keys, ship_pair
-from camcal.wire.limits import MAX_HEADER_BYTES, MAX_PAYLOAD_BYTES, MAX_SENSOR_ROWS
-from camcal.wire.models import (
+from camcal.core.wire.keys import KeyFileError, KeyPair, ModuleKeys, module_keys, ship_pair
+from camcal.core.wire.limits import MAX_HEADER_BYTES, MAX_PAYLOAD_BYTES, MAX_SENSOR_ROWS
+from camcal.core.wire.models import (
     DATA_TYPES,
     MODULE_TYPES,
     PROTOCOL_VERSION,
@@ -50,9 +50,9 @@ from camcal.wire.models import (
     is_id,
     utc_now,
 )
-from camcal.wire.reasons import REASONS, Reason
-from camcal.wire.sensors import SENSOR_COLUMNS, SENSOR_SPEC
-from camcal.wire.sockets import module_socket, ship_socket
+from camcal.core.wire.reasons import REASONS, Reason
+from camcal.core.wire.sensors import SENSOR_COLUMNS, SENSOR_SPEC
+from camcal.core.wire.sockets import module_socket, ship_socket
 
 __all__ = [
     "ADAPTER",

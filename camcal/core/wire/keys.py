@@ -25,7 +25,7 @@ from pathlib import Path
 import zmq.auth
 import zmq.utils.z85
 
-from camcal.wire.models import is_id
+from camcal.core.wire.models import is_id
 
 SHIP = "ship"
 

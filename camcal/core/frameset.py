@@ -13,7 +13,6 @@ import json
 import math
 import os
 import struct
-import threading
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,7 +23,7 @@ import deflate
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from analysis.frame import FrameConfig
+from camcal.core.files import write_atomic
 
 MANIFEST = "manifest.csv"
 SETUP = "setup.json"
@@ -169,13 +168,17 @@ class Setup(BaseModel):
         focal = cam.focal_px or self.focal_px
         return focal * a / math.sqrt(cam.distance_m**2 - a * a)
 
-    def frame_config(self, camera: str | None = None) -> FrameConfig:
-        """The per-frame analysis settings for a camera's frames: linear range and disk size."""
+    def frame_settings(self, camera: str | None = None) -> dict[str, Any]:
+        """The per-frame analysis settings for a camera's frames: linear range and disk size.
+
+        Plain values, the keyword arguments of `analysis.frame.FrameConfig`
+        (the kernel knows no analysis types): ``FrameConfig(**setup.frame_settings(cam))``.
+        """
         lo, hi = self.linear_range
-        return FrameConfig(
-            linear_range_gray=(lo, hi),
-            expected_radius_px=self.disk_radius_px(camera) if camera is not None else None,
-        )
+        return {
+            "linear_range_gray": (lo, hi),
+            "expected_radius_px": self.disk_radius_px(camera) if camera is not None else None,
+        }
 
     @field_validator("linear_range")
     @classmethod
@@ -466,30 +469,6 @@ def encode_png(frame: np.ndarray) -> bytes:
     if not ok:
         raise ValueError("PNG encoding failed")
     return buf.tobytes()
-
-
-def write_atomic(path: Path, data: bytes | memoryview, *, fsync: bool = True) -> None:
-    """Write ``data`` to a temporary name, fsync, then rename over ``path``.
-
-    A reader (or a crash) never sees a half-written file under ``path``.
-    """
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}-{threading.get_native_id()}")
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-        if fsync:
-            fh.flush()
-            os.fsync(fh.fileno())
-    os.replace(tmp, path)
-
-
-def fsync_dir(path: Path) -> None:
-    """Make a rename inside ``path`` durable."""
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 # -------------------------------------------------------------------- writer

@@ -1,0 +1,35 @@
+"""Writes that survive a power cut: a file appears whole or not at all, and its rename is durable.
+
+The bottom of the kernel: the frame set, the module's outbox and the ship's
+frame store all write through these two functions.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from pathlib import Path
+
+
+def write_atomic(path: Path, data: bytes | memoryview, *, fsync: bool = True) -> None:
+    """Write ``data`` to a temporary name, fsync, then rename over ``path``.
+
+    A reader (or a crash) never sees a half-written file under ``path``.
+    """
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}-{threading.get_native_id()}")
+    with open(tmp, "wb") as fh:
+        fh.write(data)
+        if fsync:
+            fh.flush()
+            os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def fsync_dir(path: Path) -> None:
+    """Make a rename inside ``path`` durable."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)

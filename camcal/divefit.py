@@ -20,7 +20,8 @@ from typing import Any
 from analysis.chisq import FitInputError
 from camcal import __version__
 from camcal.calibrations import setup_of
-from camcal.fitset import FitOptions, FolderFit, fit_analysis, to_json
+from camcal.fitdoc import to_json
+from camcal.fitset import FitOptions, FolderFit, fit_analysis
 from camcal.frameset import FrameSetError, ManifestRow, Setup, parse_setup
 from camcal.pipeline import Overrides, analyze_rows
 from ingest.derived import Span

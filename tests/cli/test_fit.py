@@ -80,13 +80,19 @@ def fit_args(folder: Path, cache_dir: Path, *extra: str) -> list[str]:
     ]
 
 
+#: The systematic budget refits every wavelength a dozen times: tested on its own (slow).
+NO_BUDGET = "--no-systematics"
+
+
 @pytest.fixture(scope="module")
 def fitted(
     frameset: Path, cache_dir: Path, tmp_path_factory: pytest.TempPathFactory
 ) -> tuple[int, str, Path]:
     out = tmp_path_factory.mktemp("fit-out")
     code, output = run(
-        *fit_args(frameset, cache_dir, "--json", str(out / "fit.json"), "--plots", str(out / "plots"))
+        *fit_args(
+            frameset, cache_dir, NO_BUDGET, "--json", str(out / "fit.json"), "--plots", str(out / "plots")
+        )
     )
     return code, output, out
 

@@ -34,13 +34,18 @@ class Objective:
         j, i = np.unravel_index(int(np.argmin(scan)), scan.shape)
         return np.array([la[i], ls[j]])
 
-    def minimise(self, start: np.ndarray | None = None) -> np.ndarray:
-        """The minimum: from ``start`` (ln λ_abs, ln λ_sca), or from a coarse scan when None."""
+    def minimise(self, start: np.ndarray | None = None, *, near: bool = False) -> np.ndarray:
+        """The minimum: from ``start`` (ln λ_abs, ln λ_sca), or from a coarse scan when None.
+
+        ``near``: the start is already close (a refit of the same data with one input
+        changed): one pass with a small first simplex instead of two with a wide one.
+        """
         best = self.coarse_start() if start is None else np.clip(start, self.bounds[:, 0], self.bounds[:, 1])
         prob = self.prob
-        for _ in range(2):  # the template errors held at the current best water
+        step = np.array([0.02, 0.01]) if near else np.array([0.1, 0.05])
+        for _ in range(1 if near else 2):  # the template errors held at the current best water
             prob.freeze_template_errors(math.exp(best[0]), math.exp(best[1]))
-            best = self._nelder_mead(best)
+            best = self._nelder_mead(best, step)
         for _ in range(2):
             _, info = prob.chi2(math.exp(best[0]), math.exp(best[1]), detail=True)
             shifts = np.asarray(info["shifts"])
@@ -51,11 +56,11 @@ class Objective:
             if np.array_equal(work, prob.work):
                 break
             prob.set_working_point(work)
-            best = self._nelder_mead(best)
+            best = self._nelder_mead(best, step)
         return best
 
-    def _nelder_mead(self, start: np.ndarray) -> np.ndarray:
-        simplex = np.array([start, start + np.array([0.1, 0.0]), start + np.array([0.0, 0.05])])
+    def _nelder_mead(self, start: np.ndarray, step: np.ndarray) -> np.ndarray:
+        simplex = np.array([start, start + np.array([step[0], 0.0]), start + np.array([0.0, step[1]])])
         res = minimize(
             self,
             start,

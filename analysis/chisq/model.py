@@ -10,7 +10,7 @@ import numpy as np
 from analysis.attenuation import EmissionRatio, Geometry
 from analysis.chisq.data import FitInputError, SettingProfiles, quantisation_bias_gray
 from analysis.chisq.results import FitConfig
-from analysis.transport.disk import disk_radius_px
+from analysis.transport.disk import BandPixels, disk_radius_px
 from analysis.transport.templates import EmissionProfile, TemplateGrid
 
 
@@ -24,7 +24,11 @@ class Problem:
         geometry: Geometry,
         ratio: EmissionRatio,
         config: FitConfig,
+        disk_cache: dict[tuple[int, int, float, float], tuple[np.ndarray, ...]] | None = None,
     ) -> None:
+        # Disk profiles per (setting, camera, radius, PSF width): refits of the same settings with
+        # another input (the systematic budget) share them; they cost most of a refit otherwise.
+        self._disk_cache = {} if disk_cache is None else disk_cache
         self.grid = grid
         self.geometry = geometry
         self.ratio = ratio
@@ -106,26 +110,31 @@ class Problem:
         self.distances = dists
         self.disk_r = np.array([disk_radius_px(d, self.lem_radius_m, self.focal_px * scale) for d in dists])
         disk, d_r, d_s = [], [], []
-        for s in self.settings:
+        for i, s in enumerate(self.settings):
             per_cam = []
             for c, prof in enumerate((s.near, s.far)):
-                r = self.disk_r[c]
-                base = prof.pixels.disk_profile(r, psf)[: self.n]
-                dr = (
-                    prof.pixels.disk_profile(r + 0.05, psf)[: self.n]
-                    - prof.pixels.disk_profile(r - 0.05, psf)[: self.n]
-                ) / 0.1
-                ds = (
-                    prof.pixels.disk_profile(r, psf + 0.05)[: self.n]
-                    - prof.pixels.disk_profile(r, max(psf - 0.05, 0.1))[: self.n]
-                ) / (psf + 0.05 - max(psf - 0.05, 0.1))
-                per_cam.append((base, dr, ds))
+                key = (i, c, round(float(self.disk_r[c]), 9), round(float(psf), 9))
+                if key not in self._disk_cache:
+                    self._disk_cache[key] = self._disk_pieces(prof.pixels, float(self.disk_r[c]), psf)
+                per_cam.append(self._disk_cache[key])
             disk.append([p[0] for p in per_cam])
             d_r.append([p[1] for p in per_cam])
             d_s.append([p[2] for p in per_cam])
         self.disk = np.nan_to_num(np.array(disk))
         self.disk_dr = np.nan_to_num(np.array(d_r))
         self.disk_ds = np.nan_to_num(np.array(d_s))
+
+    def _disk_pieces(self, pixels: BandPixels, r: float, psf: float) -> tuple[np.ndarray, ...]:
+        """The blurred disk's band profile and its derivatives in radius and PSF width."""
+        base = pixels.disk_profile(r, psf)[: self.n]
+        dr = (
+            pixels.disk_profile(r + 0.05, psf)[: self.n] - pixels.disk_profile(r - 0.05, psf)[: self.n]
+        ) / 0.1
+        lo = max(psf - 0.05, 0.1)
+        ds = (pixels.disk_profile(r, psf + 0.05)[: self.n] - pixels.disk_profile(r, lo)[: self.n]) / (
+            psf + 0.05 - lo
+        )
+        return base, dr, ds
 
     # -- the model --------------------------------------------------------
     def model(self, lambda_abs_m: float, lambda_sca_m: float) -> dict[str, np.ndarray]:

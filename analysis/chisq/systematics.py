@@ -110,12 +110,20 @@ class _Refitter:
         )
         self.n_refits = 0
         self._refs: dict[str, np.ndarray] = {}
+        self._disks: dict = {}  # type: ignore[type-arg]
 
     def __call__(self, **replaced: object) -> np.ndarray:
         """(λ_abs, λ_sca, λ_att, χ²) of the minimum with ``replaced`` inputs, found from the nominal one."""
         kw = {**self.inputs, **replaced}
-        obj = make_objective(self.settings, kw["grid"], kw["geometry"], kw["ratio"], kw["config"])  # type: ignore[arg-type]
-        p = obj.minimise(self.start)
+        obj = make_objective(
+            self.settings,
+            kw["grid"],  # type: ignore[arg-type]
+            kw["geometry"],  # type: ignore[arg-type]
+            kw["ratio"],  # type: ignore[arg-type]
+            kw["config"],  # type: ignore[arg-type]
+            self._disks,
+        )
+        p = obj.minimise(self.start, near=True)
         best = np.exp(p)
         self.n_refits += 1
         return np.array([best[0], best[1], 1.0 / (1.0 / best[0] + 1.0 / best[1]), obj(p)])

@@ -31,9 +31,13 @@ def make_objective(
     geometry: Geometry,
     ratio: EmissionRatio,
     config: FitConfig,
+    disk_cache: dict | None = None,  # type: ignore[type-arg]
 ) -> Objective:
-    """The χ² of (ln λ_abs, ln λ_sca) over the allowed range (λ_abs's and the grid's λ_sca)."""
-    prob = Problem(settings, grid, geometry, ratio, config)
+    """The χ² of (ln λ_abs, ln λ_sca) over the allowed range (λ_abs's and the grid's λ_sca).
+
+    ``disk_cache`` lets objectives of the same settings share their disk profiles.
+    """
+    prob = Problem(settings, grid, geometry, ratio, config, disk_cache)
     return Objective(prob, np.log([list(config.lambda_abs_range_m), list(grid.lambda_sca_range_m)]))
 
 

@@ -73,7 +73,7 @@ def small_camera() -> CameraModel:
     return CameraModel(width_px=800, height_px=700, fov_deg=2.0 * math.degrees(math.atan(400.0 / FOCAL_PX)))
 
 
-def fit_settings(water: str, photons: int) -> TemplateSettings:
+def fit_settings(water: str, photons: int, orders: int = 6) -> TemplateSettings:
     return TemplateSettings.near_far(
         GEOMETRY.distance_near_m,
         GEOMETRY.distance_far_m,
@@ -81,6 +81,7 @@ def fit_settings(water: str, photons: int) -> TemplateSettings:
         n_bands=144,
         lambda_sca_nodes_m=NODES[water],
         n_photons=photons,
+        max_order=orders,
         seed=0,
     )
 
@@ -226,6 +227,7 @@ def main() -> None:
     ap.add_argument("--photons", type=int, default=200_000, help="per template node (the fit's)")
     ap.add_argument("--truth-photons", type=int, default=300_000, help="per camera and water (the truth's)")
     ap.add_argument("--waters", default="deep-sea,turbid")
+    ap.add_argument("--template-orders", type=int, default=6, help="scattering orders of the fit's templates")
     ap.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
     ap.add_argument("--cache", default=None, help="template cache (default: a temporary directory)")
     ap.add_argument("--json", type=Path, default=None)
@@ -238,7 +240,9 @@ def main() -> None:
     grids: dict[str, TemplateGrid] = {}
     var_grids: dict[str, dict[str, TemplateGrid]] = {}
     for water in waters:
-        grids[water] = build_template_grid(fit_settings(water, args.photons), tc, workers=args.workers)
+        grids[water] = build_template_grid(
+            fit_settings(water, args.photons, args.template_orders), tc, workers=args.workers
+        )
     t_fit_templates = time.perf_counter() - t_build
     t0 = time.perf_counter()
     for water in waters:
@@ -280,6 +284,16 @@ def main() -> None:
         )
 
 
+def _pct(s: dict[str, object], k: str) -> str:
+    return f"{100 * s[k]:+.1f} %" if k in s else "—"  # type: ignore[operator]
+
+
+def _pull(s: dict[str, object], k: str) -> str:
+    if f"{k}_pull_mean" not in s:
+        return "—"
+    return f"{s[f'{k}_pull_mean']:+.2f} / {s[f'{k}_pull_rms']:.2f}"
+
+
 def report(results: list[dict[str, object]], t_fit: float, t_var: float, args: argparse.Namespace) -> None:
     print()
     print(
@@ -306,16 +320,10 @@ def report(results: list[dict[str, object]], t_fit: float, t_var: float, args: a
         s = summarise(res)
         a, sc = res["truth"]  # type: ignore[misc]
 
-        def pct(k: str) -> str:
-            return f"{100 * s[k]:+.1f} %" if k in s else "—"
-
-        def pull(k: str) -> str:
-            return f"{s[f'{k}_pull_mean']:+.2f} / {s[f'{k}_pull_rms']:.2f}" if f"{k}_pull_mean" in s else "—"
-
         errs = "/".join(f"{100 * s[k]:.1f} %" if k in s else "—" for k in ("abs_rel_err", "sca_rel_err"))
         print(
-            f"| {res['water']} | {res['wavelength_nm']} | {a:g}/{sc:g} | {pct('abs_bias')} | {pct('sca_bias')} | "
-            f"{pull('abs')} | {pull('sca')} | {s['chi2_ndof_median']:.2f} | "
+            f"| {res['water']} | {res['wavelength_nm']} | {a:g}/{sc:g} | {_pct(s, 'abs_bias')} | "
+            f"{_pct(s, 'sca_bias')} | {_pull(s, 'abs')} | {_pull(s, 'sca')} | {s['chi2_ndof_median']:.2f} | "
             f"{s['abs_limits']} ({s['abs_limits_correct']} correct) | {errs} |"
         )
         for name, ok in verdicts(res, s):

@@ -67,7 +67,9 @@ class Objective:
             method="Nelder-Mead",
             options={"xatol": 1e-4, "fatol": 1e-3, "initial_simplex": simplex},
         )
-        return np.asarray(res.x)
+        # Nelder-Mead may end a hair outside the range when the minimum sits on its edge (the
+        # penalty is tiny there): the model is only defined inside.
+        return np.clip(np.asarray(res.x), self.bounds[:, 0], self.bounds[:, 1])
 
     def profiled(self, best: np.ndarray, k: int, value: float, width: float) -> float:
         """χ² at parameter ``k`` = ``value``, minimised over the other around its best value."""

@@ -60,6 +60,10 @@ class SystematicsConfig:
             raise ValueError(f"rayleigh_range must be increasing inside [0, 1], got {self.rayleigh_range}")
 
 
+#: Said of a budget line whose refit ended on the edge of the templates' range.
+EDGE_NOTE = "; a refit ended on the templates' edge: the shift is a lower bound (add λ_sca nodes)"
+
+
 def nodes_around(nodes: Sequence[float], values: Sequence[float]) -> tuple[float, ...]:
     """The scattering-length nodes bracketing each value, with one more node on each side."""
     nodes = sorted(nodes)
@@ -109,6 +113,7 @@ class _Refitter:
             [1.0 if fit.lambda_abs.measured else np.nan, 1.0 if fit.lambda_sca.measured else np.nan, 1.0, 1.0]
         )
         self.n_refits = 0
+        self.edge_hits = 0
         self._refs: dict[str, np.ndarray] = {}
         self._disks: dict = {}  # type: ignore[type-arg]
 
@@ -126,6 +131,8 @@ class _Refitter:
         p = obj.minimise(self.start, near=True)
         best = np.exp(p)
         self.n_refits += 1
+        if obj.on_edge(float(p[1]), 1) or obj.on_edge(float(p[0]), 0):
+            self.edge_hits += 1
         return np.array([best[0], best[1], 1.0 / (1.0 / best[0] + 1.0 / best[1]), obj(p)])
 
     def reference(self, **replaced: object) -> np.ndarray:
@@ -232,9 +239,12 @@ def systematic_budget(
             if not all(f"rayleigh={x:g}" in variations for x in ends):
                 continue
             cases = [(f"{x:g}", {"grid": variations[f"rayleigh={x:g}"]}) for x in ends]
+        hits = refit.edge_hits
         d = refit.shifts(cases)
         errors, width = constrained_error(nominal, ends, d, fit.error_scale)
         note = f"{nominal:g} ± {width:.2g} (prior: uniform over {ends[0]:g}-{ends[1]:g}; the data's Δχ²)"
+        if refit.edge_hits > hits:
+            note += EDGE_NOTE
         items.append(_shift_item(name, label, cases, d, errors, note=note))
     cases = [
         (shape, {"grid": variations[f"emission={shape}"]})
@@ -242,9 +252,11 @@ def systematic_budget(
         if f"emission={shape}" in variations
     ]
     if cases:
+        hits = refit.edge_hits
         d = refit.shifts(cases)
         label = "LEM angular emission shape (vs linear in cos θ)"
-        items.append(_shift_item("emission_shape", label, cases, d, _largest(d)))
+        note = EDGE_NOTE if refit.edge_hits > hits else ""
+        items.append(_shift_item("emission_shape", label, cases, d, _largest(d), note=note))
     rel = cfg.lambda_sca_sys_rel
     acc = np.array(
         [[0.0, fit.lambda_sca_m * rel * refit.mask[1], fit.lambda_att_m**2 / fit.lambda_sca_m * rel, 0.0]]

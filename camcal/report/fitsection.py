@@ -134,6 +134,9 @@ def fit_section(d: ReportData) -> str:
 _FLOATED = "floated in the fit: inside the fit error, not added. "
 
 
+_FLOATED = "floated in the fit: inside the fit error, not added. "
+
+
 def _budgets(fits: list[dict[str, Any]]) -> str:
     """Each wavelength's systematic budget as a table (nothing for documents without one)."""
     out = ""
@@ -145,11 +148,10 @@ def _budgets(fits: list[dict[str, Any]]) -> str:
             (
                 i["label"],
                 ", ".join(i["cases"]),
+                (_FLOATED if i["profiled"] else "") + i["note"],
                 num(i["lambda_abs_err_m"], 3),
                 num(i["lambda_sca_err_m"], 3),
                 num(i["lambda_att_err_m"], 3),
-                ("floated in the fit: inside the fit error, not added. " if i["profiled"] else "")
-                + i["note"],
             )
             for i in b["items"]
         ]
@@ -157,17 +159,14 @@ def _budgets(fits: list[dict[str, Any]]) -> str:
             (
                 Raw("<b>sum in quadrature</b>"),
                 "",
+                f"refits took {num(b['seconds'], 1)} s",
                 num(b["lambda_abs_sys_m"], 3),
                 num(b["lambda_sca_sys_m"], 3),
                 num(b["lambda_att_sys_m"], 3),
-                f"refits took {num(b['seconds'], 1)} s",
             )
         )
-        out += f"<h3>{f['wavelength_nm']} nm: systematic budget</h3>" + table(
-            ["varied (one at a time)", "cases", "λ_abs [m]", "λ_sca [m]", "λ_att [m]", "note"],
-            rows,
-            text_cols=2,
-        )
+        head = ["varied (one at a time)", "cases", "note", "λ_abs [m]", "λ_sca [m]", "λ_att [m]"]
+        out += f"<h3>{f['wavelength_nm']} nm: systematic budget</h3>" + table(head, rows, text_cols=3)
     if out:
         out = (
             "<p>What the fit holds fixed, varied one at a time: each line's error on the lengths "

@@ -54,7 +54,7 @@ def contour_figure(entry: dict[str, Any]) -> Figure:
     fig, ax = plt.subplots(figsize=(6.4, 5.2), dpi=110)
     levels = [0, 1, 2.3, 4, 6.18, 9, 16, 25]
     filled = ax.contourf(xa_grid, ys_grid, dchi2, levels=levels, cmap="Blues_r", extend="max")
-    fig.colorbar(filled, ax=ax, label="Δχ² (profiled)")
+    fig.colorbar(filled, ax=ax, label="Δχ² (profiled)" + (" / χ²/ndof" if entry.get("errors_scaled") else ""))
     if np.nanmin(dchi2) < DCHI2_2D_95 < np.nanmax(dchi2):
         lines = ax.contour(
             xa_grid,

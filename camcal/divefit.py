@@ -21,7 +21,8 @@ from analysis.chisq import FitInputError
 from camcal.core import __version__
 from camcal.core.calibrations import setup_of
 from camcal.core.frameset import FrameSetError, ManifestRow, Setup, parse_setup
-from camcal.fitset import FitOptions, FolderFit, fit_analysis, to_json
+from camcal.fitdoc import to_json
+from camcal.fitset import FitOptions, FolderFit, fit_analysis
 from camcal.pipeline import Overrides, analyze_rows
 from ingest.derived import Span
 from storage import queries

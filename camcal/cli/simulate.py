@@ -11,6 +11,7 @@ from analysis.scattering import WaterOptics
 from camcal.cli.common import console, fail, parse_floats, parse_mapping, progress_bar
 from camcal.core.schedule import Schedule, trex_schedule, trex_subsampled
 from lrm.sim.camera import CameraModel
+from lrm.sim.render import TransportHalo
 from lrm.sim.scene import TREX_PLACEMENTS, Placement, Water, water_preset
 from lrm.simset import SimulationSpec, simulate_frame_set
 
@@ -91,12 +92,24 @@ def simulate_set(
             "(photon transport, the χ² fit's physics; computed once, then cached)."
         ),
     ] = "single",
+    halo_orders: Annotated[
+        int,
+        typer.Option(
+            help="With --halo transport: scattering orders followed (twice the fit templates' 6, so the "
+            "frames are a truth the templates did not make; their Monte Carlo seed differs too)."
+        ),
+    ] = 12,
+    halo_photons: Annotated[
+        int, typer.Option(help="With --halo transport: Monte Carlo photons per camera and wavelength.")
+    ] = 1_000_000,
     workers: Annotated[int, typer.Option(help="Worker processes (default: all cores).")] = 0,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
 ) -> None:
     """Simulate a dive's frame set (manifest, setup.json, PNGs) and its ground truth (truth.json)."""
     if halo not in ("single", "transport"):
         raise fail(f"--halo: unknown halo model {halo!r} (single, transport)")
+    if not 2 <= halo_orders <= 30 or halo_photons < 10_000:
+        raise fail("--halo-orders must lie in 2..30 and --halo-photons be >= 10000")
     w = build_water(water, absorption, scattering, mie_g, rayleigh_fraction)
     distances = parse_mapping(distance, "--distance")
     placements = list(TREX_PLACEMENTS)
@@ -142,6 +155,9 @@ def simulate_set(
         sway_m_per_s=sway,
         flashes_per_frame=flashes,
         halo_model=halo,
+        transport=TransportHalo(n_photons=halo_photons, max_order=halo_orders)
+        if halo == "transport"
+        else None,
     )
     n = sched.n_frames * len(placements)
     console.print(

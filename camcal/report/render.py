@@ -7,113 +7,17 @@ or a ship without internet, and prints as it shows.
 
 from __future__ import annotations
 
-import html
 import math
 import statistics
-from collections.abc import Iterable, Sequence
-from datetime import UTC, datetime
+from collections.abc import Iterable
 from typing import Any
 
-from camcal.fitplots import contour_figure, profiles_figure
 from camcal.report import figures
 from camcal.report.collect import ReportData
-
-SECTIONS = (
-    ("summary", "Summary"),
-    ("timeline", "Timeline"),
-    ("quality", "Frame quality"),
-    ("linearity", "Linearity"),
-    ("attitude", "Attitude"),
-    ("attenuation", "Attenuation length λ_att"),
-    ("absorption-scattering", "Absorption and scattering"),
-    ("calibration", "Calibration inputs"),
-    ("software", "Software and provenance"),
-)
-
-CSS = """
-:root { --ink: #1d2330; --muted: #5b6474; --rule: #d5dae3; --bg: #f6f8fb; --ok: #1e7b34; --bad: #b3261e; }
-* { box-sizing: border-box; }
-body { font: 15px/1.45 system-ui, -apple-system, "Segoe UI", Roboto, "Helvetica Neue", Arial, sans-serif;
-       color: var(--ink); margin: 0; background: #fff; }
-main { max-width: 1040px; margin: 0 auto; padding: 1.2rem 1.4rem 3rem; }
-header { border-bottom: 3px solid var(--ink); padding-bottom: .6rem; margin-bottom: 1rem; }
-h1 { font-size: 1.6rem; margin: 0 0 .2rem; }
-h2 { font-size: 1.25rem; margin: 2.2rem 0 .6rem; padding-top: .4rem; border-top: 1px solid var(--rule); }
-h3 { font-size: 1.02rem; margin: 1.2rem 0 .4rem; }
-.muted, figcaption { color: var(--muted); font-size: .88rem; }
-nav ol { columns: 3; margin: .4rem 0 0; padding-left: 1.3rem; }
-table { border-collapse: collapse; margin: .4rem 0 .8rem; font-size: .9rem; }
-th, td { border-bottom: 1px solid var(--rule); padding: .25rem .6rem; text-align: right;
-         vertical-align: top; }
-th { background: var(--bg); font-weight: 600; }
-th:first-child, td:first-child, td.text, th.text { text-align: left; }
-td.num { font-variant-numeric: tabular-nums; white-space: nowrap; }
-.scroll { overflow-x: auto; }
-figure { margin: .6rem 0 1rem; page-break-inside: avoid; }
-figure img { max-width: 100%; height: auto; border: 1px solid var(--rule); }
-.ok { color: var(--ok); font-weight: 600; } .bad { color: var(--bad); font-weight: 600; }
-.note { background: var(--bg); border-left: 4px solid var(--muted); padding: .5rem .8rem; margin: .6rem 0; }
-code, pre { font-family: ui-monospace, "SFMono-Regular", Menlo, Consolas, monospace; font-size: .86rem; }
-pre { background: var(--bg); padding: .5rem .8rem; overflow-x: auto; }
-details { margin: .4rem 0; } summary { cursor: pointer; color: var(--muted); }
-@media print { nav { display: none; } h2 { page-break-after: avoid; } main { max-width: none; } }
-"""
+from camcal.report.fitsection import fit_section
+from camcal.report.html import CSS, SECTIONS, esc, figure, iso, note, num, section, table
 
 
-def esc(x: object) -> str:
-    return html.escape(str(x), quote=True)
-
-
-def num(x: float | None, digits: int = 2) -> str:
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return "—"
-    return f"{x:.{digits}f}"
-
-
-def iso(t: float | None) -> str:
-    if t is None:
-        return "—"
-    return datetime.fromtimestamp(t, UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
-
-
-def table(headers: Sequence[str] | None, rows: Iterable[Sequence[object]], *, text_cols: int = 1) -> str:
-    """A table (no header row if ``headers`` is None); cells are escaped unless wrapped in `Raw`; the
-    first ``text_cols`` columns align left."""
-
-    def cell(i: int, v: object) -> str:
-        cls = "text" if i < text_cols else "num"
-        return f'<td class="{cls}">{v.html if isinstance(v, Raw) else esc(v)}</td>'
-
-    body = "".join("<tr>" + "".join(cell(i, v) for i, v in enumerate(r)) + "</tr>" for r in rows)
-    if headers is None:
-        return f'<div class="scroll"><table><tbody>{body}</tbody></table></div>'
-    head = "".join(
-        f'<th class="{"text" if i < text_cols else ""}">{esc(h)}</th>' for i, h in enumerate(headers)
-    )
-    return f'<div class="scroll"><table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table></div>'
-
-
-class Raw:
-    """Trusted HTML for a table cell."""
-
-    def __init__(self, html_text: str) -> None:
-        self.html = html_text
-
-
-def figure(uri: str, caption: str, alt: str) -> str:
-    return f'<figure><img src="{uri}" alt="{esc(alt)}"><figcaption>{esc(caption)}</figcaption></figure>'
-
-
-def note(text_html: str) -> str:
-    return f'<p class="note">{text_html}</p>'
-
-
-def section(sid: str, body: str) -> str:
-    title = dict(SECTIONS)[sid]
-    return f'<section id="{sid}"><h2>{esc(title)}</h2>{body}</section>'
-
-
-# ---------------------------------------------------------------- sections
 def _summary(d: ReportData) -> str:
     dv = d.dive
     t0, t1 = dv["first_frame_unix_s"], dv["last_frame_unix_s"]
@@ -428,122 +332,6 @@ def _attenuation(d: ReportData) -> str:
     return section("attenuation", body)
 
 
-def _fit(d: ReportData) -> str:
-    name, data = d.dive["name"], d.data_dir
-    how = (
-        f"<pre>camcal fit --dive {esc(name)} --data {esc(data)}\n"
-        f"camcal report {esc(name)} --data {esc(data)}</pre>"
-        "<p>The first fits λ_abs and λ_sca per wavelength to the station's radial profiles (photon-transport "
-        "templates are built once and cached: a few minutes) and keeps the result in the store; the second "
-        "writes this report again with it.</p>"
-    )
-    if d.fit is None:
-        return section(
-            "absorption-scattering", note("No χ² fit has been kept for this dive yet. To make one:") + how
-        )
-    doc = d.fit["result"]
-    fits = doc.get("fits", [])
-    rows = []
-    for f in fits:
-        z = f.get("att_check_z")
-        verdict = (
-            "—"
-            if z is None
-            else (
-                f'<span class="ok">agrees ({z:+.1f}σ)</span>'
-                if f["att_check_agrees"]
-                else f'<span class="bad">differs ({z:+.1f}σ)</span>'
-            )
-        )
-        rows.append(
-            (
-                f"{f['wavelength_nm']} nm",
-                f"{num(f['lambda_abs_m'])} ± {num(f['lambda_abs_err_m'])}",
-                f"{num(f['lambda_sca_m'])} ± {num(f['lambda_sca_err_m'])} ± {num(f['lambda_sca_sys_err_m'])}",
-                f"{num(f['lambda_att_fit_m'])} ± {num(f['lambda_att_fit_err_m'])}",
-                f"{num(f['lambda_att_icenter_m'])} ± {num(f['lambda_att_icenter_err_m'])}",
-                Raw(verdict),
-                f"{f['chi2']:.0f}/{f['ndof']}",
-                ", ".join(f["at_edge"]) or "—",
-            )
-        )
-    span = d.fit["span"] or {}
-    inputs = doc.get("inputs", {})
-    tmpl = inputs.get("templates", {})
-    body = (
-        f"<p>Fit {d.fit['id']}, made {iso(d.fit['created_unix_s'])} "
-        f"with camcal {esc(d.fit['software_version'])} "
-        f"from run {d.fit['run_id']}'s inputs over {span.get('n_frames', '?')} frames at depth ≥ "
-        f"{num(span.get('depth_min_m'), 1)} m. Templates: ⟨cos θ⟩ {tmpl.get('mie_g_nodes')}, Rayleigh share "
-        f"{tmpl.get('rayleigh_fraction')}, {tmpl.get('n_photons')} photons per λ_sca node "
-        f"{tmpl.get('lambda_sca_nodes_m')} m. λ_sca's second error is the templates' systematic; the check "
-        "compares 1/λ_abs + 1/λ_sca with the I_center λ_att of the same frames (agrees within 2σ).</p>"
-    )
-    poor = [f"{f['wavelength_nm']} nm" for f in fits if f["ndof"] and f["chi2"] / f["ndof"] > 2]
-    if poor:
-        body += note(
-            f"χ²/ndof is well above 1 at {', '.join(poor)}: the templates do not describe these profiles "
-            "within their errors, so the quoted errors are too small and the lengths carry the model's bias. "
-            "Look at the pulls below."
-        )
-    if d.fit["run_id"] != d.run["id"]:
-        body += note(
-            f"This fit used run {d.fit['run_id']}'s inputs, not run {d.run['id']}'s shown elsewhere."
-        )
-    body += table(
-        [
-            "wavelength",
-            "λ_abs [m]",
-            "λ_sca [m] (stat, sys)",
-            "λ_att fit [m]",
-            "λ_att I_center [m]",
-            "check",
-            "χ²/ndof",
-            "at grid edge",
-        ],
-        rows,
-    )
-    nuis = [
-        (
-            f"{f['wavelength_nm']} nm",
-            n["name"],
-            n["unit"],
-            f"{n['shift']:+.4g}",
-            f"{n['sigma']:.4g}",
-            f"{n['pull']:+.2f}",
-        )
-        for f in fits
-        for n in f["nuisances"]
-    ]
-    if nuis:
-        body += (
-            "<details><summary>nuisance parameters (shift from nominal, prior width, pull)</summary>"
-            + table(["wavelength", "nuisance", "unit", "shift", "prior σ", "pull"], nuis, text_cols=3)
-            + "</details>"
-        )
-    for f in fits:
-        if "contour" in f:
-            body += f"<h3>{f['wavelength_nm']} nm</h3>"
-            body += figure(
-                figures.png_uri(contour_figure(f)),
-                "Δχ² over (λ_abs, λ_sca), profiled over the "
-                "nuisances: the joint 68 % (solid) and 95 % (dashed) regions, the fit with its one-"
-                "parameter errors, and the I_center λ_att ± error (green).",
-                "chi-square contours",
-            )
-            if f.get("profiles"):
-                body += figure(
-                    figures.png_uri(profiles_figure(f)),
-                    "Both cameras' radial profiles "
-                    "(normalised by the near camera's sum) with the fitted model and the pulls.",
-                    "profile fit",
-                )
-    for wl, why in sorted(doc.get("skipped", {}).items()):
-        body += note(f"{esc(wl)} nm not fitted: {esc(why)}")
-    body += "<details><summary>how to fit again</summary>" + how + "</details>"
-    return section("absorption-scattering", body)
-
-
 def _calibration(d: ReportData) -> str:
     s = d.setup
     cams = table(
@@ -622,7 +410,7 @@ def render(d: ReportData) -> str:
         _linearity(d),
         _attitude(d),
         _attenuation(d),
-        _fit(d),
+        fit_section(d),
         _calibration(d),
         _software(d),
     ]

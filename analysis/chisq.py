@@ -47,6 +47,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.optimize import brentq, minimize, minimize_scalar
@@ -575,8 +576,8 @@ class _Objective:
         return bool(min(abs(x - self.bounds[k, 0]), abs(x - self.bounds[k, 1])) < 1e-3)
 
     def minimise(self) -> np.ndarray:
-        la = np.linspace(*self.bounds[0], 15)
-        ls = np.linspace(*self.bounds[1], 9)
+        la = np.linspace(self.bounds[0, 0], self.bounds[0, 1], 15)
+        ls = np.linspace(self.bounds[1, 0], self.bounds[1, 1], 9)
         scan = np.array([[self(np.array([a, s])) for a in la] for s in ls])
         j, i = np.unravel_index(int(np.argmin(scan)), scan.shape)
         prob = self.prob
@@ -747,7 +748,7 @@ def _result(
 
 
 def collect_settings(
-    stacks: dict[tuple[str, object], StackResult],
+    stacks: dict[tuple[str, Any], StackResult],
     wavelength_nm: int,
     near_camera: str,
     far_camera: str,

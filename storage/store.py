@@ -620,7 +620,7 @@ class Store:
                     AttenuationPoint.run_id == run_id, AttenuationPoint.visit_key.in_(keys)
                 )
             ).all()
-        return {k: int(i) for k, i in ids}
+        return {str(k): int(i) for k, i in ids}
 
     def add_attitude(self, samples: Sequence[dict[str, Any]]) -> None:
         if samples:

@@ -84,12 +84,12 @@ def run_calibration(
     run's own inputs with that record's.
     """
     if calibration is not None:
-        record = store.calibration(calibration)
+        record = store.call(queries.calibration, calibration)
         if record is None:
             raise DiveLookupError(f"no calibration {calibration!r} (try `camcal calibration list`)")
         return setup_of(record), record
     setup = parse_setup(run["calibration"], f"run {run['id']}") if run["calibration"] else Setup()
-    record = store.calibration(run["calibration_id"]) if run.get("calibration_id") else None
+    record = store.call(queries.calibration, run["calibration_id"]) if run.get("calibration_id") else None
     return setup, record
 
 
@@ -107,7 +107,7 @@ def dive_inputs(
     Raises `DiveLookupError` for an unknown dive, run or calibration and
     `FitInputError` when the span holds no frame.
     """
-    dive_row = store.dive_by_name(dive_name)
+    dive_row = store.call(queries.dive_by_name, dive_name)
     if dive_row is None:
         with store.read() as s:
             names = [d["name"] for d in queries.dives(s)]
@@ -120,7 +120,7 @@ def dive_inputs(
     setup, record = run_calibration(store, run, calibration)
     if overrides:
         setup = overrides.apply(setup)
-    selected, span_info = (span or Span()).select(store.result_rows(run["id"], dive_row.id))
+    selected, span_info = (span or Span()).select(store.call(queries.result_rows, run["id"], dive_row.id))
     if not selected:
         raise FitInputError(
             f"dive {dive_name}: no analysed frame in the span "

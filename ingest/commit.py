@@ -27,6 +27,7 @@ from camcal.core import wire
 from ingest.counters import RateLimitedLog
 from ingest.network import Incoming, nack
 from ingest.quarantine import Quarantine
+from storage import queries
 from storage.store import FrameRow, SensorBatchRow
 
 if TYPE_CHECKING:
@@ -83,7 +84,7 @@ class Committer:
         seen: dict[Key, str] = {}
         # Frames and sensor messages share one sequence per boot: look each key up in both tables.
         keys = [self._key(it) for it in items if self._key(it) not in self.recent]
-        stored_frames, stored_sensors = self.store.stored_checksums(keys, keys)
+        stored_frames, stored_sensors = self.store.call(queries.stored_checksums, keys, keys)
         stored_before: dict[Key, str | None] = {**stored_sensors, **stored_frames}
         for it in items:
             m, key = it.msg, self._key(it)

@@ -6,6 +6,7 @@ from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
 from ingest.seqtrack import SeqTracker
+from storage import queries
 
 if TYPE_CHECKING:
     from ingest.storeloop import StoreState
@@ -18,12 +19,14 @@ class Gaps:
         self.store = state.store
         self.seqs = SeqTracker()
         self.gappy: set[tuple[str, str]] = {
-            (g.module_id, g.boot) for g in self.store.open_gaps() if self.svc.config.serves(g.module_id)
+            (g.module_id, g.boot)
+            for g in self.store.call(queries.open_gaps)
+            if self.svc.config.serves(g.module_id)
         }
 
     def _known(self, module: str, boot: str) -> None:
         if not self.seqs.known(module, boot):
-            self.seqs.seed(module, boot, self.store.known_seqs(module, boot))
+            self.seqs.seed(module, boot, self.store.call(queries.known_seqs, module, boot))
 
     def arrived(self, items: Iterable[Any]) -> None:
         """Committed messages (new or resent): record jumps as gaps, close gaps they fill."""

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 from analysis.attitude import attitude_from_samples
 from camcal.core import wire
 from ingest.network import Incoming, nack
+from storage import queries
 
 if TYPE_CHECKING:
     from ingest.storeloop import StoreState
@@ -38,7 +39,9 @@ class Housekeeping:
         self.store = state.store
         cfg = self.svc.config
         self.active_alarms = {
-            a.key for a in self.store.active_alarms() if a.module_id is None or cfg.serves(a.module_id)
+            a.key
+            for a in self.store.call(queries.active_alarms)
+            if a.module_id is None or cfg.serves(a.module_id)
         }
         self.attitude_t: dict[str, float] = {}
         self.last_housekeeping = -1e18
@@ -75,7 +78,7 @@ class Housekeeping:
     # -- commands --------------------------------------------------------
     def command_status(self, it: Incoming) -> None:
         m = it.msg
-        cmd = self.store.command(m.command_id)
+        cmd = self.store.call(queries.command, m.command_id)
         if cmd is None or cmd["module"] != m.module:
             self.svc.counters.refuse("invalid_field", malformed=False)
             self.svc.send_to_module(
@@ -112,7 +115,7 @@ class Housekeeping:
         svc = self.svc
         now = time.time()
         links = svc.network.links if svc.network else {}
-        for cmd in reversed(self.store.commands(states=("pending", "sent", "accepted"))):
+        for cmd in reversed(self.store.call(queries.commands, states=("pending", "sent", "accepted"))):
             link = links.get(cmd["module"])
             if link is None or not link.up:
                 continue  # stays pending: delivered when the module is back
@@ -211,7 +214,7 @@ class Housekeeping:
     def _observe_gaps(self) -> None:
         svc = self.svc
         gaps: dict[str, list[tuple[int, int, float]]] = defaultdict(list)
-        for g in self.store.open_gaps():  # one query for every module, not one per module
+        for g in self.store.call(queries.open_gaps):  # one query for every module, not one per module
             if svc.config.serves(g.module_id):
                 gaps[g.module_id].append((g.first_seq, g.last_seq, g.detected_unix_s))
         links = svc.network.links if svc.network else {}

@@ -23,6 +23,7 @@ from ingest.derived import linearity_rows, mean_gray_by_setting, result_row
 from ingest.rolling import Sample, series_rows
 from ingest.runners import BatchRunner, LocalRunner
 from ingest.worker import analyse_batch
+from storage import queries
 from storage.store import Store
 
 log = logging.getLogger("camcal.reanalysis")
@@ -101,9 +102,9 @@ def reanalyse(
             else:
                 tasks = [
                     (fid, store.files.url(path, options.frames_url))
-                    for fid, path in store.dive_frames(dive_id, options.t_from, options.t_to)
+                    for fid, path in store.call(queries.dive_frames, dive_id, options.t_from, options.t_to)
                 ]
-            modules = store.frame_modules(fid for fid, _ in tasks)
+            modules = store.call(queries.frame_modules, [fid for fid, _ in tasks])
             configs = {m: FrameConfig(**setup.frame_settings(m)) for m in set(modules.values())}
             configs[""] = FrameConfig(**setup.frame_settings(None))
             n = analyse_into_run(
@@ -164,7 +165,7 @@ def derive_run(store: Store, dive_id: int, run_id: int, setup: Setup, options: R
     The series is the one the live ingest builds from the same frames
     (`ingest.rolling`), every visit final.
     """
-    rows = store.result_rows(run_id, dive_id)
+    rows = store.call(queries.result_rows, run_id, dive_id)
     try:
         points = series_rows((Sample.from_result(r) for r in rows), setup)
     except ValueError:  # fewer than two cameras with distances: no series

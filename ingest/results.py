@@ -12,6 +12,7 @@ import numpy as np
 from ingest.derived import linearity_rows
 from ingest.network import Incoming
 from ingest.rolling import Changes, Sample, VisitSeries
+from storage import queries
 
 if TYPE_CHECKING:
     from ingest.storeloop import StoreState
@@ -32,7 +33,7 @@ class Results:
             log.warning("no λ_att series: the setup has fewer than two cameras with distances")
         if self.series is not None:  # after a restart: the visits of the frames already analysed
             served = self.svc.config.serves  # (another ingest's modules are its own business)
-            rows = self.store.result_rows(self.svc.run.id, self.svc.dive.id)
+            rows = self.store.call(queries.result_rows, self.svc.run.id, self.svc.dive.id)
             self._store_points(self.series.add(Sample.from_result(r) for r in rows if served(r["module"])))
         self.linearity: dict[tuple[str, int], dict[tuple[float, float], list[float]]] = defaultdict(
             lambda: defaultdict(list)

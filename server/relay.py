@@ -89,7 +89,7 @@ class LiveHub:
         self.depths: dict[str, deque[tuple[float, float]]] = {}
         self.deepest_m: dict[str, float] = {}  # over the whole run, not just the recent samples
         self.station_depth_m = station_depth_m
-        self.last_event_id = store.last_event_id()  # the highest id delivered
+        self.last_event_id = store.call(queries.last_event_id)  # the highest id delivered
         # Ids delivered recently, and below them the floor under which every id counts as delivered:
         # with several ingests on PostgreSQL, ids are taken in one order and committed in another,
         # so an id below the highest may still be new.

@@ -22,6 +22,7 @@ from camcal.cli.overrides import (
 from camcal.core.calibrations import setup_of
 from camcal.core.files import write_atomic
 from camcal.core.frameset import FrameSetError, Setup, parse_setup
+from storage import queries
 
 
 def register(app: typer.Typer) -> None:
@@ -211,12 +212,12 @@ def reanalyze(
 def _stored(store: Any, name: str | None, frm: float | None, to: float | None) -> list[dict[str, Any]]:
     """A job per dive: the named one, or every dive with frames in the span."""
     if name is not None:
-        d = store.dive_by_name(name)
+        d = store.call(queries.dive_by_name, name)
         if d is None:
             raise fail(f"--dive: no dive named {name!r} in the store")
         dives = [d]
     else:
-        dives = store.dives_with_frames(frm, to)
+        dives = store.call(queries.dives_with_frames, frm, to)
     return [{"dive": d, "base": _base_setup(store, d), "sources": None} for d in dives]
 
 
@@ -251,7 +252,7 @@ def _import_folders(
             raise fail(f"{folder}: {exc}") from None
         for file, why in report.problems:
             console.print(f"[yellow]skipped[/] {file}: {why}")
-        located = store.locate_frames(report.sources)
+        located = store.call(queries.locate_frames, report.sources)
         by_dive: dict[int, dict[int, str]] = {}
         for key, (fid, dive_id) in located.items():
             by_dive.setdefault(dive_id, {})[fid] = report.sources[key]
@@ -285,9 +286,12 @@ def _start_runner(workers: int, scheduler: str | None) -> Any:
 
 
 def _calibration_record(store: Any, ref: str) -> dict[str, Any]:
-    record = store.calibration(ref)
+    record = store.call(queries.calibration, ref)
     if record is None:
-        known = ", ".join(sorted({f"{c['name']}@{c['version']}" for c in store.calibrations()})) or "none"
+        known = (
+            ", ".join(sorted({f"{c['name']}@{c['version']}" for c in store.call(queries.calibrations)}))
+            or "none"
+        )
         raise fail(f"--calibration: no calibration {ref!r} in the store (stored: {known})")
     return record
 
@@ -324,7 +328,7 @@ def _run(
     except Exception as exc:
         raise fail(f"re-analysis of dive {d.name} failed (run {run_id}): {exc}", code=1) from None
     elapsed = time.perf_counter() - t0
-    rows = [result_row(r) for r in store.result_rows(run_id, d.id)]
+    rows = [result_row(r) for r in store.call(queries.result_rows, run_id, d.id)]
     table = span_attenuation(rows, setup)
     return {
         "dive": d.name,

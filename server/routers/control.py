@@ -77,7 +77,7 @@ async def preview(body: PreviewRequest, store: StoreDep, settings: SettingsDep) 
             run = queries.live_run_id(s, dives[0]["id"]) if dives else None
         if run is None:
             return {}
-        rows = store.result_rows(run, dives[0]["id"])[-3000:]
+        rows = store.call(queries.result_rows, run, dives[0]["id"])[-3000:]
         rr = [result_row(r) for r in rows if body.module is None or r["module"] == body.module]
         setts = [(wl, e, g) for wl in sched.wavelengths_nm for e, g, _ in sched.settings()]
         return predict_settings(rr, setts, settings.linear_range)
@@ -99,7 +99,7 @@ async def preview(body: PreviewRequest, store: StoreDep, settings: SettingsDep) 
 
 
 def _module_or_404(store: Any, module_id: str) -> None:
-    if not store.module_exists(module_id):
+    if not store.call(queries.module_exists, module_id):
         raise NotFound(f"no module {module_id!r} has connected to this ship")
 
 
@@ -160,7 +160,7 @@ async def module_commands(
     module_id: ModuleId, store: StoreDep, limit: Annotated[int, Query(ge=1, le=1000)] = 50
 ) -> list[dict[str, Any]]:
     _module_or_404(store, module_id)
-    return await run_in_threadpool(lambda: store.commands(module_id, limit=limit))
+    return await run_in_threadpool(lambda: store.call(queries.commands, module_id, limit=limit))
 
 
 @router.get("/api/commands")
@@ -169,7 +169,9 @@ async def all_commands(
     state: Annotated[str | None, Query(max_length=16)] = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
 ) -> list[dict[str, Any]]:
-    return await run_in_threadpool(lambda: store.commands(states=(state,) if state else None, limit=limit))
+    return await run_in_threadpool(
+        lambda: store.call(queries.commands, states=(state,) if state else None, limit=limit)
+    )
 
 
 @router.get("/api/commands/{command_id}")

@@ -126,7 +126,7 @@ async def attenuation_table(
     run_id, setup = run_setup(store, dive_id, run)
 
     def q() -> dict[str, Any]:
-        rows = store.result_rows(run_id, dive_id)
+        rows = store.call(queries.result_rows, run_id, dive_id)
         span, table = attenuation_over_span(rows, setup, Span(depth_min_m, depth_max_m, t_from, t_to))
         return {
             "run_id": run_id,
@@ -190,7 +190,7 @@ async def create_reanalysis(
     _, base = run_setup(store, dive_id, None)
     label = body.label or f"re-analysis by {who}"
     if body.calibration_id is not None:
-        record = store.calibration(body.calibration_id)
+        record = store.call(queries.calibration, body.calibration_id)
         if record is None:
             raise NotFound(f"no calibration {body.calibration_id}")
         base = setup_of(record)

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 from analysis.attitude import attitude_from_samples
 from camcal.core import wire
+from camcal.core.events import EventKind
 from ingest.network import Incoming, nack
 from storage import queries
 
@@ -52,7 +53,7 @@ class Housekeeping:
     def link(self, it: Incoming) -> None:
         info = it.msg
         self.svc.events.emit(
-            "link",
+            EventKind.LINK,
             {"state": "up" if info["up"] else "down", "reason": info.get("reason")},
             module=it.module,
             dive_id=self.svc.dive.id,
@@ -94,7 +95,7 @@ class Housekeeping:
         self.module_info(it)
         if cmd is not None:
             self.svc.events.emit(
-                "command",
+                EventKind.COMMAND,
                 {
                     "command_id": cmd["id"],
                     "state": cmd["state"],
@@ -139,7 +140,7 @@ class Housekeeping:
             self.store.mark_command_sent(cmd["id"])
             if not cmd["attempts"]:
                 svc.events.emit(
-                    "command",
+                    EventKind.COMMAND,
                     {
                         "command_id": cmd["id"],
                         "state": "sent",
@@ -169,7 +170,7 @@ class Housekeeping:
         if mono - self.last_counters_save >= COUNTERS_SAVE_S:
             self.last_counters_save = mono
             g("counters", self.save_counters)
-        g("health", lambda: self.svc.events.transient("health", self.svc.health()))
+        g("health", lambda: self.svc.events.transient(EventKind.HEALTH, self.svc.health()))
 
     def save_counters(self) -> None:
         values = self.svc.counters.flat_if_changed()
@@ -199,7 +200,7 @@ class Housekeeping:
             }
             rows.append(row)
             svc.events.transient(
-                "attitude", {k: v for k, v in row.items() if k != "module_id"}, module=module
+                EventKind.ATTITUDE, {k: v for k, v in row.items() if k != "module_id"}, module=module
             )
         self.store.add_attitude(rows)
 
@@ -236,7 +237,9 @@ class Housekeeping:
                     "retention: deleted %d frame files older than %g days (%.1f MB)", n, days, freed / 1e6
                 )
                 svc.events.emit(
-                    "retention", {"files": n, "bytes": freed, "older_than_days": days}, dive_id=svc.dive.id
+                    EventKind.RETENTION,
+                    {"files": n, "bytes": freed, "older_than_days": days},
+                    dive_id=svc.dive.id,
                 )
 
     def _apply_alarms(self, conditions: dict[str, Any]) -> None:
@@ -245,7 +248,7 @@ class Housekeeping:
             alarm, changed = self.store.raise_alarm(key, c.kind, c.severity, c.message, c.module)
             if changed or key not in self.active_alarms:
                 svc.events.emit(
-                    "alarm",
+                    EventKind.ALARM,
                     {
                         "alarm_id": alarm.id,
                         "state": "raised",
@@ -262,7 +265,7 @@ class Housekeeping:
             self.active_alarms.discard(key)
             if cleared is not None:
                 svc.events.emit(
-                    "alarm",
+                    EventKind.ALARM,
                     {
                         "alarm_id": cleared.id,
                         "state": "cleared",

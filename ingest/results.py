@@ -5,10 +5,11 @@ from __future__ import annotations
 import logging
 import time
 from collections import defaultdict
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
+from camcal.core.events import AttenuationPayload, EventKind
 from ingest.derived import linearity_rows
 from ingest.network import Incoming
 from ingest.rolling import Changes, Sample, VisitSeries
@@ -77,7 +78,7 @@ class Results:
                 (meta.get("width_px") or 1, meta.get("height_px") or 1),
             )
             svc.events.emit(
-                "result",
+                EventKind.RESULT,
                 {
                     "frame_id": frame_id,
                     "seq": meta["seq"],
@@ -126,11 +127,14 @@ class Results:
         rows = [{**r, "run_id": svc.run.id, "dive_id": svc.dive.id} for r in changes.upserts]
         ids = self.store.save_visit_points(svc.run.id, rows, changes.deletes)
         for key in changes.deletes:
-            svc.events.emit("attenuation", {"visit_key": key, "deleted": True}, dive_id=svc.dive.id)
+            svc.events.emit(EventKind.ATTENUATION, {"visit_key": key, "deleted": True}, dive_id=svc.dive.id)
         for r in rows:
             svc.events.emit(
-                "attenuation",
-                {"point_id": ids.get(r["visit_key"]), **{k: v for k, v in r.items() if k != "details"}},
+                EventKind.ATTENUATION,
+                cast(  # the point's columns (`storage.models.AttenuationPoint`) but its details
+                    AttenuationPayload,
+                    {"point_id": ids.get(r["visit_key"]), **{k: v for k, v in r.items() if k != "details"}},
+                ),
                 dive_id=svc.dive.id,
             )
 

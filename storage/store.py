@@ -17,13 +17,14 @@ from typing import Any
 from sqlalchemy import insert, select, update
 from sqlalchemy.orm import Session
 
+from camcal.core.events import Event, finite_json
 from storage import queries
 from storage.analysis_writes import AnalysisWrites
 from storage.base import now_unix_s
 from storage.db import DataPaths, make_engine, migrate
 from storage.files import FrameFiles
-from storage.jsonsafe import finite_json
-from storage.models import Dive, Event, Frame, Gap, IngestCounter, Module, SensorBatch, SensorSample
+from storage.models import Dive, Frame, Gap, IngestCounter, Module, SensorBatch, SensorSample
+from storage.models import Event as EventRow
 from storage.operations_writes import COMMAND_STATES, OperationsWrites
 
 __all__ = [
@@ -86,7 +87,7 @@ class BatchOutcome:
     duplicate_frames: list[tuple[str, str, int]]
     new_sensor_batches: list[tuple[str, str, int]]
     duplicate_sensor_batches: list[tuple[str, str, int]]
-    events: list[dict[str, Any]] = field(default_factory=list)  # stored with the frames, ``id`` set
+    events: list[Event] = field(default_factory=list)  # stored with the frames, ``id`` set
 
 
 class Store(AnalysisWrites, OperationsWrites):
@@ -190,7 +191,8 @@ class Store(AnalysisWrites, OperationsWrites):
         dive_id: int,
         frames: Sequence[FrameRow],
         sensors: Sequence[SensorBatchRow] = (),
-        frame_event: Callable[[FrameRow, int], dict[str, Any]] | None = None,
+        frame_event: Callable[[FrameRow, int], Event] | None = None,
+        events: Sequence[Event] = (),
     ) -> BatchOutcome:
         """Insert frames and sensor batches in one transaction, skipping any already stored.
 
@@ -241,13 +243,14 @@ class Store(AnalysisWrites, OperationsWrites):
                         insert(SensorSample),
                         [{**smp, "module_id": b.module_id, "dive_id": dive_id} for smp in b.samples],
                     )
-            events: list[dict[str, Any]] = []
+            stored = list(events)
             if frame_event is not None and new_frames:
                 for f in frames:
                     fid = new_frames.get((f.module_id, f.boot, f.seq))
                     if fid is not None:
-                        events.append(frame_event(f, fid))
-                self._insert_events(s, events)
+                        stored.append(frame_event(f, fid))
+            if stored:
+                self._insert_events(s, stored)
         keys = [(f.module_id, f.boot, f.seq) for f in frames]
         skeys = [(b.module_id, b.boot, b.seq) for b in sensors]
         return BatchOutcome(
@@ -255,7 +258,7 @@ class Store(AnalysisWrites, OperationsWrites):
             duplicate_frames=[k for k in keys if k not in new_frames],
             new_sensor_batches=new_sensors,
             duplicate_sensor_batches=[k for k in skeys if k not in new_sensors],
-            events=events,
+            events=stored,
         )
 
     def record_gap(self, module_id: str, boot: str, first_seq: int, last_seq: int) -> int:
@@ -284,25 +287,31 @@ class Store(AnalysisWrites, OperationsWrites):
                     filled.append(g.id)
         return filled
 
-    def add_events(self, events: Sequence[dict[str, Any]]) -> list[int]:
-        """Append events (kind, payload, module_id, dive_id, t_unix_s); returns their ids."""
+    def add_events(self, events: Sequence[Event]) -> list[int]:
+        """Append events to the event log; sets each one's ``id`` and returns them."""
         if not events:
             return []
         with self.session() as s:
             return self._insert_events(s, events)
 
     @staticmethod
-    def _insert_events(s: Session, events: Sequence[dict[str, Any]]) -> list[int]:
+    def _insert_events(s: Session, events: Sequence[Event]) -> list[int]:
         """Add event rows in ``s`` (payloads made valid JSON: no NaN, no infinities); sets each ``id``."""
-        objs = []
-        for e in events:
-            e["payload"] = finite_json(e["payload"])
-            objs.append(Event(**{k: v for k, v in e.items() if k != "id"}))
-        s.add_all(objs)
+        rows = [
+            EventRow(
+                kind=str(e.kind),
+                payload=finite_json(e.payload),
+                module_id=e.module,
+                dive_id=e.dive_id,
+                t_unix_s=e.t,
+            )
+            for e in events
+        ]
+        s.add_all(rows)
         s.flush()
-        for e, o in zip(events, objs, strict=True):
-            e["id"] = o.id
-        return [o.id for o in objs]
+        for e, row in zip(events, rows, strict=True):
+            e.id = row.id
+        return [row.id for row in rows]
 
     def save_counters(self, ingest_id: str, values: dict[str, int]) -> None:
         """Write an ingest's counters (one upsert)."""

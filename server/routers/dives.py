@@ -9,8 +9,8 @@ from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request
-from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse
+from sqlalchemy.orm import Session
 from starlette.background import BackgroundTask
 
 from camcal.core.calibrations import setup_of
@@ -20,82 +20,70 @@ from ingest.reanalysis import ReanalysisOptions, reanalyse, start_run
 from server.deps import FloatQuery, IdPath, IdQuery, OperatorDep, SettingsDep, StoreDep
 from server.errors import Invalid, NotFound
 from server.openapi import BUSY, NOT_FOUND
-from server.schemas import DivePublic, ReanalysisCreate, RunPublic
+from server.schemas import (
+    AttenuationTable,
+    ChisqFitPublic,
+    ChisqFitSummary,
+    DivePublic,
+    DiveSettings,
+    ReanalysisCreate,
+    RunPublic,
+    Timeline,
+)
 from storage import queries
 from storage.export import export_dive
 from storage.models import Dive
+from storage.store import Store
 
 router = APIRouter(tags=["dives"])
 
 
-def dive_or_404(store: Any, dive_id: IdPath) -> Dive:
-    with store.read() as s:
-        dive = s.get(Dive, dive_id)
+def dive_or_404(store: Store, dive_id: IdPath) -> Dive:
+    dive = store.call(Session.get, Dive, dive_id)
     if dive is None:
         raise NotFound(f"no dive {dive_id}")
     return dive
 
 
 @router.get("/api/dives", response_model=list[DivePublic])
-async def list_dives(store: StoreDep) -> list[dict[str, Any]]:
+def list_dives(store: StoreDep) -> list[dict[str, Any]]:
     """Every dive, newest first, with its frame count, time range and deepest depth."""
-
-    def q() -> list[dict[str, Any]]:
-        with store.read() as s:
-            return queries.dives(s)
-
-    return await run_in_threadpool(q)
+    return store.call(queries.dives)
 
 
 @router.get("/api/dives/{dive_id}", response_model=DivePublic)
-async def get_dive(dive_id: IdPath, store: StoreDep) -> dict[str, Any]:
-    rows = [d for d in await list_dives(store) if d["id"] == dive_id]
+def get_dive(dive_id: IdPath, store: StoreDep) -> dict[str, Any]:
+    rows = store.call(queries.dives, dive_id)
     if not rows:
         raise NotFound(f"no dive {dive_id}")
     return rows[0]
 
 
-@router.get("/api/dives/{dive_id}/timeline")
-async def timeline(
+@router.get("/api/dives/{dive_id}/timeline", response_model=Timeline)
+def timeline(
     dive_id: IdPath, store: StoreDep, max_points: Annotated[int, Query(ge=10, le=5000)] = 600
 ) -> dict[str, Any]:
     """Depth over the dive, the frames on it (thinned to ~2000 marks) and the alarms."""
     dive_or_404(store, dive_id)
-
-    def q() -> dict[str, Any]:
-        with store.read() as s:
-            return queries.timeline(s, dive_id, max_points)
-
-    return await run_in_threadpool(q)
+    return store.call(queries.timeline, dive_id, max_points)
 
 
-@router.get("/api/dives/{dive_id}/settings")
-async def settings_of_dive(dive_id: IdPath, store: StoreDep) -> dict[str, Any]:
+@router.get("/api/dives/{dive_id}/settings", response_model=DiveSettings)
+def settings_of_dive(dive_id: IdPath, store: StoreDep) -> dict[str, Any]:
     """The modules, wavelengths, exposures and gains the dive's frames were taken with."""
     dive_or_404(store, dive_id)
-
-    def q() -> dict[str, Any]:
-        with store.read() as s:
-            return queries.frame_settings(s, dive_id)
-
-    return await run_in_threadpool(q)
+    return store.call(queries.frame_settings, dive_id)
 
 
 @router.get("/api/dives/{dive_id}/runs", response_model=list[RunPublic])
-async def runs(dive_id: IdPath, store: StoreDep) -> list[dict[str, Any]]:
+def runs(dive_id: IdPath, store: StoreDep) -> list[dict[str, Any]]:
     """The dive's analysis runs: the live one and every re-analysis."""
     dive_or_404(store, dive_id)
-
-    def q() -> list[dict[str, Any]]:
-        with store.read() as s:
-            return queries.runs(s, dive_id)
-
-    return await run_in_threadpool(q)
+    return store.call(queries.runs, dive_id)
 
 
-def run_setup(store: Any, dive_id: IdPath, run_id: int | None) -> tuple[int, Setup]:
-    with store.read() as s:
-        runs = {r["id"]: r for r in queries.runs(s, dive_id)}
+def run_setup(store: Store, dive_id: IdPath, run_id: int | None) -> tuple[int, Setup]:
+    runs = {r["id"]: r for r in store.call(queries.runs, dive_id)}
     if not runs:
         raise NotFound(f"dive {dive_id} has no analysis yet")
     if run_id is None:
@@ -107,8 +95,8 @@ def run_setup(store: Any, dive_id: IdPath, run_id: int | None) -> tuple[int, Set
     return run_id, parse_setup(cal, f"run {run_id}") if cal else Setup()
 
 
-@router.get("/api/dives/{dive_id}/attenuation")
-async def attenuation_table(
+@router.get("/api/dives/{dive_id}/attenuation", response_model=AttenuationTable)
+def attenuation_table(
     dive_id: IdPath,
     store: StoreDep,
     run: IdQuery = None,
@@ -125,42 +113,29 @@ async def attenuation_table(
     dive_or_404(store, dive_id)
     run_id, setup = run_setup(store, dive_id, run)
 
-    def q() -> dict[str, Any]:
-        rows = store.call(queries.result_rows, run_id, dive_id)
-        span, table = attenuation_over_span(rows, setup, Span(depth_min_m, depth_max_m, t_from, t_to))
-        return {
-            "run_id": run_id,
-            "span": span,
-            "calibration": setup.to_json(),
-            "rows": [attenuation_dict(table[wl]) for wl in sorted(table)],
-        }
-
-    return await run_in_threadpool(q)
+    rows = store.call(queries.result_rows, run_id, dive_id)
+    span, table = attenuation_over_span(rows, setup, Span(depth_min_m, depth_max_m, t_from, t_to))
+    return {
+        "run_id": run_id,
+        "span": span,
+        "calibration": setup.to_json(),
+        "rows": [attenuation_dict(table[wl]) for wl in sorted(table)],
+    }
 
 
-@router.get("/api/dives/{dive_id}/fits")
-async def chisq_fits(dive_id: IdPath, store: StoreDep) -> list[dict[str, Any]]:
+@router.get("/api/dives/{dive_id}/fits", response_model=list[ChisqFitSummary])
+def chisq_fits(dive_id: IdPath, store: StoreDep) -> list[dict[str, Any]]:
     """The χ² fits (λ_abs, λ_sca) kept for the dive by ``camcal fit --dive``, oldest first (no documents)."""
     dive_or_404(store, dive_id)
-
-    def q() -> list[dict[str, Any]]:
-        with store.read() as s:
-            return queries.chisq_fits(s, dive_id)
-
-    return await run_in_threadpool(q)
+    return store.call(queries.chisq_fits, dive_id)
 
 
-@router.get("/api/dives/{dive_id}/fits/latest")
-async def latest_chisq_fit(dive_id: IdPath, store: StoreDep, run: IdQuery = None) -> dict[str, Any]:
+@router.get("/api/dives/{dive_id}/fits/latest", response_model=ChisqFitPublic)
+def latest_chisq_fit(dive_id: IdPath, store: StoreDep, run: IdQuery = None) -> dict[str, Any]:
     """The newest χ² fit of the dive (of one run's inputs if ``run`` is given), with its document:
     λ_abs, λ_sca per wavelength with errors, the I_center check, the Δχ² map and the fitted profiles."""
     dive = dive_or_404(store, dive_id)
-
-    def q() -> dict[str, Any] | None:
-        with store.read() as s:
-            return queries.latest_chisq_fit(s, dive_id, run)
-
-    fit = await run_in_threadpool(q)
+    fit = store.call(queries.latest_chisq_fit, dive_id, run)
     if fit is None:
         raise NotFound(f"no χ² fit kept for dive {dive_id}: run `camcal fit --dive {dive.name}`")
     return fit
@@ -172,7 +147,7 @@ async def latest_chisq_fit(dive_id: IdPath, store: StoreDep, run: IdQuery = None
     response_model=RunPublic,
     responses={**NOT_FOUND, **BUSY},
 )
-async def create_reanalysis(
+def create_reanalysis(
     dive_id: IdPath,
     body: ReanalysisCreate,
     request: Request,
@@ -220,8 +195,7 @@ async def create_reanalysis(
         reanalyse(store, dive_id, run_id, setup, ReanalysisOptions(workers=settings.reanalysis_workers))
 
     request.app.state.reanalyses.submit(run_id, job)
-    with store.read() as s:
-        return next(r for r in queries.runs(s, dive_id) if r["id"] == run_id)
+    return next(r for r in store.call(queries.runs, dive_id) if r["id"] == run_id)
 
 
 @router.get(
@@ -229,7 +203,7 @@ async def create_reanalysis(
     response_class=FileResponse,
     responses={200: {"content": {"application/zip": {}}}, **NOT_FOUND, **BUSY},
 )
-async def export(
+def export(
     dive_id: IdPath,
     request: Request,
     store: StoreDep,
@@ -246,20 +220,8 @@ async def export(
     slots = request.app.state.exports
     slots.take()
 
-    def build() -> str:
-        fd, name = tempfile.mkstemp(prefix="camcal-export-", suffix=".zip")
-        os.close(fd)
-        try:
-            with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(name, "w", zipfile.ZIP_DEFLATED) as zf:
-                for f in export_dive(store, dive_id, Path(tmp), (fmt,), run_id):
-                    zf.write(f, f.name)
-        except BaseException:
-            os.unlink(name)
-            raise
-        return name
-
     try:
-        path = await run_in_threadpool(build)
+        path = _export_zip(store, dive_id, fmt, run_id)
     finally:
         slots.give()
     return FileResponse(
@@ -268,3 +230,17 @@ async def export(
         filename=f"{dive.name}-{fmt}.zip",
         background=BackgroundTask(os.unlink, path),
     )
+
+
+def _export_zip(store: Store, dive_id: int, fmt: str, run_id: int) -> str:
+    """The dive's tables written into a temporary ZIP file (removed again if that fails)."""
+    fd, name = tempfile.mkstemp(prefix="camcal-export-", suffix=".zip")
+    os.close(fd)
+    try:
+        with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(name, "w", zipfile.ZIP_DEFLATED) as zf:
+            for f in export_dive(store, dive_id, Path(tmp), (fmt,), run_id):
+                zf.write(f, f.name)
+    except BaseException:
+        os.unlink(name)
+        raise
+    return name

@@ -9,14 +9,17 @@ from typing import Any
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
+from camcal.core.events import Event, EventKind
 from storage.models import (
     Alarm,
     AuditEntry,
     Calibration,
     CommandRecord,
-    Event,
     Module,
 )
+from storage.models import Event as EventRow
+
+KINDS = frozenset(k.value for k in EventKind)
 
 
 def modules(s: Session) -> list[dict[str, Any]]:
@@ -78,22 +81,18 @@ def active_alarms(s: Session) -> list[Alarm]:
     return list(s.scalars(select(Alarm).where(Alarm.active.is_(True)).order_by(Alarm.id)))
 
 
-def events_after(s: Session, after_id: int, limit: int) -> list[dict[str, Any]]:
+def events_after(s: Session, after_id: int, limit: int) -> list[Event]:
+    """Stored events after an id, in id order (a kind this version does not know is left out)."""
+    rows = s.scalars(select(EventRow).where(EventRow.id > after_id).order_by(EventRow.id).limit(limit))
     return [
-        {
-            "id": e.id,
-            "kind": e.kind,
-            "t": e.t_unix_s,
-            "module": e.module_id,
-            "dive_id": e.dive_id,
-            "payload": e.payload,
-        }
-        for e in s.scalars(select(Event).where(Event.id > after_id).order_by(Event.id).limit(limit))
+        Event(EventKind(e.kind), e.payload or {}, e.t_unix_s, e.module_id, e.dive_id, e.id)
+        for e in rows
+        if e.kind in KINDS
     ]
 
 
 def last_event_id(s: Session) -> int:
-    return int(s.scalar(select(func.max(Event.id))) or 0)
+    return int(s.scalar(select(func.max(EventRow.id))) or 0)
 
 
 def audit(s: Session, limit: int = 500, offset: int = 0) -> list[dict[str, Any]]:

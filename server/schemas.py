@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
@@ -140,6 +140,9 @@ class AckRequest(BaseModel):
 # checks each answer against it. Fields that only some rows carry are optional; objects whose keys
 # are data (module ids, wavelengths) are dicts.
 
+#: A JSON column as stored: an object as the API writes it, but any JSON value a row may hold.
+Stored = Annotated[Any, Field(description="a JSON document as stored (normally an object)")]
+
 
 class Open(BaseModel):
     """A response that may carry more fields than its model lists (documented where they come from)."""
@@ -198,7 +201,7 @@ class AttenuationRow(Open):
 
 class AttenuationTable(BaseModel):
     run_id: int
-    span: dict[str, Any]
+    span: Stored
     calibration: dict[str, Any]
     rows: list[AttenuationRow]
 
@@ -211,11 +214,11 @@ class ChisqFitSummary(BaseModel):
     created_unix_s: float
     software_version: str
     label: str
-    span: dict[str, Any]
+    span: Stored
 
 
 class ChisqFitPublic(ChisqFitSummary):
-    result: dict[str, Any] = Field(description="the fit's document: λ_abs, λ_sca per wavelength, Δχ² map")
+    result: Stored = Field(description="the fit's document: λ_abs, λ_sca per wavelength, Δχ² map")
 
 
 class FrameDetail(FramePublic):
@@ -231,8 +234,8 @@ class FrameDetail(FramePublic):
     center_gray: float | None = None
     center_err_gray: float | None = None
     background_err_gray: float | None = None
-    fit: dict[str, Any] | None = None
-    profile: dict[str, Any] | None = None
+    fit: Stored = None
+    profile: Stored = None
     run_id: int | None = None
     analysed_unix_s: float | None = None
 
@@ -251,8 +254,8 @@ class FrameAnalysis(BaseModel):
     background_err_gray: float | None
     i_center_gray: float | None
     i_center_err_gray: float | None
-    profile: dict[str, Any] | None
-    fit: dict[str, Any] | None
+    profile: Stored
+    fit: Stored
     run_id: int | None
 
 
@@ -299,7 +302,7 @@ class LinearityCheckPublic(BaseModel):
     n_used: int | None
     linear_max_gray: float | None
     knee_x: float | None
-    points: Any
+    points: Stored
     updated_unix_s: float | None
 
 
@@ -314,7 +317,7 @@ class AuditEntryPublic(BaseModel):
     actor: str
     action: str
     target: str
-    details: dict[str, Any]
+    details: Stored
 
 
 class CalibrationPublic(BaseModel):
@@ -324,7 +327,7 @@ class CalibrationPublic(BaseModel):
     source: str
     valid_from_unix_s: float | None
     valid_to_unix_s: float | None
-    values: dict[str, Any]
+    values: Stored
     created_unix_s: float
 
 
@@ -333,7 +336,7 @@ class CommandPublic(BaseModel):
     module: str
     action: str
     target_version: int
-    payload: dict[str, Any]
+    payload: Stored
     apply: str
     issued_by: str
     issued_unix_s: float
@@ -394,7 +397,7 @@ class EventPublic(BaseModel):
     t: float
     module: str | None
     dive_id: int | None
-    payload: dict[str, Any]
+    payload: Stored
 
 
 class EventPage(BaseModel):

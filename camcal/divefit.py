@@ -61,18 +61,11 @@ class DiveFit:
 
 
 def pick_run(store: Store, dive_id: int, run_id: int | None = None) -> dict[str, Any]:
-    """The dive's live run (else its newest), or run ``run_id`` of the dive."""
-    with store.read() as s:
-        runs = {r["id"]: r for r in queries.runs(s, dive_id)}
-    if not runs:
-        raise DiveLookupError(f"dive {dive_id} has no analysis run yet (nothing was ingested or imported)")
-    if run_id is None:
-        live = [r for r in runs.values() if r["kind"] == "live"]
-        return live[0] if live else runs[max(runs)]
-    if run_id not in runs:
-        have = ", ".join(map(str, sorted(runs)))
-        raise DiveLookupError(f"no run {run_id} in dive {dive_id} (runs: {have})")
-    return runs[run_id]
+    """The dive's live run (else its newest), or run ``run_id`` of the dive (`queries.chosen_run`)."""
+    try:
+        return store.call(queries.chosen_run, dive_id, run_id)
+    except queries.RunLookupError as exc:
+        raise DiveLookupError(str(exc)) from None
 
 
 def run_calibration(

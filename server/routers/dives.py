@@ -13,10 +13,15 @@ from fastapi.responses import FileResponse
 from sqlalchemy.orm import Session
 from starlette.background import BackgroundTask
 
-from camcal.core.calibrations import setup_of
 from camcal.core.frameset import Setup, parse_setup
 from ingest.derived import Span, attenuation_dict, attenuation_over_span
-from ingest.reanalysis import ReanalysisOptions, reanalyse, start_run
+from ingest.reanalysis import (
+    ReanalysisInputError,
+    ReanalysisOptions,
+    UnknownCalibration,
+    reanalyse,
+    start_reanalysis,
+)
 from server.deps import FloatQuery, IdPath, IdQuery, OperatorDep, SettingsDep, StoreDep
 from server.errors import Invalid, NotFound
 from server.openapi import BUSY, NOT_FOUND
@@ -83,16 +88,13 @@ def runs(dive_id: IdPath, store: StoreDep) -> list[dict[str, Any]]:
 
 
 def run_setup(store: Store, dive_id: IdPath, run_id: int | None) -> tuple[int, Setup]:
-    runs = {r["id"]: r for r in store.call(queries.runs, dive_id)}
-    if not runs:
-        raise NotFound(f"dive {dive_id} has no analysis yet")
-    if run_id is None:
-        live = [r for r in runs.values() if r["kind"] == "live"]
-        run_id = live[0]["id"] if live else max(runs)
-    if run_id not in runs:
-        raise NotFound(f"no run {run_id} in dive {dive_id}")
-    cal = runs[run_id]["calibration"] or {}
-    return run_id, parse_setup(cal, f"run {run_id}") if cal else Setup()
+    """The run asked for (default: the live run, else the newest) and the setup it was analysed with."""
+    try:
+        run = store.call(queries.chosen_run, dive_id, run_id)
+    except queries.RunLookupError as exc:
+        raise NotFound(str(exc)) from None
+    cal = run["calibration"] or {}
+    return run["id"], parse_setup(cal, f"run {run['id']}") if cal else Setup()
 
 
 @router.get("/api/dives/{dive_id}/attenuation", response_model=AttenuationTable)
@@ -162,34 +164,33 @@ def create_reanalysis(
     /api/dives/{id}/runs`` for its end.
     """
     dive_or_404(store, dive_id)
-    _, base = run_setup(store, dive_id, None)
-    label = body.label or f"re-analysis by {who}"
-    if body.calibration_id is not None:
-        record = store.call(queries.calibration, body.calibration_id)
-        if record is None:
-            raise NotFound(f"no calibration {body.calibration_id}")
-        base = setup_of(record)
-        label = body.label or f"calibration {record['name']} v{record['version']}"
-    data = base.model_dump()
-    if body.cameras:
-        for cam, d in body.cameras.items():
+    run_setup(store, dive_id, None)  # 404 for a dive that was never analysed
+
+    def adjust(base: Setup) -> Setup:
+        data = base.model_dump()
+        for cam, d in (body.cameras or {}).items():
             data["cameras"][cam] = d.model_dump()
-    if body.emission_ratio:
-        for wl, r in body.emission_ratio.items():
+        for wl, r in (body.emission_ratio or {}).items():
             data["emission_ratio"][wl] = r.model_dump()
-    if body.linear_range:
-        data["linear_range"] = body.linear_range
+        if body.linear_range:
+            data["linear_range"] = body.linear_range
+        return parse_setup(data, "re-analysis")
+
     try:
-        setup = parse_setup(data, "re-analysis")
-    except Exception as exc:
+        started = start_reanalysis(
+            store,
+            dive_id,
+            actor=who,
+            default_label=f"re-analysis by {who}",
+            label=body.label,
+            calibration=body.calibration_id,
+            adjust=adjust,
+        )
+    except UnknownCalibration:
+        raise NotFound(f"no calibration {body.calibration_id}") from None
+    except ReanalysisInputError as exc:
         raise Invalid(str(exc)) from None
-    run_id = start_run(store, dive_id, setup, label, body.calibration_id)
-    store.audit(
-        who,
-        "reanalysis.start",
-        f"dive:{dive_id}",
-        {"run_id": run_id, "calibration_id": body.calibration_id, "calibration": setup.to_json()},
-    )
+    run_id, setup = started.run_id, started.setup
 
     def job() -> None:
         reanalyse(store, dive_id, run_id, setup, ReanalysisOptions(workers=settings.reanalysis_workers))

@@ -46,8 +46,10 @@ from storage.queries.operations import (
     schedule_version,
 )
 from storage.queries.runs import (
+    RunLookupError,
     chisq_fit_dict,
     chisq_fits,
+    chosen_run,
     dive_by_name,
     dive_record,
     dives,
@@ -77,6 +79,7 @@ __all__ = [
     "ATTITUDE_COLUMNS",
     "SENSOR_COLUMNS",
     "FrameFilter",
+    "RunLookupError",
     "active_alarms",
     "alarm_dict",
     "alarms",
@@ -89,6 +92,7 @@ __all__ = [
     "calibrations",
     "chisq_fit_dict",
     "chisq_fits",
+    "chosen_run",
     "command",
     "command_dict",
     "commands",

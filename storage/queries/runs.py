@@ -91,6 +91,27 @@ def runs(s: Session, dive_id: int) -> list[dict[str, Any]]:
     ]
 
 
+class RunLookupError(LookupError):
+    """No such run of the dive, or the dive has none yet (the message says which)."""
+
+
+def chosen_run(s: Session, dive_id: int, run_id: int | None = None) -> dict[str, Any]:
+    """Run ``run_id`` of the dive, or by default its live run, else its newest (as `runs` gives them).
+
+    Raises `RunLookupError` when the dive has no run or no run ``run_id``.
+    """
+    by_id = {r["id"]: r for r in runs(s, dive_id)}
+    if not by_id:
+        raise RunLookupError(f"dive {dive_id} has no analysis run yet (nothing was ingested or imported)")
+    if run_id is None:
+        live = [r for r in by_id.values() if r["kind"] == "live"]
+        return live[0] if live else by_id[max(by_id)]
+    if run_id not in by_id:
+        have = ", ".join(map(str, sorted(by_id)))
+        raise RunLookupError(f"no run {run_id} in dive {dive_id} (runs: {have})")
+    return by_id[run_id]
+
+
 def frame_settings(s: Session, dive_id: int) -> dict[str, list[Any]]:
     """The distinct modules, wavelengths, exposures and gains of a dive's frames (for filter menus)."""
     out: dict[str, list[Any]] = {}

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from sqlalchemy import delete, insert, literal, select, text, update
+from sqlalchemy.orm import Session
 
+from camcal.core.events import Event
 from storage.base import StoreBase, now_unix_s
 from storage.models import (
     AnalysisRun,
@@ -72,15 +74,42 @@ class AnalysisWrites(StoreBase):
         """Store frame results (dicts of `FrameResult` columns with ``frame_id``); duplicates skipped."""
         if not results:
             return 0
-        rows = [{**r, "run_id": run_id} for r in results]
         with self.session() as s:
-            stmt = (
-                self._insert(FrameResult.__table__)
-                .values(rows)
-                .on_conflict_do_nothing(index_elements=["frame_id", "run_id"])
-                .returning(FrameResult.id)
-            )
-            return len(s.execute(stmt).all())  # rowcount is -1 for this statement on psycopg
+            return self._insert_results(s, run_id, results)
+
+    def _insert_results(self, s: Session, run_id: int, results: Sequence[dict[str, Any]]) -> int:
+        stmt = (
+            self._insert(FrameResult.__table__)
+            .values([{**r, "run_id": run_id} for r in results])
+            .on_conflict_do_nothing(index_elements=["frame_id", "run_id"])
+            .returning(FrameResult.id)
+        )
+        return len(s.execute(stmt).all())  # rowcount is -1 for this statement on psycopg
+
+    def commit_results(
+        self,
+        run_id: int,
+        results: Sequence[dict[str, Any]],
+        events: Sequence[Event] = (),
+        *,
+        upserts: Sequence[dict[str, Any]] = (),
+        deletes: Sequence[str] = (),
+        point_events: Callable[[dict[str, int]], list[Event]] | None = None,
+    ) -> list[Event]:
+        """Frame results, the λ_att visits they changed and the events of both, in one transaction
+        (one commit, one fsync: a crash keeps all of them or none). ``point_events`` makes the
+        visits' events from their point ids. Returns the events stored (``id`` set)."""
+        stored = list(events)
+        with self.session() as s:
+            if results:
+                self._insert_results(s, run_id, results)
+            if upserts or deletes:
+                ids = self._upsert_visit_points(s, run_id, upserts, deletes)
+                if point_events is not None:
+                    stored += point_events(ids)
+            if stored:
+                self._insert_events(s, stored)
+        return stored
 
     def copy_results(
         self, src_run_id: int, dst_run_id: int, t_from: float | None = None, t_to: float | None = None
@@ -113,28 +142,33 @@ class AnalysisWrites(StoreBase):
         in one transaction. Returns the point id of every upserted visit key."""
         if not upserts and not deletes:
             return {}
-        table = AttenuationPoint.__table__
         with self.session() as s:
-            if deletes:
-                s.execute(
-                    delete(AttenuationPoint).where(
-                        AttenuationPoint.run_id == run_id, AttenuationPoint.visit_key.in_(list(deletes))
-                    )
+            return self._upsert_visit_points(s, run_id, upserts, deletes)
+
+    def _upsert_visit_points(
+        self, s: Session, run_id: int, upserts: Sequence[dict[str, Any]], deletes: Sequence[str]
+    ) -> dict[str, int]:
+        table = AttenuationPoint.__table__
+        if deletes:
+            s.execute(
+                delete(AttenuationPoint).where(
+                    AttenuationPoint.run_id == run_id, AttenuationPoint.visit_key.in_(list(deletes))
                 )
-            for row in upserts:
-                stmt = self._insert(table).values(**row)
-                s.execute(
-                    stmt.on_conflict_do_update(
-                        index_elements=["run_id", "visit_key"],
-                        set_={k: stmt.excluded[k] for k in row if k not in ("run_id", "visit_key")},
-                    )
+            )
+        for row in upserts:
+            stmt = self._insert(table).values(**row)
+            s.execute(
+                stmt.on_conflict_do_update(
+                    index_elements=["run_id", "visit_key"],
+                    set_={k: stmt.excluded[k] for k in row if k not in ("run_id", "visit_key")},
                 )
-            keys = [r["visit_key"] for r in upserts]
-            ids = s.execute(
-                select(AttenuationPoint.visit_key, AttenuationPoint.id).where(
-                    AttenuationPoint.run_id == run_id, AttenuationPoint.visit_key.in_(keys)
-                )
-            ).all()
+            )
+        keys = [r["visit_key"] for r in upserts]
+        ids = s.execute(
+            select(AttenuationPoint.visit_key, AttenuationPoint.id).where(
+                AttenuationPoint.run_id == run_id, AttenuationPoint.visit_key.in_(keys)
+            )
+        ).all()
         return {str(k): int(i) for k, i in ids}
 
     def add_attitude(self, samples: Sequence[dict[str, Any]]) -> None:

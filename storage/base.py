@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any, Concatenate, ParamSpec, TypeVar
 
@@ -11,8 +11,10 @@ from sqlalchemy import Engine, literal, text, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session, sessionmaker
 
+from camcal.core.events import Event, finite_json
 from storage.files import FrameFiles
 from storage.models import Dive
+from storage.models import Event as EventRow
 
 P = ParamSpec("P")
 R = TypeVar("R")
@@ -51,6 +53,25 @@ class StoreBase:
             return fn(s, *args, **kwargs)
 
     # ------------------------------------------------------------ helpers
+    @staticmethod
+    def _insert_events(s: Session, events: Sequence[Event]) -> list[int]:
+        """Add event rows in ``s`` (payloads made valid JSON: no NaN, no infinities); sets each ``id``."""
+        rows = [
+            EventRow(
+                kind=str(e.kind),
+                payload=finite_json(e.payload),
+                module_id=e.module,
+                dive_id=e.dive_id,
+                t_unix_s=e.t,
+            )
+            for e in events
+        ]
+        s.add_all(rows)
+        s.flush()
+        for e, row in zip(events, rows, strict=True):
+            e.id = row.id
+        return [row.id for row in rows]
+
     def _insert(self, table: Any) -> Any:
         name = self.engine.dialect.name
         if name == "sqlite":

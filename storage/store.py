@@ -17,14 +17,13 @@ from typing import Any
 from sqlalchemy import insert, select, update
 from sqlalchemy.orm import Session
 
-from camcal.core.events import Event, finite_json
+from camcal.core.events import Event
 from storage import queries
 from storage.analysis_writes import AnalysisWrites
 from storage.base import now_unix_s
 from storage.db import DataPaths, make_engine, migrate
 from storage.files import FrameFiles
 from storage.models import Dive, Frame, Gap, IngestCounter, Module, SensorBatch, SensorSample
-from storage.models import Event as EventRow
 from storage.operations_writes import COMMAND_STATES, OperationsWrites
 
 __all__ = [
@@ -293,25 +292,6 @@ class Store(AnalysisWrites, OperationsWrites):
             return []
         with self.session() as s:
             return self._insert_events(s, events)
-
-    @staticmethod
-    def _insert_events(s: Session, events: Sequence[Event]) -> list[int]:
-        """Add event rows in ``s`` (payloads made valid JSON: no NaN, no infinities); sets each ``id``."""
-        rows = [
-            EventRow(
-                kind=str(e.kind),
-                payload=finite_json(e.payload),
-                module_id=e.module,
-                dive_id=e.dive_id,
-                t_unix_s=e.t,
-            )
-            for e in events
-        ]
-        s.add_all(rows)
-        s.flush()
-        for e, row in zip(events, rows, strict=True):
-            e.id = row.id
-        return [row.id for row in rows]
 
     def save_counters(self, ingest_id: str, values: dict[str, int]) -> None:
         """Write an ingest's counters (one upsert)."""

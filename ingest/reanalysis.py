@@ -96,15 +96,13 @@ def find_calibration(store: Store, ref: int | str) -> dict[str, Any]:
 
 
 def base_setup(store: Store, dive_id: int) -> Setup:
-    """The calibration a dive was analysed with: its live run's (else its newest run's), else the
-    dive's own setup, else the default (T-REX)."""
+    """The calibration a dive was analysed with: its live run's, else the dive's own setup (an
+    imported dive), else the default (T-REX). Never an earlier re-analysis's: each starts from the
+    dive's own inputs, so two re-analyses with different overrides do not compound."""
     with store.read() as s:
         dive = queries.dive_record(s, dive_id)
-        try:
-            run: dict[str, Any] | None = queries.chosen_run(s, dive_id)
-        except queries.RunLookupError:
-            run = None
-    cal = (run["calibration"] if run else None) or (dive or {}).get("setup") or {}
+        live = next((r for r in queries.runs(s, dive_id) if r["kind"] == "live"), None)
+    cal = (live["calibration"] if live else None) or (dive or {}).get("setup") or {}
     try:
         return parse_setup(cal, f"dive {dive_id}") if cal else Setup()
     except FrameSetError:

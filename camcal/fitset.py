@@ -231,7 +231,11 @@ def _check_disk_radii(an: FrameSetAnalysis, geometry: Geometry, focal_px: float)
         (geometry.near_camera, geometry.distance_near_m),
         (geometry.far_camera, geometry.distance_far_m),
     ):
-        radii = [f.radius_px for row, f in zip(an.rows, an.frames, strict=True) if row.camera == cam and f.ok]
+        radii = [
+            f.radius_px
+            for row, f in zip(an.rows, an.frames, strict=True)
+            if row.camera == cam and f.ok and f.radius_px is not None
+        ]
         if not radii:
             continue
         measured = float(np.median(radii))

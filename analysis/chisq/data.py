@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -82,7 +84,7 @@ def quantisation_bias_gray(sem_gray: np.ndarray, count: np.ndarray, n_frames: np
 
 
 def collect_settings(
-    stacks: dict[tuple[str, object], StackResult],
+    stacks: Mapping[tuple[str, Any], StackResult],
     wavelength_nm: int,
     near_camera: str,
     far_camera: str,

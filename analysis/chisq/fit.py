@@ -28,8 +28,8 @@ class Objective:
 
     def coarse_start(self) -> np.ndarray:
         """The best node of a coarse scan over the whole allowed range."""
-        la = np.linspace(*self.bounds[0], 15)
-        ls = np.linspace(*self.bounds[1], 9)
+        la = np.linspace(self.bounds[0, 0], self.bounds[0, 1], 15)
+        ls = np.linspace(self.bounds[1, 0], self.bounds[1, 1], 9)
         scan = np.array([[self(np.array([a, s])) for a in la] for s in ls])
         j, i = np.unravel_index(int(np.argmin(scan)), scan.shape)
         return np.array([la[i], ls[j]])

@@ -142,7 +142,7 @@ class _Refitter:
         return self._refs[key]
 
     def shifts(
-        self, cases: Sequence[tuple[str, dict[str, object]]], reference: dict[str, object] | None = None
+        self, cases: Sequence[tuple[str, Mapping[str, object]]], reference: Mapping[str, object] | None = None
     ) -> np.ndarray:
         """(case, [Δλ_abs, Δλ_sca, Δλ_att, Δχ²]) against the reference refit (NaN for a bounded length)."""
         ref = self.reference(**(reference or {}))
@@ -152,7 +152,7 @@ class _Refitter:
 def _shift_item(
     name: str,
     label: str,
-    cases: Sequence[tuple[str, dict[str, object]]],
+    cases: Sequence[tuple[str, Mapping[str, object]]],
     d: np.ndarray,
     errors: np.ndarray,
     *,
@@ -271,6 +271,7 @@ def _profiled_impacts(fit: ChiSquareFit, refit: _Refitter) -> list[SystematicShi
     """Impacts of the floated nuisances: held at nominal ± 1σ, against held at nominal."""
     geo, ratio, cfg = fit.geometry, fit.emission_ratio, fit.config
     out = []
+    cases: list[tuple[str, Mapping[str, object]]]
     if ratio.err > 0:
         cases = [(f"{s:+d}σ", {"ratio": EmissionRatio(ratio.value + s * ratio.err, 0.0)}) for s in (-1, 1)]
         ref = {"ratio": EmissionRatio(ratio.value, 0.0)}
@@ -288,9 +289,10 @@ def _profiled_impacts(fit: ChiSquareFit, refit: _Refitter) -> list[SystematicShi
         d, e = getattr(geo, f"distance_{which}_m"), getattr(geo, f"distance_{which}_err_m")
         if e <= 0:
             continue
-        g0 = replace(geo, **{f"distance_{which}_err_m": 0.0})
+        g0 = replace(geo, **{f"distance_{which}_err_m": 0.0})  # type: ignore[arg-type]
         cases = [
-            (f"{s:+d}σ", {"geometry": replace(g0, **{f"distance_{which}_m": d + s * e})}) for s in (-1, 1)
+            (f"{s:+d}σ", {"geometry": replace(g0, **{f"distance_{which}_m": d + s * e})})  # type: ignore[arg-type]
+            for s in (-1, 1)
         ]
         label = f"{which} distance {d:g} ± {e:g} m"
         out.append(_impact(f"distance_{which}", label, cases, refit.shifts(cases, {"geometry": g0})))
@@ -298,6 +300,6 @@ def _profiled_impacts(fit: ChiSquareFit, refit: _Refitter) -> list[SystematicShi
 
 
 def _impact(
-    name: str, label: str, cases: Sequence[tuple[str, dict[str, object]]], d: np.ndarray
+    name: str, label: str, cases: Sequence[tuple[str, Mapping[str, object]]], d: np.ndarray
 ) -> SystematicShift:
     return _shift_item(name, label, cases, d, _largest(d), profiled=True, note="")

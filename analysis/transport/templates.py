@@ -29,6 +29,7 @@ import os
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
+from functools import partial
 
 import numpy as np
 
@@ -434,7 +435,7 @@ def build_template_grid(
     dist = np.array([c.distance_m - settings.lem_radius_m for c in settings.cameras])
     for g in settings.mie_g_nodes:
         desc = {"geometry": geo, "mie_g": g, "path_max_m": settings.path_max_m}
-        arr = cache.get(cache_key("first-order", desc), desc, lambda g=g: _lines_piece(settings, g, cache))
+        arr = cache.get(cache_key("first-order", desc), desc, partial(_lines_piece, settings, g, cache))
         lines = FirstOrderLines(arr["weight"], arr["path_m"], arr["spread_m2"])
         first[g] = bin_first_order(lines, path_edges, dist)
         done += 1

@@ -14,6 +14,7 @@ from camcal.cli.common import console, fail
 from camcal.cli.data import open_store
 from camcal.core.calibrations import CalibrationError, load_json, merge_results, record_values
 from camcal.core.frameset import FrameSetError, Setup, parse_setup
+from storage import queries
 
 app = typer.Typer(help="Versioned calibration records: add, list, show.", no_args_is_help=True)
 
@@ -58,7 +59,7 @@ def add(
             except (OSError, ValueError, FrameSetError) as exc:
                 raise fail(f"{setup}: {exc}") from None
         else:
-            prev = store.calibration(name)
+            prev = store.call(queries.calibration, name)
             base = parse_setup(prev["values"]["setup"], name) if prev else Setup()
         try:
             merged, rows, sources = merge_results(base, [load_json(p) for p in result or []])
@@ -88,7 +89,7 @@ def list_cmd(
     """Every stored calibration version."""
     store = open_store(data, db_url)
     try:
-        cals = store.calibrations(name)
+        cals = store.call(queries.calibrations, name)
     finally:
         store.close()
     t = Table(title="calibrations", title_justify="left")
@@ -131,7 +132,7 @@ def show(
     """One calibration record as JSON."""
     store = open_store(data, db_url)
     try:
-        rec = store.calibration(ref)
+        rec = store.call(queries.calibration, ref)
     finally:
         store.close()
     if rec is None:

@@ -10,6 +10,7 @@ from rich.table import Table
 
 from camcal.cli.common import console, fail, progress_bar
 from camcal.core.frameset import FrameSetError
+from storage import queries
 
 
 def register(app: typer.Typer) -> None:
@@ -30,7 +31,7 @@ def open_store(data: Path, db_url: str | None, *, create: bool = False):
 
 def pick_dive(store, name: str | None, *, create_as: str | None = None):
     if name:
-        dive = store.dive_by_name(name)
+        dive = store.call(queries.dive_by_name, name)
         if dive is None:
             if create_as is not None:
                 return store.create_dive(name)

@@ -169,9 +169,11 @@ def simulate_set(
             truth = simulate_frame_set(out, spec, workers=workers or None, progress=update)
     except FileExistsError as exc:
         raise fail(str(exc)) from None
-    for wl, o in truth["water"].items():  # type: ignore[union-attr]
+    truth_water = truth["water"]
+    assert isinstance(truth_water, dict)
+    for wl_name, o in truth_water.items():
         console.print(
-            f"  {wl} nm: λ_abs {o['lambda_abs_m']:.1f} m, λ_sca {o['lambda_sca_m']:.1f} m "
+            f"  {wl_name} nm: λ_abs {o['lambda_abs_m']:.1f} m, λ_sca {o['lambda_sca_m']:.1f} m "
             f"-> λ_att {o['lambda_att_m']:.2f} m"
         )
     console.print(f"wrote {out}/manifest.csv, setup.json, truth.json")

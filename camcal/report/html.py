@@ -1,4 +1,4 @@
-"""The report's HTML pieces: its CSS, escaping, numbers, tables, figures, notes and sections."""
+"""HTML building blocks of the dive report: escaping, numbers, tables, figures, sections, the CSS."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import math
 from collections.abc import Iterable, Sequence
 from datetime import UTC, datetime
 
+#: The report's sections, in order: (anchor, title).
 SECTIONS = (
     ("summary", "Summary"),
     ("timeline", "Timeline"),

@@ -87,7 +87,8 @@ class DaskRunner:
                 n_workers=workers,
                 threads_per_worker=1,
                 processes=True,
-                dashboard_address=None,
+                # A free loopback port: never 8787 (another cluster or a second re-analysis may hold it).
+                dashboard_address="127.0.0.1:0",
                 host="127.0.0.1",
                 silence_logs=logging.WARNING,
             )

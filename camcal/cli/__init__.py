@@ -1,4 +1,10 @@
-"""The ``camcal`` command line."""
+"""The ``camcal`` command line.
+
+Importing it is cheap (``camcal --help`` in well under a second, no SciPy,
+OpenCV, database or web framework loaded): each command's module declares
+its options with plain defaults (`camcal.cli.defaults`) and imports what
+its work needs when it runs. ``tests/cli/test_startup.py`` checks it.
+"""
 
 from __future__ import annotations
 
@@ -27,7 +33,6 @@ from camcal.cli import (
     transport,
     up,
 )
-from camcal.core import supervise
 
 app = typer.Typer(
     name="camcal",
@@ -60,9 +65,24 @@ reanalyze.register(app)
 
 
 def main() -> None:
+    from camcal.core import supervise
+
     supervise.attach()  # started by `camcal up`: end with it, however it ends
     _workers_skip_the_entry_script()
-    app()
+    try:
+        app()
+    except ImportError as exc:
+        from camcal.cli.extras import missing_extra
+
+        message = missing_extra(exc)
+        if message is None:
+            raise
+        from rich.markup import escape
+
+        from camcal.cli.common import err_console
+
+        err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
+        raise SystemExit(2) from None
 
 
 def _workers_skip_the_entry_script() -> None:

@@ -18,7 +18,6 @@ from camcal.cli.overrides import (
     overrides_from,
 )
 from camcal.core.files import write_atomic
-from camcal.core.frameset import FrameSetError
 
 if TYPE_CHECKING:
     from camcal.pipeline import FrameSetAnalysis
@@ -40,8 +39,8 @@ def analyze(
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
 ) -> None:
     """Measure I_center on every frame and the attenuation length per wavelength."""
+    from camcal.core.frameset import FrameSetError
     from camcal.pipeline import analyze_rows, load_frame_set, to_json
-    from camcal.plots import write_plots
 
     overrides = overrides_from(distance, distance_err, ratio, linear_range)
     try:
@@ -56,6 +55,8 @@ def analyze(
         write_atomic(json_out, (json.dumps(to_json(result), indent=1) + "\n").encode(), fsync=False)
         console.print(f"wrote {json_out}")
     if plots:
+        from camcal.plots import write_plots
+
         for p in write_plots(result, plots):
             console.print(f"wrote {p}")
 

@@ -1,9 +1,11 @@
-"""Shared pieces of the command line: errors, progress, consoles."""
+"""Shared pieces of the command line: errors, progress, consoles, the options every store command takes."""
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
+from typing import Annotated
 
 import typer
 from rich.console import Console
@@ -11,6 +13,27 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 console = Console()
 err_console = Console(stderr=True)
+
+# Where the store is: one declaration for every command that opens it. Unset, both come
+# from the typed settings (`camcal.core.settings`): CAMCAL_DATA_DIR, CAMCAL_DATABASE_URL,
+# the TOML file CAMCAL_CONFIG names, then the default (camcal-data, SQLite in it).
+DataOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--data",
+        help="Data folder of the store [env CAMCAL_DATA_DIR, config data_dir; default: camcal-data].",
+        show_default=False,
+    ),
+]
+DbUrlOption = Annotated[
+    str | None,
+    typer.Option(
+        "--db-url",
+        help="SQLAlchemy URL of the store [env CAMCAL_DATABASE_URL, config database_url; "
+        "default: SQLite in the data folder].",
+        show_default=False,
+    ),
+]
 
 
 def fail(message: str, code: int = 2) -> typer.Exit:

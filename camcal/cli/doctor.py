@@ -8,15 +8,16 @@ import socket
 import urllib.error
 import urllib.request
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-import zmq
 from rich.table import Table
 
 from camcal.cli.common import console
 from camcal.cli.config import settings_or_fail
-from camcal.core.settings import Settings, endpoint_list
+
+if TYPE_CHECKING:
+    from camcal.core.settings import Settings
 
 OK, WARN, FAIL = "ok", "warn", "FAIL"
 
@@ -92,6 +93,10 @@ def check_database(s: Settings) -> list[tuple[str, str, str]]:
 
 
 def check_ingest(s: Settings, wait_s: float) -> tuple[list[tuple[str, str, str]], dict[str, Any] | None]:
+    import zmq
+
+    from camcal.core.settings import endpoint_list
+
     out = []
     port = _port_of(s.ingest_bind)
     if port and _listening(*port):

@@ -9,16 +9,18 @@ import re
 import signal
 import threading
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from camcal.cli.common import console, fail
 from camcal.cli.config import settings_or_fail
 from camcal.core import supervise
-from camcal.core.frameset import FrameSetError, Setup, parse_setup, read_setup
 from camcal.core.logs import configure_logging
-from camcal.core.settings import Settings
+
+if TYPE_CHECKING:
+    from camcal.core.frameset import Setup
+    from camcal.core.settings import Settings
 
 
 def register(app: typer.Typer) -> None:
@@ -27,6 +29,8 @@ def register(app: typer.Typer) -> None:
 
 def load_setup(setup: Path | None, settings: Settings) -> Setup:
     """A setup.json file (or a frame-set folder holding one), else the configured modules and ratios."""
+    from camcal.core.frameset import FrameSetError, parse_setup, read_setup
+
     if setup is None:
         return settings.setup()
     if setup.is_dir():

@@ -10,13 +10,14 @@ import time
 from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from camcal.cli.common import console, fail
-from camcal.core.frameset import FrameSetError
-from camcal.core.schedule import CameraLimits, Schedule
+
+if TYPE_CHECKING:
+    from camcal.core.schedule import Schedule
 
 app = typer.Typer(
     help="Run a light receiver module: a real camera, simulated, or replaying a frame set.",
@@ -77,7 +78,7 @@ def register(parent: typer.Typer) -> None:
 
 def load_schedule(name: str) -> Schedule:
     """A preset name or a JSON file with a schedule."""
-    from camcal.core.schedule import presets
+    from camcal.core.schedule import Schedule, presets
 
     table = presets()
     if name in table:
@@ -194,6 +195,7 @@ def simulate(
 
     Exits with status 3 if the ship at --connect is not the right one (another dive, or
     not a camcal ingest)."""
+    from camcal.core.schedule import CameraLimits
     from lrm.agent import Agent, AgentConfig
     from lrm.camera import SimulatedCamera, SimulatedSensors
     from lrm.clock import SimClock
@@ -301,6 +303,7 @@ def replay(
     """Stream a recorded frame set over the module protocol, then exit when the ship has it all.
 
     Exits with status 3 if the ship at --connect is not the right one."""
+    from camcal.core.frameset import FrameSetError
     from lrm.agent import Agent, AgentConfig
     from lrm.clock import SystemClock
     from lrm.replay import ReplaySource
@@ -386,6 +389,7 @@ def camera_module(
     card, says why in its log, and keeps looking for the right ship.
     """
     from camcal.cli.common import parse_floats
+    from camcal.core.schedule import CameraLimits
     from lrm.agent import Agent, AgentConfig
     from lrm.camera import CameraError, V4L2Camera
     from lrm.clock import SystemClock

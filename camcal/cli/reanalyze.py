@@ -6,12 +6,12 @@ import json
 import time
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.table import Table
 
-from camcal.cli.common import console, fail
+from camcal.cli.common import DataOption, DbUrlOption, console, fail
 from camcal.cli.overrides import (
     DistanceErrOption,
     DistanceOption,
@@ -19,9 +19,10 @@ from camcal.cli.overrides import (
     RatioOption,
     overrides_from,
 )
-from camcal.core.calibrations import setup_of
 from camcal.core.files import write_atomic
-from camcal.core.frameset import FrameSetError, Setup, parse_setup
+
+if TYPE_CHECKING:
+    from camcal.core.frameset import Setup
 
 
 def register(app: typer.Typer) -> None:
@@ -56,6 +57,8 @@ def parse_storage_options(items: list[str] | None) -> dict[str, Any]:
 
 
 def load_setup_file(path: Path) -> Setup:
+    from camcal.core.frameset import FrameSetError, parse_setup
+
     try:
         return parse_setup(json.loads(path.read_text(encoding="utf-8")), str(path))
     except OSError as exc:
@@ -103,10 +106,8 @@ def reanalyze(
     distance_err: DistanceErrOption = None,
     ratio: RatioOption = None,
     linear_range: LinearRangeOption = None,
-    data: Annotated[Path, typer.Option(help="Data folder of the store.")] = Path("camcal-data"),
-    db_url: Annotated[
-        str | None, typer.Option(help="SQLAlchemy URL (default: SQLite in the data folder).")
-    ] = None,
+    data: DataOption = None,
+    db_url: DbUrlOption = None,
     frames_url: Annotated[
         str | None,
         typer.Option(
@@ -143,6 +144,8 @@ def reanalyze(
     folder and an S3-compatible bucket work the same.
     """
     from camcal.cli.data import open_store
+    from camcal.core.calibrations import setup_of
+    from camcal.core.frameset import FrameSetError
     from ingest.reanalysis import ReanalysisOptions
 
     frm, to = parse_time(t_from, "--from"), parse_time(t_to, "--to")
@@ -222,6 +225,8 @@ def _stored(store: Any, name: str | None, frm: float | None, to: float | None) -
 
 def _base_setup(store: Any, dive: Any) -> Setup:
     """The calibration the dive was analysed with: its live run's, else the dive's, else T-REX."""
+    from camcal.core.frameset import FrameSetError, Setup, parse_setup
+
     live = store.analysis_run(dive.id, "live", create=False)
     cal = (live.calibration if live is not None else None) or dive.setup or {}
     try:
@@ -234,6 +239,7 @@ def _import_folders(
     store: Any, folders: list[str], name: str | None, storage_options: dict[str, Any]
 ) -> list[dict[str, Any]]:
     """Import each folder (frames already stored are matched, not copied again); a job per dive."""
+    from camcal.core.frameset import FrameSetError
     from ingest.importer import import_frame_set, read_frame_set
     from storage.files import RemoteFolder
 

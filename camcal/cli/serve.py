@@ -10,7 +10,7 @@ import threading
 import time
 import urllib.request
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -19,7 +19,9 @@ from camcal.cli.config import settings_or_fail
 from camcal.cli.credentials import operator_tokens
 from camcal.core import supervise
 from camcal.core.logs import configure_logging
-from camcal.core.settings import Settings
+
+if TYPE_CHECKING:
+    from camcal.core.settings import Settings
 
 
 def register(app: typer.Typer) -> None:

@@ -28,7 +28,7 @@ from camcal.core.supervise import exit_when_gone
 T = TypeVar("T")
 R = TypeVar("R")
 
-_PRELOAD = ["numpy", "cv2", "scipy.optimize", "analysis", "camcal.core.frameset"]
+_PRELOAD = ["numpy", "cv2", "analysis", "camcal.core.frameset"]
 _context: Any = None
 
 

@@ -133,7 +133,7 @@ def test_defaults_are_the_values_of_their_owners() -> None:
     from lrm.labset import LAB_KINDS
     from lrm.sim.camera import CameraModel
 
-    assert defaults.TREX_FOCAL_PX == pytest.approx(CameraModel().focal_px, rel=1e-12)
+    assert CameraModel().focal_px == pytest.approx(defaults.TREX_FOCAL_PX, rel=1e-12)
     assert defaults.DEEP_SEA_TEMPERATURE_C == DEEP_SEA_TEMPERATURE_C
     assert defaults.LEM_DIAMETER_M == LEM_DIAMETER_M
     assert tuple(defaults.LAB_KINDS) == tuple(LAB_KINDS)

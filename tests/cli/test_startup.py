@@ -146,9 +146,7 @@ def test_the_fork_server_preloads_no_scipy() -> None:
 
     assert not any(m.split(".")[0] == "scipy" for m in parallel._PRELOAD)
     probe = (
-        "import sys, json; "
-        "[__import__(m) for m in json.loads(sys.argv[1])]; "
-        "print('scipy' in sys.modules)"
+        "import sys, json; [__import__(m) for m in json.loads(sys.argv[1])]; print('scipy' in sys.modules)"
     )
     out = subprocess.run(
         [sys.executable, "-c", probe, json.dumps(parallel._PRELOAD)],

@@ -29,16 +29,16 @@ test: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/lint-imports
 	$(BIN)/deptry .
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n 2 --dist loadgroup
 
 # A module's install: the core alone (no extra), built and installed as `pip install camcal` would,
 # in a fresh venv; then `camcal lrm --help` and the module side's tests (their sources from here).
 test-core:
 	rm -rf $(CORE)
 	$(PYTHON) -m venv $(CORE)
-	$(CORE)/bin/python -m pip install --quiet . pytest hypothesis
+	$(CORE)/bin/python -m pip install --quiet . pytest pytest-xdist hypothesis
 	$(CORE)/bin/camcal lrm --help >/dev/null
-	$(CORE)/bin/python -m pytest -p no:cacheprovider tests/lrm tests/sim tests/camcal \
+	$(CORE)/bin/python -m pytest -n 2 --dist loadgroup -p no:cacheprovider tests/lrm tests/sim tests/camcal \
 		tests/test_wire.py tests/test_frameset.py tests/cli/test_startup.py
 
 # The protocol fuzzer's slow lane: 10 000 generated messages against a real ingest (make test sends 800).

@@ -20,7 +20,7 @@ import zmq
 
 from server.guard import CSP
 from tests.browser.conftest import camcal_page
-from tests.utils.system import System, _children
+from tests.utils.system import System
 
 pytestmark = pytest.mark.browser
 
@@ -57,11 +57,9 @@ def test_every_page_carries_the_security_headers(system: System) -> None:
 
 def test_the_token_is_never_printed_nor_handed_to_the_children(system: System) -> None:
     assert system.token not in system.log.read_text(errors="replace"), "camcal up printed a configured token"
-    children = _children(system.process.pid)
+    children = system.children_when_up  # read from /proc when camcal up said it is up
     assert len(children) >= 3, children  # the ingest and two modules
-    for pid in children:
-        environ = Path(f"/proc/{pid}/environ").read_bytes()
-        cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
+    for pid, (environ, cmdline) in children.items():
         assert system.token.encode() not in environ + cmdline, f"child {pid} holds the token"
         assert b"CAMCAL_OPERATOR_TOKENS" not in environ
         if b"simulate" in cmdline:

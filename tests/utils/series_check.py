@@ -3,7 +3,10 @@
 The check of issue 12: per wavelength the RMS relative deviation from the
 truth is at most 2 % and at least 90 % of the points lie within 5 % of it;
 over all points 80-98 % lie within 2 σ (their statistical error) of it, so
-that errors neither claim too much (fewer within) nor too little (more).
+that errors neither claim too much (fewer within) nor too little (more); and
+the pulls (value − truth)/error have an RMS of 0.8-1.25 over all points, and
+per wavelength one that a true RMS of 0.8-1.25 gives in 99 % of samples of
+that many points (with 25 points a pull RMS is only known to ±14 %).
 """
 
 from __future__ import annotations
@@ -12,6 +15,8 @@ import math
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
+
+from scipy.stats import chi2
 
 
 @dataclass(frozen=True)
@@ -31,6 +36,12 @@ class SeriesCheck:
     n: int
 
     @property
+    def pull_rms(self) -> float:
+        figures = self.per_wavelength.values()
+        n = sum(f.n for f in figures)
+        return math.sqrt(sum(f.n * f.pull_rms**2 for f in figures) / n) if n else math.inf
+
+    @property
     def problems(self) -> list[str]:
         out = []
         for wl, f in sorted(self.per_wavelength.items()):
@@ -38,8 +49,13 @@ class SeriesCheck:
                 out.append(f"{wl} nm: RMS relative deviation {100 * f.rms_rel_dev:.2f} % > 2 %")
             if f.within_5pct < 0.90:
                 out.append(f"{wl} nm: {100 * f.within_5pct:.0f} % of points within 5 % (< 90 %)")
+            lo, hi = pull_rms_band(f.n)
+            if not lo <= f.pull_rms <= hi:
+                out.append(f"{wl} nm: pull RMS {f.pull_rms:.2f} over {f.n} points (not {lo:.2f}-{hi:.2f})")
         if not 0.80 <= self.within_2sigma <= 0.98:
             out.append(f"{100 * self.within_2sigma:.1f} % of points within 2 σ (not 80-98 %)")
+        if not 0.8 <= self.pull_rms <= 1.25:
+            out.append(f"pull RMS {self.pull_rms:.2f} over all {self.n} points (not 0.8-1.25)")
         return out
 
     @property
@@ -58,6 +74,16 @@ class SeriesCheck:
             )
         lines.append(f"| all | {self.n} |  |  | {100 * self.within_2sigma:.1f} % |  |  |")
         return "\n".join(lines)
+
+
+def pull_rms_band(n: int) -> tuple[float, float]:
+    """The pull RMS a sample of ``n`` points shows in 99 % of cases when the true RMS is 0.8-1.25."""
+    if n < 2:
+        return 0.0, math.inf
+    return (
+        0.8 * math.sqrt(float(chi2.ppf(0.005, n)) / n),
+        1.25 * math.sqrt(float(chi2.ppf(0.995, n)) / n),
+    )
 
 
 def check_series(points: Iterable[Mapping[str, Any]], truth: Callable[[int, float], float]) -> SeriesCheck:

@@ -20,7 +20,7 @@ import sys
 import time
 import uuid
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -172,6 +172,9 @@ class System:
     log: Path
     mark: str = ""
     ports: tuple[int, int, int] = (0, 0, 0)  # dashboard, ingest, events
+    #: pid → (environ, cmdline) of each child of ``camcal up`` as read from /proc once it said it is up
+    #: (a simulated module ends with its dive; a test run late in a long session still sees them).
+    children_when_up: dict[int, tuple[bytes, bytes]] = field(default_factory=dict)
 
     def url(self, path: str) -> str:
         return f"{self.base_url}{path}"
@@ -292,6 +295,13 @@ def camcal_up(
                 tail = log.read_text()[-3000:]
                 raise RuntimeError(f"camcal up was not up in {ready_timeout_s} s:\n{tail}")
             time.sleep(0.1)
+        for pid in _children(proc.pid):
+            with contextlib.suppress(OSError):
+                proc_dir = Path(f"/proc/{pid}")
+                system.children_when_up[pid] = (
+                    (proc_dir / "environ").read_bytes(),
+                    (proc_dir / "cmdline").read_bytes(),
+                )
         yield system
     finally:
         stop_system(proc)

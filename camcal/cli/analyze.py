@@ -49,13 +49,18 @@ def analyze(
     manifest row and the set's setup.json say how): I_center and why a frame
     is rejected, without starting worker processes.
     """
+    if not folder.exists():
+        raise fail(f"{folder}: no such frame-set folder or frame file")
+    single = folder.is_file()
+    if not single and workers != 1:
+        from camcal.core.parallel import start_fork_server
+
+        start_fork_server()  # the workers' imports run while this process imports and reads the set
+
     from camcal.core.frameset import FrameSetError
     from camcal.pipeline import analyze_rows, load_frame_set, to_json
 
     overrides = overrides_from(distance, distance_err, ratio, linear_range)
-    if not folder.exists():
-        raise fail(f"{folder}: no such frame-set folder or frame file")
-    single = folder.is_file()
     if single:
         folder, name = folder.parent, folder.name
     try:

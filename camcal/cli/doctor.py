@@ -5,8 +5,6 @@ from __future__ import annotations
 import json
 import shutil
 import socket
-import urllib.error
-import urllib.request
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -208,6 +206,9 @@ def check_modules(s: Settings, health: dict[str, Any] | None) -> list[tuple[str,
 
 
 def check_http(s: Settings) -> list[tuple[str, str, str]]:
+    import urllib.error
+    import urllib.request
+
     host = "127.0.0.1" if s.http_host in ("0.0.0.0", "::") else s.http_host
     url = f"http://{host}:{s.http_port}/api/health"
     try:

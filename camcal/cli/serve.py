@@ -5,10 +5,8 @@ from __future__ import annotations
 
 import signal
 import socket
-import ssl
 import threading
 import time
-import urllib.request
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -37,6 +35,8 @@ class HttpServer:
     """
 
     def __init__(self, settings: Settings, tokens: dict[str, str], events: str | None) -> None:
+        import ssl
+
         import uvicorn
 
         from server.app import create_app
@@ -95,6 +95,8 @@ class HttpServer:
 
     def wait_healthy(self, timeout_s: float, stop: threading.Event | None = None) -> None:
         """Wait until ``/healthz`` answers 200; `RuntimeError` if the server ends or stays silent."""
+        import urllib.request
+
         end = time.monotonic() + timeout_s
         while not (stop is not None and stop.is_set()):
             if not self.alive():

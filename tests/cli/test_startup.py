@@ -251,3 +251,49 @@ def test_without_any_extra_the_module_side_runs(tmp_path: Path) -> None:
     assert "simulate" in out.stdout and "replay" in out.stdout
     out = without(everything, "lrm", "replay", str(tmp_path / "nothing"), "--camera", "A", cwd=tmp_path)
     assert out.returncode == 2 and "camcal[" not in out.stderr and "Traceback" not in out.stderr
+
+
+def test_the_root_list_is_the_commands() -> None:
+    """``camcal --help`` prints `camcal.cli.COMMANDS` without importing a command: the same names, in
+    the same order, with each command's own one-line help, as the application with every command."""
+    from typer.main import get_command
+
+    from camcal.cli import COMMANDS, app
+
+    full = get_command(app)
+    listed = full.list_commands(None)  # type: ignore[attr-defined]
+    assert [name for name, _, _ in COMMANDS] == listed
+    for name, module, text in COMMANDS:
+        cmd = full.get_command(None, name)  # type: ignore[attr-defined]
+        assert cmd.get_short_help_str(limit=1000) == text, name
+        owner = cmd.callback.__module__ if cmd.callback else None
+        subs = getattr(cmd, "commands", {})
+        owners = {owner} if owner else {c.callback.__module__ for c in subs.values()}
+        assert owners == {f"camcal.cli.{module}"}, name
+
+
+def test_the_entry_point_runs_the_commands_it_lists(tmp_path: Path) -> None:
+    """Through ``main`` (what the ``camcal`` script runs): a listed command, a subcommand, an unknown
+    one."""
+    got = loaded_by("lrm", "simulate", "--help")
+    assert got["code"] == 0
+    out = subprocess.run(
+        [sys.executable, "-c", "from camcal.cli import main; main()", "calibration", "nope"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert out.returncode == 2 and "No such command 'nope'" in out.stderr
+    out = subprocess.run(
+        [sys.executable, "-c", "from camcal.cli import main; main()", "simulate-lab", "psf",
+         str(tmp_path / "s"), "--width", "128", "--height", "128", "--repeats", "1", "--quiet"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert (tmp_path / "s" / "manifest.csv").is_file()

@@ -10,6 +10,8 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
+from camcal.cli.defaults import DATA_DIR
+
 console = Console()
 err_console = Console(stderr=True)
 
@@ -20,7 +22,7 @@ DataOption = Annotated[
     Path | None,
     typer.Option(
         "--data",
-        help="Data folder of the store [env CAMCAL_DATA_DIR, config data_dir; default: camcal-data].",
+        help=f"Data folder of the store [env CAMCAL_DATA_DIR, config data_dir; default: {DATA_DIR}].",
         show_default=False,
     ),
 ]

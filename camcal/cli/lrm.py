@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from camcal.cli.common import console, fail
+from camcal.cli.defaults import DATA_DIR
 
 if TYPE_CHECKING:
     from camcal.core.schedule import Schedule
@@ -187,7 +188,7 @@ def simulate(
         bool, typer.Option(help="Exit once the dive is over and all is sent.")
     ] = True,
     dive: DiveOption = None,
-    keys: KeysOption = Path("camcal-data/keys"),
+    keys: KeysOption = Path(DATA_DIR) / "keys",
     plaintext: PlaintextOption = False,
     log_level: Annotated[str, typer.Option(help="debug, info, warning.")] = "info",
 ) -> None:
@@ -296,7 +297,7 @@ def replay(
         float, typer.Option(help="1 = recorded pace, 10 = ten times faster, 0 = as fast as possible.")
     ] = 1.0,
     dive: DiveOption = None,
-    keys: KeysOption = Path("camcal-data/keys"),
+    keys: KeysOption = Path(DATA_DIR) / "keys",
     plaintext: PlaintextOption = False,
     log_level: Annotated[str, typer.Option(help="debug, info, warning.")] = "info",
 ) -> None:

@@ -22,7 +22,7 @@ DataOption = Annotated[
     Path | None,
     typer.Option(
         "--data",
-        help=f"Data folder of the store [env CAMCAL_DATA_DIR, config data_dir; default: {DATA_DIR}].",
+        help=f"Data folder of the store (else CAMCAL_DATA_DIR, the config file's data_dir, {DATA_DIR}).",
         show_default=False,
     ),
 ]
@@ -30,8 +30,8 @@ DbUrlOption = Annotated[
     str | None,
     typer.Option(
         "--db-url",
-        help="SQLAlchemy URL of the store [env CAMCAL_DATABASE_URL, config database_url; "
-        "default: SQLite in the data folder].",
+        help="SQLAlchemy URL of the store (else CAMCAL_DATABASE_URL, the config file's database_url, "
+        "SQLite in the data folder).",
         show_default=False,
     ),
 ]

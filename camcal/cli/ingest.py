@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from camcal.cli.common import console, fail
+from camcal.cli.common import DataOption, DbUrlOption, console, fail
 from camcal.cli.config import settings_or_fail
 from camcal.core import supervise
 from camcal.core.logs import configure_logging
@@ -88,14 +88,14 @@ def start_service(cfg: Any) -> Any:
 
 
 def ingest(
-    data: Annotated[Path | None, typer.Option(help="Data folder [CAMCAL_DATA_DIR].")] = None,
+    data: DataOption = None,
     bind: Annotated[
         str | None, typer.Option(help="Where modules connect, tcp://*:PORT [CAMCAL_INGEST_BIND].")
     ] = None,
     events: Annotated[
         str | None, typer.Option(help="Event publisher for the dashboard [CAMCAL_EVENTS_BIND].")
     ] = None,
-    db_url: Annotated[str | None, typer.Option(help="SQLAlchemy URL [CAMCAL_DATABASE_URL].")] = None,
+    db_url: DbUrlOption = None,
     setup: Annotated[
         Path | None, typer.Option(help="setup.json with distances, I0'/I0, linear range.")
     ] = None,

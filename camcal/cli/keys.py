@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from camcal.cli.common import console, fail
+from camcal.cli.common import DataOption, console, fail
 from camcal.cli.config import settings_or_fail
 
 app = typer.Typer(
@@ -18,7 +18,6 @@ app = typer.Typer(
 KeysDirOption = Annotated[
     Path | None, typer.Option("--keys", help="Keys folder [CAMCAL_KEYS_DIR; default <data>/keys].")
 ]
-DataOption = Annotated[Path | None, typer.Option(help="Data folder [CAMCAL_DATA_DIR].")]
 
 
 def register(parent: typer.Typer) -> None:

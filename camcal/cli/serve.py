@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from camcal.cli.common import console, fail
+from camcal.cli.common import DataOption, DbUrlOption, console, fail
 from camcal.cli.config import settings_or_fail
 from camcal.cli.credentials import operator_tokens
 from camcal.core import supervise
@@ -156,7 +156,7 @@ def stop_signals() -> threading.Event:
 
 
 def serve(
-    data: Annotated[Path | None, typer.Option(help="Data folder [CAMCAL_DATA_DIR].")] = None,
+    data: DataOption = None,
     host: Annotated[
         str | None, typer.Option(help="Address; 0.0.0.0 for the ship's network [CAMCAL_HTTP_HOST].")
     ] = None,
@@ -164,7 +164,7 @@ def serve(
     events: Annotated[
         str | None, typer.Option(help="The ingest's events; 'none' for review only [CAMCAL_EVENTS_CONNECT].")
     ] = None,
-    db_url: Annotated[str | None, typer.Option(help="SQLAlchemy URL [CAMCAL_DATABASE_URL].")] = None,
+    db_url: DbUrlOption = None,
     operator_token: Annotated[
         list[str] | None,
         typer.Option(help="NAME=TOKEN of an operator (repeat); shown by ps: use CAMCAL_OPERATOR_TOKENS."),

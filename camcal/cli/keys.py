@@ -73,7 +73,7 @@ def list_(keys: KeysDirOption = None, data: DataOption = None) -> None:
     found = list_keys(folder)
     if not found:
         raise fail(f"no keys in {folder}: create them with `camcal keys create A B --keys {folder}`")
-    console.print(f"keys in {folder}:", highlight=False)
+    console.print(f"keys in {folder}:", highlight=False, soft_wrap=True)  # a path is not cut
     width = max(len(k.owner) for k in found)
     for k in found:
         secret = "secret here" if k.has_secret else "public only"

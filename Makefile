@@ -53,6 +53,7 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check .
 
 bench: $(STAMP)
+	$(BIN)/python bench/bench_startup.py
 	$(BIN)/python bench/bench_analysis.py
 	$(BIN)/python bench/bench_detect.py
 	$(BIN)/python bench/bench_ingest.py

@@ -141,7 +141,8 @@ def floor(folder: Path, out: Path) -> dict[str, float]:
         if not n:
             t_first, cpu0 = t, cpu_s(resource.RUSAGE_SELF)  # with ZeroMQ's I/O thread
         h = json.loads(header.bytes)
-        with open(out / f"{ident.bytes.decode()}-{h['seq']:06d}.png", "wb") as fh:
+        name = ident.bytes.decode().replace("/", "_")  # a module identity is "<module>/<connection>"
+        with open(out / f"{name}-{h['seq']:06d}.png", "wb") as fh:
             fh.write(payload.buffer)
             fh.flush()
             os.fsync(fh.fileno())

@@ -18,28 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from camcal.calibrate import (
-    air_scan_document,
-    emission_document,
-    linearity_document,
-    psf_document,
-    run_air_scan,
-    run_emission_ratio,
-    run_linearity,
-    run_psf,
-    run_tank_scan,
-    tank_scan_document,
-)
-from lrm.labset import LAB_KINDS, lab_spec, match_truth, truth_values, write_lab_set
+from camcal.calibrate import EXPERIMENTS
+from lrm.labset import lab_spec, match_truth, truth_values, write_lab_set
 from lrm.sim.camera import CameraModel
-
-RUNNERS = {
-    "linearity": (run_linearity, linearity_document),
-    "emission-ratio": (run_emission_ratio, emission_document),
-    "air-scan": (run_air_scan, air_scan_document),
-    "tank-scan": (run_tank_scan, tank_scan_document),
-    "psf": (run_psf, psf_document),
-}
 
 
 def main() -> None:
@@ -47,12 +28,12 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--seeds", type=int, default=10)
-    parser.add_argument("--kinds", default=",".join(LAB_KINDS))
+    parser.add_argument("--kinds", default=",".join(EXPERIMENTS))
     parser.add_argument("--repeats", type=int, default=2)
     args = parser.parse_args()
     camera = CameraModel(width_px=640, height_px=512, fov_deg=16.0)
     for kind in args.kinds.split(","):
-        run, document = RUNNERS[kind]
+        run, document = EXPERIMENTS[kind].run, EXPERIMENTS[kind].document
         pulls: dict[str, list[float]] = defaultdict(list)
         start = time.perf_counter()
         for seed in range(args.seeds):

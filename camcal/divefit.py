@@ -21,7 +21,8 @@ from analysis.chisq import FitInputError
 from camcal.core import __version__
 from camcal.core.calibrations import setup_of
 from camcal.core.frameset import FrameSetError, ManifestRow, Setup, parse_setup
-from camcal.fitset import FitOptions, FolderFit, fit_analysis, to_json
+from camcal.fitdoc import to_json
+from camcal.fitset import FitOptions, FolderFit, fit_analysis
 from camcal.pipeline import Overrides, analyze_rows
 from ingest.derived import Span
 from storage import queries
@@ -61,18 +62,11 @@ class DiveFit:
 
 
 def pick_run(store: Store, dive_id: int, run_id: int | None = None) -> dict[str, Any]:
-    """The dive's live run (else its newest), or run ``run_id`` of the dive."""
-    with store.read() as s:
-        runs = {r["id"]: r for r in queries.runs(s, dive_id)}
-    if not runs:
-        raise DiveLookupError(f"dive {dive_id} has no analysis run yet (nothing was ingested or imported)")
-    if run_id is None:
-        live = [r for r in runs.values() if r["kind"] == "live"]
-        return live[0] if live else runs[max(runs)]
-    if run_id not in runs:
-        have = ", ".join(map(str, sorted(runs)))
-        raise DiveLookupError(f"no run {run_id} in dive {dive_id} (runs: {have})")
-    return runs[run_id]
+    """The dive's live run (else its newest), or run ``run_id`` of the dive (`queries.chosen_run`)."""
+    try:
+        return store.call(queries.chosen_run, dive_id, run_id)
+    except queries.RunLookupError as exc:
+        raise DiveLookupError(str(exc)) from None
 
 
 def run_calibration(
@@ -84,12 +78,12 @@ def run_calibration(
     run's own inputs with that record's.
     """
     if calibration is not None:
-        record = store.calibration(calibration)
+        record = store.call(queries.calibration, calibration)
         if record is None:
             raise DiveLookupError(f"no calibration {calibration!r} (try `camcal calibration list`)")
         return setup_of(record), record
     setup = parse_setup(run["calibration"], f"run {run['id']}") if run["calibration"] else Setup()
-    record = store.calibration(run["calibration_id"]) if run.get("calibration_id") else None
+    record = store.call(queries.calibration, run["calibration_id"]) if run.get("calibration_id") else None
     return setup, record
 
 
@@ -107,7 +101,7 @@ def dive_inputs(
     Raises `DiveLookupError` for an unknown dive, run or calibration and
     `FitInputError` when the span holds no frame.
     """
-    dive_row = store.dive_by_name(dive_name)
+    dive_row = store.call(queries.dive_by_name, dive_name)
     if dive_row is None:
         with store.read() as s:
             names = [d["name"] for d in queries.dives(s)]
@@ -120,7 +114,7 @@ def dive_inputs(
     setup, record = run_calibration(store, run, calibration)
     if overrides:
         setup = overrides.apply(setup)
-    selected, span_info = (span or Span()).select(store.result_rows(run["id"], dive_row.id))
+    selected, span_info = (span or Span()).select(store.call(queries.result_rows, run["id"], dive_row.id))
     if not selected:
         raise FitInputError(
             f"dive {dive_name}: no analysed frame in the span "

@@ -15,7 +15,8 @@ from matplotlib.figure import Figure
 
 from analysis.chisq import DCHI2_2D_68, DCHI2_2D_95, ChiSquareFit
 from analysis.transport.coefficients import SpherePaths
-from camcal.fitset import AttenuationCheck, FolderFit, fit_entry
+from camcal.fitdoc import estimate_text, fit_entry
+from camcal.fitset import AttenuationCheck, FolderFit
 from camcal.plots import WAVELENGTH_COLORS
 
 
@@ -23,10 +24,21 @@ def _color(wl: int) -> str:
     return WAVELENGTH_COLORS.get(wl, "#444444")
 
 
+def _best(entry: dict[str, Any]) -> tuple[float, float]:
+    """The χ² minimum's position (older documents: their flat values)."""
+    best = entry.get("best_fit_m") or [entry["lambda_abs_m"], entry["lambda_sca_m"]]
+    return float(best[0]), float(best[1])
+
+
 def _interval(entry: dict[str, Any], key: str) -> tuple[float, float]:
     lo, hi = entry[f"{key}_interval_m"]
-    x = entry[f"{key}_m"]
-    return x - lo, hi - x
+    x = _best(entry)[0 if key == "lambda_abs" else 1]
+    return max(x - lo, 0.0), max(hi - x, 0.0)
+
+
+def _quoted(entry: dict[str, Any], key: str) -> str:
+    text = estimate_text(entry, key, 1)
+    return text if text[0] in "<>u" else f"= {text}"
 
 
 def contour_figure(entry: dict[str, Any]) -> Figure:
@@ -42,7 +54,7 @@ def contour_figure(entry: dict[str, Any]) -> Figure:
     fig, ax = plt.subplots(figsize=(6.4, 5.2), dpi=110)
     levels = [0, 1, 2.3, 4, 6.18, 9, 16, 25]
     filled = ax.contourf(xa_grid, ys_grid, dchi2, levels=levels, cmap="Blues_r", extend="max")
-    fig.colorbar(filled, ax=ax, label="Δχ² (profiled)")
+    fig.colorbar(filled, ax=ax, label="Δχ² (profiled)" + (" / χ²/ndof" if entry.get("errors_scaled") else ""))
     if np.nanmin(dchi2) < DCHI2_2D_95 < np.nanmax(dchi2):
         lines = ax.contour(
             xa_grid,
@@ -54,7 +66,7 @@ def contour_figure(entry: dict[str, Any]) -> Figure:
             linewidths=1.2,
         )
         ax.clabel(lines, fmt={DCHI2_2D_68: "68 %", DCHI2_2D_95: "95 %"}, fontsize=8)
-    la, ls = entry["lambda_abs_m"], entry["lambda_sca_m"]
+    la, ls = _best(entry)
     ax.errorbar(
         la,
         ls,
@@ -64,9 +76,7 @@ def contour_figure(entry: dict[str, Any]) -> Figure:
         color="#d62728",
         ms=5,
         capsize=3,
-        label=f"λ_abs = {la:.1f} ± {entry['lambda_abs_err_m']:.1f} m\n"
-        f"λ_sca = {ls:.1f} ± {entry['lambda_sca_err_m']:.1f} (stat) "
-        f"± {entry['lambda_sca_sys_err_m']:.1f} (sys) m",
+        label=f"λ_abs {_quoted(entry, 'lambda_abs')}\nλ_sca {_quoted(entry, 'lambda_sca')}",
     )
     att, att_err = entry.get("lambda_att_icenter_m"), entry.get("lambda_att_icenter_err_m")
     if att is not None and att_err is not None:
@@ -81,7 +91,9 @@ def contour_figure(entry: dict[str, Any]) -> Figure:
     ax.set_xlabel("absorption length λ_abs [m]")
     ax.set_ylabel("scattering length λ_sca [m]")
     ax.set_title(
-        f"{entry['wavelength_nm']} nm: χ²/ndof = {entry['chi2']:.0f}/{entry['ndof']}, "
+        f"{entry['wavelength_nm']} nm: χ²/ndof = {entry['chi2']:.0f}/{entry['ndof']}"
+        + (f" (errors ×{entry['error_scale']:.2f})" if entry.get("errors_scaled") else "")
+        + ", "
         f"⟨cos θ⟩ = {entry['mie_g']:g}",
         fontsize=10,
     )

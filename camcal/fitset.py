@@ -11,7 +11,7 @@ import math
 import os
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +19,7 @@ import numpy as np
 
 from analysis.attenuation import AttenuationResult, EmissionRatio, Geometry
 from analysis.chisq import (
+    ATT_CHECK_FLAG_SIGMA,
     ChiSquareFit,
     FitConfig,
     FitInputError,
@@ -26,6 +27,7 @@ from analysis.chisq import (
     collect_settings,
     fit_wavelength,
 )
+from analysis.chisq.systematics import SystematicsConfig, systematic_budget, variation_settings
 from analysis.transport.cache import TemplateCache
 from analysis.transport.disk import disk_radius_px
 from analysis.transport.scene import LEM_RADIUS_M
@@ -35,7 +37,6 @@ from analysis.transport.templates import (
     TemplateSettings,
     build_template_grid,
 )
-from camcal.core import __version__
 from camcal.core.frameset import FrameSetError
 from camcal.pipeline import FrameSetAnalysis, Overrides, analyze_folder
 
@@ -69,6 +70,7 @@ class FitOptions:
     workers: int | None = None
     wavelengths_nm: tuple[int, ...] | None = None
     fit: FitConfig = field(default_factory=FitConfig)
+    systematics: SystematicsConfig | None = field(default_factory=SystematicsConfig)
 
     def __post_init__(self) -> None:
         if not self.focal_px > 0:
@@ -103,8 +105,11 @@ class FitOptions:
 class AttenuationCheck:
     """The fit's 1/λ_abs + 1/λ_sca against the I_center λ_att of the same frames.
 
-    ``z`` is the difference over the two errors added in quadrature (the
-    I_center error with its systematic part); ``agrees`` when |z| <= 2.
+    ``z`` is the difference over the errors added in quadrature (the fit's,
+    with its systematic part, and the I_center error with its systematic
+    part); ``agrees`` when |z| <= 2; ``flagged`` when |z| exceeds
+    `ATT_CHECK_FLAG_SIGMA` (3): the two methods disagree beyond their
+    errors, and ``advice`` says what to look at next.
     """
 
     lambda_att_fit_m: float
@@ -117,10 +122,39 @@ class AttenuationCheck:
     def agrees(self) -> bool | None:
         return None if self.z is None else bool(abs(self.z) <= 2.0)
 
+    @property
+    def flagged(self) -> bool:
+        return self.z is not None and abs(self.z) > ATT_CHECK_FLAG_SIGMA
+
+    @property
+    def advice(self) -> str | None:
+        """What to do about a flagged disagreement (None when not flagged)."""
+        if not self.flagged or self.lambda_att_icenter_m is None:
+            return None
+        longer = self.lambda_att_fit_m > self.lambda_att_icenter_m
+        return (
+            f"λ_att from the fit ({self.lambda_att_fit_m:.1f} m) and from I_center "
+            f"({self.lambda_att_icenter_m:.1f} m) differ by {abs(self.z or 0):.1f}σ: do not quote λ_abs and "
+            "λ_sca from this fit yet. "
+            + (
+                "The fit gives the light too little attenuation: "
+                if longer
+                else "The fit gives the light too much attenuation: "
+            )
+            + "check the profile residuals near the disk's edge (PSF, a double image), the emission ratio "
+            "I0'/I0 at this wavelength and the two distances (they move I_center's λ_att directly), then the "
+            "systematic budget's ⟨cos θ⟩ and Rayleigh lines; refit with --mie-g / --rayleigh-fraction "
+            "set to what the water is known to have."
+        )
+
 
 @dataclass(frozen=True)
 class FolderFit:
-    """The χ² fits of a frame set, what they were checked against and what was skipped."""
+    """The χ² fits of a frame set, what they were checked against and what was skipped.
+
+    ``skipped`` gives the reason per wavelength that was not fitted (or whose
+    fit failed); ``notes`` what went wrong after a fit (a budget that failed).
+    """
 
     analysis: FrameSetAnalysis = field(repr=False)
     fits: dict[int, ChiSquareFit] = field(repr=False)
@@ -129,16 +163,23 @@ class FolderFit:
     templates: TemplateSettings
     options: FitOptions
     geometry: Geometry
+    notes: dict[int, str] = field(default_factory=dict)
+
+    @property
+    def has_result(self) -> bool:
+        """True when some wavelength measured or bounded λ_abs or λ_sca."""
+        return any(f.has_result for f in self.fits.values())
 
 
 def _check(fit: ChiSquareFit, att: AttenuationResult | None) -> AttenuationCheck:
+    fit_err = math.hypot(fit.lambda_att_err_m, fit.lambda_att_sys_err_m)
     if att is None or att.lambda_att_m is None or att.total_err_m is None:
-        return AttenuationCheck(fit.lambda_att_m, fit.lambda_att_err_m, None, None, None)
-    err = math.hypot(fit.lambda_att_err_m, att.total_err_m)
+        return AttenuationCheck(fit.lambda_att_m, fit_err, None, None, None)
+    err = math.hypot(fit_err, att.total_err_m)
     z = float((fit.lambda_att_m - att.lambda_att_m) / err) if err > 0 else None
     return AttenuationCheck(
         float(fit.lambda_att_m),
-        float(fit.lambda_att_err_m),
+        float(fit_err),
         float(att.lambda_att_m),
         float(att.total_err_m),
         z,
@@ -147,8 +188,41 @@ def _check(fit: ChiSquareFit, att: AttenuationResult | None) -> AttenuationCheck
 
 def _fit_job(
     args: tuple[int, list[SettingProfiles], TemplateGrid, Geometry, EmissionRatio, FitConfig],
-) -> ChiSquareFit:
-    return fit_wavelength(*args)
+) -> ChiSquareFit | str:
+    """One wavelength's fit, or why it failed (the other wavelengths go on)."""
+    try:
+        return fit_wavelength(*args)
+    except (FitInputError, ValueError) as exc:
+        return f"{args[0]} nm: the fit failed: {exc}"
+
+
+def _budget_job(
+    args: tuple[
+        ChiSquareFit, list[SettingProfiles], TemplateGrid, dict[str, TemplateGrid], SystematicsConfig
+    ],
+) -> ChiSquareFit | str:
+    """The fit with its systematic budget attached, or why the budget failed."""
+    fit = args[0]
+    try:
+        return fit.with_budget(systematic_budget(*args))
+    except (FitInputError, ValueError) as exc:
+        return f"{fit.wavelength_nm} nm: no systematic budget: {exc}"
+
+
+def _map(
+    fn: Callable[[Any], Any],
+    jobs: list[Any],
+    pool: ProcessPoolExecutor | None,
+    report: Callable[[int, int], None] | None,
+) -> list[Any]:
+    """``fn`` over ``jobs``, in the pool when there is one and more than one job."""
+    results = pool.map(fn, jobs) if pool is not None and len(jobs) > 1 else map(fn, jobs)
+    out = []
+    for res in results:
+        out.append(res)
+        if report:
+            report(len(out), len(jobs))
+    return out
 
 
 def _check_disk_radii(an: FrameSetAnalysis, geometry: Geometry, focal_px: float) -> None:
@@ -157,7 +231,11 @@ def _check_disk_radii(an: FrameSetAnalysis, geometry: Geometry, focal_px: float)
         (geometry.near_camera, geometry.distance_near_m),
         (geometry.far_camera, geometry.distance_far_m),
     ):
-        radii = [f.radius_px for row, f in zip(an.rows, an.frames, strict=True) if row.camera == cam and f.ok]
+        radii = [
+            f.radius_px
+            for row, f in zip(an.rows, an.frames, strict=True)
+            if row.camera == cam and f.ok and f.radius_px is not None
+        ]
         if not radii:
             continue
         measured = float(np.median(radii))
@@ -250,114 +328,63 @@ def fit_analysis(
         tsettings, TemplateCache(options.cache_dir), workers=workers, progress=stage("templates")
     )
     jobs = [(wl, s, grid, geometry, ratios[wl], options.fit) for wl, s in sorted(todo.items())]
-    fits: dict[int, ChiSquareFit] = {}
-    report = stage("fitting")
-    if workers > 1 and len(jobs) > 1:
-        with ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as pool:
-            for job, res in zip(jobs, pool.map(_fit_job, jobs), strict=True):
+    notes: dict[int, str] = {}
+    pool = ProcessPoolExecutor(max_workers=min(workers, len(jobs))) if workers > 1 and len(jobs) > 1 else None
+    try:
+        fits: dict[int, ChiSquareFit] = {}
+        for job, res in zip(jobs, _map(_fit_job, jobs, pool, stage("fitting")), strict=True):
+            if isinstance(res, str):
+                skipped[job[0]] = res
+            else:
                 fits[job[0]] = res
-                if report:
-                    report(len(fits), len(jobs))
-    else:
-        for job in jobs:
-            fits[job[0]] = _fit_job(job)
-            if report:
-                report(len(fits), len(jobs))
+        if not fits:
+            raise FitInputError(f"nothing could be fitted: {'; '.join(skipped.values())}")
+        if options.systematics is not None:
+            fits = _with_budgets(fits, todo, grid, options, workers, pool, stage, notes)
+    finally:
+        if pool is not None:
+            pool.shutdown()
     checks = {wl: _check(f, an.result.attenuation.get(wl)) for wl, f in fits.items()}
-    return FolderFit(an, fits, checks, skipped, tsettings, options, geometry)
+    return FolderFit(an, fits, checks, skipped, tsettings, options, geometry, notes)
 
 
-def _r(x: float | None, digits: int = 4) -> float | None:
-    return None if x is None or not math.isfinite(x) else round(float(x), digits)
+def _with_budgets(
+    fits: dict[int, ChiSquareFit],
+    todo: dict[int, list[SettingProfiles]],
+    grid: TemplateGrid,
+    options: FitOptions,
+    workers: int,
+    pool: ProcessPoolExecutor | None,
+    stage: Callable[[str], Callable[[int, int], None] | None],
+    notes: dict[int, str],
+) -> dict[int, ChiSquareFit]:
+    """Attach each fit's systematic budget; the alternative templates are built (or loaded) first."""
+    assert options.systematics is not None
+    lam_sca = [f.lambda_sca_m for f in fits.values()]
+    cache = TemplateCache(options.cache_dir)
+    variants = variation_settings(grid.settings, lam_sca, options.systematics)
+    n_pieces = sum(len(v.mie_g_nodes) * (1 + len(v.lambda_sca_nodes_m)) for v in variants.values())
+    report = stage("sys templates")
+    done = 0
+    vgrids: dict[str, TemplateGrid] = {}
+    for name, vs in variants.items():
+        base = done
 
+        def piece(d: int, _total: int, base: int = base) -> None:
+            if report:
+                report(base + d, n_pieces)
 
-def _sig(values: Any, digits: int = 5) -> Any:
-    """Nested lists of floats at ``digits`` significant digits; NaN and inf become None."""
-    arr = np.asarray(values, dtype=np.float64)
-    if arr.ndim == 0:
-        x = float(arr)
-        return float(f"{x:.{digits}g}") if math.isfinite(x) else None
-    return [_sig(v, digits) for v in arr]
-
-
-def fit_detail(fit: ChiSquareFit) -> dict[str, Any]:
-    """The Δχ² map and each setting's normalised profiles (data, error, model, halo, bands used)."""
-    c = fit.contour
-    return {
-        "contour": {
-            "lambda_abs_m": _sig(c.lambda_abs_m),
-            "lambda_sca_m": _sig(c.lambda_sca_m),
-            "delta_chi2": _sig(c.delta_chi2, 4),
-        },
-        "profiles": [
-            {
-                "exposure_s": m.exposure_s,
-                "gain_db": m.gain_db,
-                "radius_px": _sig(m.radius_px),
-                "data": _sig(m.data),
-                "error": _sig(m.error, 3),
-                "model": _sig(m.model),
-                "halo": _sig(m.halo),
-                "used": np.asarray(m.used, dtype=bool).tolist(),
-            }
-            for m in fit.settings
-        ],
-    }
-
-
-def fit_entry(f: ChiSquareFit, chk: AttenuationCheck) -> dict[str, Any]:
-    """One wavelength's fit as ``camcal fit --json`` writes it (the report and the figures read it)."""
-    return {
-        "wavelength_nm": f.wavelength_nm,
-        "lambda_abs_m": _r(f.lambda_abs_m, 3),
-        "lambda_abs_err_m": _r(f.lambda_abs_err_m, 3),
-        "lambda_abs_interval_m": [_r(v, 3) for v in f.lambda_abs_interval_m],
-        "lambda_sca_m": _r(f.lambda_sca_m, 3),
-        "lambda_sca_err_m": _r(f.lambda_sca_err_m, 3),
-        "lambda_sca_interval_m": [_r(v, 3) for v in f.lambda_sca_interval_m],
-        "lambda_sca_sys_err_m": _r(f.lambda_sca_sys_err_m, 3),
-        "correlation": _r(f.correlation),
-        "lambda_att_fit_m": _r(chk.lambda_att_fit_m, 3),
-        "lambda_att_fit_err_m": _r(chk.lambda_att_fit_err_m, 3),
-        "lambda_att_icenter_m": _r(chk.lambda_att_icenter_m, 3),
-        "lambda_att_icenter_err_m": _r(chk.lambda_att_icenter_err_m, 3),
-        "att_check_z": _r(chk.z, 3),
-        "att_check_agrees": chk.agrees,
-        "chi2": _r(f.chi2, 2),
-        "ndof": f.ndof,
-        "mie_g": f.mie_g,
-        "at_edge": list(f.at_edge),
-        "nuisances": [
-            {
-                "name": n.name,
-                "unit": n.unit,
-                "shift": _r(n.shift, 5),
-                "sigma": _r(n.sigma, 5),
-                "pull": _r(n.pull, 3),
-            }
-            for n in f.nuisances
-        ],
-        "settings": [{"exposure_s": s.exposure_s, "gain_db": s.gain_db} for s in f.settings],
-        "n_evaluations": f.n_evaluations,
-        **fit_detail(f),
-    }
-
-
-def to_json(result: FolderFit) -> dict[str, Any]:
-    """The ``camcal fit --json`` document."""
-    out = [fit_entry(f, result.checks[wl]) for wl, f in sorted(result.fits.items())]
-    return {
-        "fits": out,
-        "skipped": {str(k): v for k, v in sorted(result.skipped.items())},
-        "inputs": {
-            "folder": str(result.analysis.folder),
-            "setup": result.analysis.setup.to_json(),
-            "geometry": asdict(result.geometry),
-            "templates": asdict(result.templates),
-            "fit": asdict(result.options.fit),
-        },
-        "software": {"name": "camcal", "version": __version__},
-    }
+        vgrids[name] = build_template_grid(vs, cache, workers=workers, progress=piece)
+        done += len(vs.mie_g_nodes) * (1 + len(vs.lambda_sca_nodes_m))
+    jobs = [(f, todo[wl], grid, vgrids, options.systematics) for wl, f in sorted(fits.items())]
+    out = dict(fits)
+    for job, res in zip(jobs, _map(_budget_job, jobs, pool, stage("systematics")), strict=True):
+        wl = job[0].wavelength_nm
+        if isinstance(res, str):
+            notes[wl] = res
+        else:
+            out[wl] = res
+    return out
 
 
 __all__ = [
@@ -368,7 +395,5 @@ __all__ = [
     "FolderFit",
     "FrameSetError",
     "fit_analysis",
-    "fit_entry",
     "fit_folder",
-    "to_json",
 ]

@@ -24,9 +24,11 @@ from collections import OrderedDict, defaultdict
 from typing import TYPE_CHECKING, Any
 
 from camcal.core import wire
+from camcal.core.events import Event, EventKind
 from ingest.counters import RateLimitedLog
 from ingest.network import Incoming, nack
 from ingest.quarantine import Quarantine
+from storage import queries
 from storage.store import FrameRow, SensorBatchRow
 
 if TYPE_CHECKING:
@@ -83,7 +85,7 @@ class Committer:
         seen: dict[Key, str] = {}
         # Frames and sensor messages share one sequence per boot: look each key up in both tables.
         keys = [self._key(it) for it in items if self._key(it) not in self.recent]
-        stored_frames, stored_sensors = self.store.stored_checksums(keys, keys)
+        stored_frames, stored_sensors = self.store.call(queries.stored_checksums, keys, keys)
         stored_before: dict[Key, str | None] = {**stored_sensors, **stored_frames}
         for it in items:
             m, key = it.msg, self._key(it)
@@ -132,19 +134,14 @@ class Committer:
         received = {self._key(it): it.received_mono for it in items}
         t_done = time.monotonic()
 
-        def frame_event(f: FrameRow, fid: int) -> dict[str, Any]:
-            return {
-                "kind": "frame",
-                "module_id": f.module_id,
-                "dive_id": svc.dive.id,
-                "t_unix_s": time.time(),
-                "payload": {
-                    "frame_id": fid,
-                    **_frame_meta(f),
-                    "schedule_version": f.schedule_version,
-                    "stored_latency_s": round(t_done - received[(f.module_id, f.boot, f.seq)], 4),
-                },
+        def frame_event(f: FrameRow, fid: int) -> Event:
+            payload = {
+                "frame_id": fid,
+                **_frame_meta(f),
+                "schedule_version": f.schedule_version,
+                "stored_latency_s": round(t_done - received[(f.module_id, f.boot, f.seq)], 4),
             }
+            return Event(EventKind.FRAME, payload, time.time(), f.module_id, svc.dive.id)
 
         outcome = self.store.commit_batch(svc.dive.id, frames, sensors, frame_event=frame_event)
         # -- committed: from here on nothing may refuse these messages --

@@ -173,7 +173,7 @@ class Span:
 
 
 def result_row(r: Mapping[str, Any]) -> ResultRow:
-    """A `ResultRow` from a `storage.store.Store.result_rows` dict."""
+    """A `ResultRow` from a `storage.queries.result_rows` dict."""
     return ResultRow(*(r[k] for k in ResultRow.__dataclass_fields__))
 
 
@@ -182,7 +182,7 @@ def attenuation_over_span(
 ) -> tuple[dict[str, Any], dict[int, AttenuationResult]]:
     """λ_att per wavelength over a span of a run's results (default: the station), and the span applied.
 
-    ``rows`` are `storage.store.Store.result_rows` dicts. The API's λ_att
+    ``rows`` are `storage.queries.result_rows` dicts. The API's λ_att
     table, ``camcal report`` and ``camcal fit --dive`` all take their span here.
     """
     sel, info = (span or Span()).select(rows)

@@ -1,44 +1,21 @@
-"""Events: every new result is stored in the event log and published to subscribers.
+"""The ingest's event bus: every new result is stored in the event log and published to subscribers.
 
-Persistent events get the id of their row in the ``events`` table: a
-subscriber that sees a jump in ids fetches what it missed from the store.
-Transient events (health, decimated sensor samples) carry no id and may be
-lost without harm. Published over ZeroMQ PUB as ``[kind, json]``.
+Events are `camcal.core.events.Event`s. Stored kinds get the id of their
+row in the ``events`` table: a subscriber that sees a jump in ids fetches
+what it missed from the store. Transient kinds (health, decimated sensor
+samples, attitude) carry no id and may be lost without harm. Published over
+ZeroMQ PUB as ``[kind, json]``.
 """
 
 from __future__ import annotations
 
-import json
 import time
 from typing import Any
 
 import zmq
 
-from storage.jsonsafe import finite_json
+from camcal.core.events import Event, EventKind, StoredPayload
 from storage.store import Store
-
-
-def event_json(
-    event_id: int | None,
-    kind: str,
-    t_unix_s: float,
-    module: str | None,
-    dive_id: int | None,
-    payload: dict[str, Any],
-) -> bytes:
-    return json.dumps(
-        {
-            "id": event_id,
-            "kind": kind,
-            "t": t_unix_s,
-            "module": module,
-            "dive_id": dive_id,
-            "payload": finite_json(payload),
-        },
-        separators=(",", ":"),
-        default=str,
-        allow_nan=False,
-    ).encode()
 
 
 class EventBus:
@@ -47,52 +24,50 @@ class EventBus:
     def __init__(self, store: Store, pub: Any | None) -> None:
         self.store = store
         self.pub = pub
-        self._pending: list[dict[str, Any]] = []
+        self._pending: list[Event] = []
         self.published = 0
 
     def emit(
-        self, kind: str, payload: dict[str, Any], *, module: str | None = None, dive_id: int | None = None
+        self,
+        kind: EventKind,
+        payload: StoredPayload,
+        *,
+        module: str | None = None,
+        dive_id: int | None = None,
     ) -> None:
-        self._pending.append(
-            {
-                "kind": kind,
-                "payload": payload,
-                "module_id": module,
-                "dive_id": dive_id,
-                "t_unix_s": time.time(),
-            }
-        )
+        """A stored event, written at the next `flush` (or by `take` into a transaction of the caller)."""
+        self._pending.append(Event(kind, dict(payload), time.time(), module, dive_id))
 
-    def transient(self, kind: str, payload: dict[str, Any], *, module: str | None = None) -> None:
+    def transient(self, kind: EventKind, payload: dict[str, Any], *, module: str | None = None) -> None:
+        """An event that is published only (health, sensors, attitude)."""
         if self.pub is not None:
-            self._send(kind, event_json(None, kind, time.time(), module, None, payload))
+            self._send(Event(kind, dict(payload), time.time(), module))
+
+    def take(self) -> list[Event]:
+        """The events emitted since the last flush, for a caller that stores them in its own transaction
+        (then `published_stored` publishes them)."""
+        events, self._pending = self._pending, []
+        return events
 
     def flush(self) -> list[int]:
-        if not self._pending:
+        """Store the pending events (one transaction) and publish them."""
+        events = self.take()
+        if not events:
             return []
-        events, self._pending = self._pending, []
         ids = self.store.add_events(events)
-        if self.pub is not None:
-            for eid, e in zip(ids, events, strict=True):
-                self._send(
-                    e["kind"],
-                    event_json(eid, e["kind"], e["t_unix_s"], e["module_id"], e["dive_id"], e["payload"]),
-                )
+        self.published_stored(events)
         return ids
 
-    def published_stored(self, events: list[dict[str, Any]]) -> None:
+    def published_stored(self, events: list[Event]) -> None:
         """Publish events the store has already written (with their ``id``), e.g. with their frames."""
         for e in events:
-            self._send(
-                e["kind"],
-                event_json(e["id"], e["kind"], e["t_unix_s"], e["module_id"], e["dive_id"], e["payload"]),
-            )
+            self._send(e)
 
-    def _send(self, kind: str, body: bytes) -> None:
+    def _send(self, event: Event) -> None:
         if self.pub is None:
             return
         try:
-            self.pub.send_multipart([kind.encode(), body], flags=zmq.NOBLOCK)
+            self.pub.send_multipart([event.kind.encode(), event.to_json()], flags=zmq.NOBLOCK)
             self.published += 1
         except zmq.Again:  # a PUB never blocks; slow subscribers lose messages, not the ingest
             pass

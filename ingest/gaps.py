@@ -5,7 +5,9 @@ from __future__ import annotations
 from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
+from camcal.core.events import EventKind, GapPayload
 from ingest.seqtrack import SeqTracker
+from storage import queries
 
 if TYPE_CHECKING:
     from ingest.storeloop import StoreState
@@ -18,12 +20,14 @@ class Gaps:
         self.store = state.store
         self.seqs = SeqTracker()
         self.gappy: set[tuple[str, str]] = {
-            (g.module_id, g.boot) for g in self.store.open_gaps() if self.svc.config.serves(g.module_id)
+            (g.module_id, g.boot)
+            for g in self.store.call(queries.open_gaps)
+            if self.svc.config.serves(g.module_id)
         }
 
     def _known(self, module: str, boot: str) -> None:
         if not self.seqs.known(module, boot):
-            self.seqs.seed(module, boot, self.store.known_seqs(module, boot))
+            self.seqs.seed(module, boot, self.store.call(queries.known_seqs, module, boot))
 
     def arrived(self, items: Iterable[Any]) -> None:
         """Committed messages (new or resent): record jumps as gaps, close gaps they fill."""
@@ -39,7 +43,10 @@ class Gaps:
             covers = lambda a, b, m=module, bt=boot: self.seqs.covers(m, bt, a, b)  # noqa: E731
             for gid in self.store.fill_gaps(module, boot, covers):
                 self.svc.events.emit(
-                    "gap_filled", {"gap_id": gid, "boot": boot}, module=module, dive_id=self.svc.dive.id
+                    EventKind.GAP_FILLED,
+                    {"gap_id": gid, "boot": boot},
+                    module=module,
+                    dive_id=self.svc.dive.id,
                 )
             if not self.seqs.missing(module, boot):
                 self.gappy.discard((module, boot))
@@ -61,7 +68,7 @@ class Gaps:
     def _open(self, module: str, boot: str, gap: tuple[int, int], reason: str | None) -> None:
         self.store.record_gap(module, boot, *gap)
         self.gappy.add((module, boot))
-        payload: dict[str, Any] = {"boot": boot, "first_seq": gap[0], "last_seq": gap[1]}
+        payload: GapPayload = {"boot": boot, "first_seq": gap[0], "last_seq": gap[1]}
         if reason:
             payload["reason"] = reason
-        self.svc.events.emit("gap", payload, module=module, dive_id=self.svc.dive.id)
+        self.svc.events.emit(EventKind.GAP, payload, module=module, dive_id=self.svc.dive.id)

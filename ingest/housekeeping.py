@@ -18,7 +18,9 @@ from typing import TYPE_CHECKING, Any
 
 from analysis.attitude import attitude_from_samples
 from camcal.core import wire
+from camcal.core.events import EventKind
 from ingest.network import Incoming, nack
+from storage import queries
 
 if TYPE_CHECKING:
     from ingest.storeloop import StoreState
@@ -38,7 +40,9 @@ class Housekeeping:
         self.store = state.store
         cfg = self.svc.config
         self.active_alarms = {
-            a.key for a in self.store.active_alarms() if a.module_id is None or cfg.serves(a.module_id)
+            a.key
+            for a in self.store.call(queries.active_alarms)
+            if a.module_id is None or cfg.serves(a.module_id)
         }
         self.attitude_t: dict[str, float] = {}
         self.last_housekeeping = -1e18
@@ -49,7 +53,7 @@ class Housekeeping:
     def link(self, it: Incoming) -> None:
         info = it.msg
         self.svc.events.emit(
-            "link",
+            EventKind.LINK,
             {"state": "up" if info["up"] else "down", "reason": info.get("reason")},
             module=it.module,
             dive_id=self.svc.dive.id,
@@ -75,7 +79,7 @@ class Housekeeping:
     # -- commands --------------------------------------------------------
     def command_status(self, it: Incoming) -> None:
         m = it.msg
-        cmd = self.store.command(m.command_id)
+        cmd = self.store.call(queries.command, m.command_id)
         if cmd is None or cmd["module"] != m.module:
             self.svc.counters.refuse("invalid_field", malformed=False)
             self.svc.send_to_module(
@@ -91,7 +95,7 @@ class Housekeeping:
         self.module_info(it)
         if cmd is not None:
             self.svc.events.emit(
-                "command",
+                EventKind.COMMAND,
                 {
                     "command_id": cmd["id"],
                     "state": cmd["state"],
@@ -112,7 +116,7 @@ class Housekeeping:
         svc = self.svc
         now = time.time()
         links = svc.network.links if svc.network else {}
-        for cmd in reversed(self.store.commands(states=("pending", "sent", "accepted"))):
+        for cmd in reversed(self.store.call(queries.commands, states=("pending", "sent", "accepted"))):
             link = links.get(cmd["module"])
             if link is None or not link.up:
                 continue  # stays pending: delivered when the module is back
@@ -136,7 +140,7 @@ class Housekeeping:
             self.store.mark_command_sent(cmd["id"])
             if not cmd["attempts"]:
                 svc.events.emit(
-                    "command",
+                    EventKind.COMMAND,
                     {
                         "command_id": cmd["id"],
                         "state": "sent",
@@ -166,7 +170,7 @@ class Housekeeping:
         if mono - self.last_counters_save >= COUNTERS_SAVE_S:
             self.last_counters_save = mono
             g("counters", self.save_counters)
-        g("health", lambda: self.svc.events.transient("health", self.svc.health()))
+        g("health", lambda: self.svc.events.transient(EventKind.HEALTH, self.svc.health()))
 
     def save_counters(self) -> None:
         values = self.svc.counters.flat_if_changed()
@@ -196,7 +200,7 @@ class Housekeeping:
             }
             rows.append(row)
             svc.events.transient(
-                "attitude", {k: v for k, v in row.items() if k != "module_id"}, module=module
+                EventKind.ATTITUDE, {k: v for k, v in row.items() if k != "module_id"}, module=module
             )
         self.store.add_attitude(rows)
 
@@ -211,7 +215,7 @@ class Housekeeping:
     def _observe_gaps(self) -> None:
         svc = self.svc
         gaps: dict[str, list[tuple[int, int, float]]] = defaultdict(list)
-        for g in self.store.open_gaps():  # one query for every module, not one per module
+        for g in self.store.call(queries.open_gaps):  # one query for every module, not one per module
             if svc.config.serves(g.module_id):
                 gaps[g.module_id].append((g.first_seq, g.last_seq, g.detected_unix_s))
         links = svc.network.links if svc.network else {}
@@ -233,7 +237,9 @@ class Housekeeping:
                     "retention: deleted %d frame files older than %g days (%.1f MB)", n, days, freed / 1e6
                 )
                 svc.events.emit(
-                    "retention", {"files": n, "bytes": freed, "older_than_days": days}, dive_id=svc.dive.id
+                    EventKind.RETENTION,
+                    {"files": n, "bytes": freed, "older_than_days": days},
+                    dive_id=svc.dive.id,
                 )
 
     def _apply_alarms(self, conditions: dict[str, Any]) -> None:
@@ -242,7 +248,7 @@ class Housekeeping:
             alarm, changed = self.store.raise_alarm(key, c.kind, c.severity, c.message, c.module)
             if changed or key not in self.active_alarms:
                 svc.events.emit(
-                    "alarm",
+                    EventKind.ALARM,
                     {
                         "alarm_id": alarm.id,
                         "state": "raised",
@@ -259,7 +265,7 @@ class Housekeeping:
             self.active_alarms.discard(key)
             if cleared is not None:
                 svc.events.emit(
-                    "alarm",
+                    EventKind.ALARM,
                     {
                         "alarm_id": cleared.id,
                         "state": "cleared",

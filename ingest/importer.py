@@ -22,6 +22,7 @@ from camcal.core.wire.models import is_id
 from camcal.core.wire.sensors import check_columns, check_rows
 from ingest.seqtrack import SeqTracker
 from ingest.worker import analyse_stored_frame
+from storage import queries
 from storage.files import RemoteFolder, UnsafePath
 from storage.store import FrameRow, SensorBatchRow, Store
 
@@ -135,7 +136,7 @@ def import_frame_set(
             )
             continue
         if (row.camera, boot) not in stored:
-            stored[(row.camera, boot)] = store.known_seqs(row.camera, boot)
+            stored[(row.camera, boot)] = store.call(queries.known_seqs, row.camera, boot)
         if seq in stored[(row.camera, boot)]:  # arrived over the link, or imported before
             report.already_present += 1
             report.sources[(row.camera, boot, seq)] = frames_dir.file_url(row.file)
@@ -202,7 +203,7 @@ def import_frame_set(
             report.sensor_batches = len(out.new_sensor_batches)
     for module, boot in touched:
         seqs = SeqTracker()
-        seqs.seed(module, boot, store.known_seqs(module, boot))
+        seqs.seed(module, boot, store.call(queries.known_seqs, module, boot))
         report.gaps_filled += len(store.fill_gaps(module, boot, partial(seqs.covers, module, boot)))
     if analyse and new and run_id is not None:
         report.analysed = analyse_frames(store, run_id, new, workers=workers)

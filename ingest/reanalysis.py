@@ -18,11 +18,13 @@ from typing import Any
 
 from analysis import FrameConfig
 from camcal.core import __version__
-from camcal.core.frameset import Setup
+from camcal.core.calibrations import setup_of
+from camcal.core.frameset import FrameSetError, Setup, parse_setup
 from ingest.derived import linearity_rows, mean_gray_by_setting, result_row
 from ingest.rolling import Sample, series_rows
 from ingest.runners import BatchRunner, LocalRunner
 from ingest.worker import analyse_batch
+from storage import queries
 from storage.store import Store
 
 log = logging.getLogger("camcal.reanalysis")
@@ -52,6 +54,7 @@ class ReanalysisOptions:
 def start_run(
     store: Store, dive_id: int, setup: Setup, label: str = "", calibration_id: int | None = None
 ) -> int:
+    """A new re-analysis run of a dive (status ``running``, no results yet); returns its id."""
     run = store.analysis_run(
         dive_id,
         "reanalysis",
@@ -62,6 +65,89 @@ def start_run(
     )
     assert run is not None
     return run.id
+
+
+class ReanalysisInputError(ValueError):
+    """A re-analysis cannot start: an unknown calibration, or inputs that make no valid setup."""
+
+
+class UnknownCalibration(ReanalysisInputError):
+    """No stored calibration by that reference."""
+
+
+@dataclass(frozen=True)
+class StartedReanalysis:
+    run_id: int
+    setup: Setup
+    label: str
+    record: dict[str, Any] | None  # the stored calibration it uses, if one was named
+
+
+def find_calibration(store: Store, ref: int | str) -> dict[str, Any]:
+    """A stored calibration by id, ``name`` (its newest version valid now) or ``name@version``;
+    `UnknownCalibration` (naming what is stored) if there is none."""
+    record = store.call(queries.calibration, ref)
+    if record is None:
+        known = sorted({f"{c['name']}@{c['version']}" for c in store.call(queries.calibrations)})
+        raise UnknownCalibration(
+            f"no calibration {ref!r} in the store (stored: {', '.join(known) or 'none'})"
+        )
+    return record
+
+
+def base_setup(store: Store, dive_id: int) -> Setup:
+    """The calibration a dive was analysed with: its live run's, else the dive's own setup (an
+    imported dive), else the default (T-REX). Never an earlier re-analysis's: each starts from the
+    dive's own inputs, so two re-analyses with different overrides do not compound."""
+    with store.read() as s:
+        dive = queries.dive_record(s, dive_id)
+        live = next((r for r in queries.runs(s, dive_id) if r["kind"] == "live"), None)
+    cal = (live["calibration"] if live else None) or (dive or {}).get("setup") or {}
+    try:
+        return parse_setup(cal, f"dive {dive_id}") if cal else Setup()
+    except FrameSetError:
+        return Setup()
+
+
+def start_reanalysis(
+    store: Store,
+    dive_id: int,
+    *,
+    actor: str,
+    default_label: str,
+    label: str | None = None,
+    calibration: int | str | None = None,
+    setup: Setup | None = None,
+    adjust: Callable[[Setup], Setup] | None = None,
+    what: str = "",
+) -> StartedReanalysis:
+    """Start a re-analysis of a dive, as the API and ``camcal reanalyze`` both do.
+
+    The setup: the stored ``calibration`` record's (by id, ``name`` or
+    ``name@version``), else ``setup``, else the one the dive was analysed
+    with (`base_setup`); then ``adjust`` (the caller's overrides: distances,
+    I0'/I0, linear range). The run is labelled ``label``, else after the
+    calibration record (and ``what``), else ``default_label``; its start is audited as
+    ``actor``. Raises `ReanalysisInputError` for an unknown calibration or
+    inputs that make no valid setup. The run is left for `reanalyse` to fill.
+    """
+    record = find_calibration(store, calibration) if calibration is not None else None
+    try:
+        chosen = setup_of(record) if record else (setup or base_setup(store, dive_id))
+        final = adjust(chosen) if adjust else chosen
+    except (FrameSetError, ValueError) as exc:
+        raise ReanalysisInputError(str(exc)) from None
+    if not label:
+        label = f"calibration {record['name']} v{record['version']}{what}" if record else default_label
+    cal_id = record["id"] if record else None
+    run_id = start_run(store, dive_id, final, label, cal_id)
+    store.audit(
+        actor,
+        "reanalysis.start",
+        f"dive:{dive_id}",
+        {"run_id": run_id, "calibration_id": cal_id, "calibration": final.to_json()},
+    )
+    return StartedReanalysis(run_id, final, label, record)
 
 
 def reanalyse(
@@ -101,9 +187,9 @@ def reanalyse(
             else:
                 tasks = [
                     (fid, store.files.url(path, options.frames_url))
-                    for fid, path in store.dive_frames(dive_id, options.t_from, options.t_to)
+                    for fid, path in store.call(queries.dive_frames, dive_id, options.t_from, options.t_to)
                 ]
-            modules = store.frame_modules(fid for fid, _ in tasks)
+            modules = store.call(queries.frame_modules, [fid for fid, _ in tasks])
             configs = {m: FrameConfig(**setup.frame_settings(m)) for m in set(modules.values())}
             configs[""] = FrameConfig(**setup.frame_settings(None))
             n = analyse_into_run(
@@ -164,7 +250,7 @@ def derive_run(store: Store, dive_id: int, run_id: int, setup: Setup, options: R
     The series is the one the live ingest builds from the same frames
     (`ingest.rolling`), every visit final.
     """
-    rows = store.result_rows(run_id, dive_id)
+    rows = store.call(queries.result_rows, run_id, dive_id)
     try:
         points = series_rows((Sample.from_result(r) for r in rows), setup)
     except ValueError:  # fewer than two cameras with distances: no series

@@ -5,13 +5,15 @@ from __future__ import annotations
 import logging
 import time
 from collections import defaultdict
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from camcal.core.events import Event, EventKind, ResultPayload
 from ingest.derived import linearity_rows
 from ingest.network import Incoming
 from ingest.rolling import Changes, Sample, VisitSeries
+from storage import queries
 
 if TYPE_CHECKING:
     from ingest.storeloop import StoreState
@@ -32,7 +34,7 @@ class Results:
             log.warning("no λ_att series: the setup has fewer than two cameras with distances")
         if self.series is not None:  # after a restart: the visits of the frames already analysed
             served = self.svc.config.serves  # (another ingest's modules are its own business)
-            rows = self.store.result_rows(self.svc.run.id, self.svc.dive.id)
+            rows = self.store.call(queries.result_rows, self.svc.run.id, self.svc.dive.id)
             self._store_points(self.series.add(Sample.from_result(r) for r in rows if served(r["module"])))
         self.linearity: dict[tuple[str, int], dict[tuple[float, float], list[float]]] = defaultdict(
             lambda: defaultdict(list)
@@ -40,7 +42,6 @@ class Results:
         self.linearity_dirty: set[tuple[str, int]] = set()
 
     def handle(self, items: list[Incoming]) -> None:
-        svc = self.svc
         rows = []
         done = []
         for it in items:
@@ -55,59 +56,71 @@ class Results:
             row.pop("height_px", None)
             rows.append({**row, "frame_id": frame_id, "analysed_unix_s": time.time()})
             done.append((frame_id, meta, row, analysis_s))
-        self.store.save_results(svc.run.id, rows)
         now_mono = time.monotonic()
-        samples = []
-        for frame_id, meta, row, analysis_s in done:
-            module = meta["module"]
-            if meta.get("received_mono") is not None:
-                svc.latency_s.append(now_mono - meta["received_mono"])
-            svc.counters.inc("frames_analysed")
-            svc.counters.inc(f"result_{row['status'] if row['status'] == 'ok' else row['reason']}")
-            centroid = (
-                (row["centroid_x_px"], row["centroid_y_px"]) if row.get("centroid_x_px") is not None else None
-            )
-            self.st.alarms.observe_frame(
-                module,
-                row["status"],
-                row.get("reason"),
-                centroid,
-                row.get("radius_px"),
-                (meta.get("width_px") or 1, meta.get("height_px") or 1),
-            )
-            svc.events.emit(
-                "result",
-                {
-                    "frame_id": frame_id,
-                    "seq": meta["seq"],
-                    "wavelength_nm": meta["wavelength_nm"],
-                    "exposure_s": meta["exposure_s"],
-                    "gain_db": meta["gain_db"],
-                    "depth_m": meta["depth_m"],
-                    "captured_unix_s": meta["captured_unix_s"],
-                    "status": row["status"],
-                    "reason": row.get("reason"),
-                    "centroid_px": list(centroid) if centroid else None,
-                    "radius_px": row.get("radius_px"),
-                    "i_center_gray": row.get("i_center_gray"),
-                    "i_center_err_gray": row.get("i_center_err_gray"),
-                    "background_gray": row.get("background_gray"),
-                    "width_px": meta.get("width_px"),
-                    "height_px": meta.get("height_px"),
-                    "thumb": f"/api/frames/{frame_id}/thumbnail",
-                    "analysis_s": round(analysis_s, 4) if analysis_s else None,
-                },
-                module=module,
-                dive_id=svc.dive.id,
-            )
-            if row.get("center_gray") is not None:
-                key = (module, meta["wavelength_nm"])
-                self.linearity[key][(meta["exposure_s"], meta["gain_db"])].append(row["center_gray"])
-                self.linearity_dirty.add(key)
-            samples.append(Sample.from_result({**meta, **row, "frame_id": frame_id}))
+        samples: list[Sample] = []
+        events: list[Event] = []
+        for item in done:  # a result that cannot be taken in is still stored (without its event)
+            self.st.guarded("result", self._take_in, item, now_mono, events, samples)
+        changes: list[Changes] = []
         if self.series is not None:
             self.last_result_mono = now_mono
-            self._store_points(self.series.add(samples))
+            series = self.series
+            self.st.guarded("λ_att series", lambda: changes.append(series.add(samples)))
+        self._commit(rows, events, changes[0] if changes else None)
+
+    def _take_in(
+        self,
+        item: tuple[int, dict[str, Any], dict[str, Any], float | None],
+        now_mono: float,
+        events: list[Event],
+        samples: list[Sample],
+    ) -> None:
+        """Count a result, show it to the alarms and the linearity fits; its event and λ_att sample."""
+        svc = self.svc
+        frame_id, meta, row, analysis_s = item
+        module = meta["module"]
+        if meta.get("received_mono") is not None:
+            svc.latency_s.append(now_mono - meta["received_mono"])
+        svc.counters.inc("frames_analysed")
+        svc.counters.inc(f"result_{row['status'] if row['status'] == 'ok' else row['reason']}")
+        centroid = (
+            (row["centroid_x_px"], row["centroid_y_px"]) if row.get("centroid_x_px") is not None else None
+        )
+        self.st.alarms.observe_frame(
+            module,
+            row["status"],
+            row.get("reason"),
+            centroid,
+            row.get("radius_px"),
+            (meta.get("width_px") or 1, meta.get("height_px") or 1),
+        )
+        payload: ResultPayload = {
+            "frame_id": frame_id,
+            "seq": meta["seq"],
+            "wavelength_nm": meta["wavelength_nm"],
+            "exposure_s": meta["exposure_s"],
+            "gain_db": meta["gain_db"],
+            "depth_m": meta["depth_m"],
+            "captured_unix_s": meta["captured_unix_s"],
+            "status": row["status"],
+            "reason": row.get("reason"),
+            "centroid_px": list(centroid) if centroid else None,
+            "radius_px": row.get("radius_px"),
+            "i_center_gray": row.get("i_center_gray"),
+            "i_center_err_gray": row.get("i_center_err_gray"),
+            "background_gray": row.get("background_gray"),
+            "width_px": meta.get("width_px"),
+            "height_px": meta.get("height_px"),
+            "thumb": f"/api/frames/{frame_id}/thumbnail",
+            "analysis_s": round(analysis_s, 4) if analysis_s else None,
+        }
+        if row.get("center_gray") is not None:
+            key = (module, meta["wavelength_nm"])
+            self.linearity[key][(meta["exposure_s"], meta["gain_db"])].append(row["center_gray"])
+            self.linearity_dirty.add(key)
+        sample = Sample.from_result({**meta, **row, "frame_id": frame_id})
+        events.append(Event(EventKind.RESULT, dict(payload), time.time(), module, svc.dive.id))
+        samples.append(sample)
 
     def close_idle_visits(self) -> None:
         """The modules went quiet (no result for ``visit_idle_close_s``): their open visits are final."""
@@ -118,20 +131,36 @@ class Results:
             self._store_points(self.series.close_all())
 
     def _store_points(self, changes: Changes) -> None:
-        """Store the λ_att visits a batch changed and publish them (``final`` false: provisional)."""
+        """Store the λ_att visits that changed and publish them (``final`` false: provisional)."""
+        if changes:
+            self._commit([], [], changes)
+
+    def _commit(self, rows: list[dict[str, Any]], events: list[Event], changes: Changes | None) -> None:
+        """Results, the visits they changed and all their events in one transaction; then published."""
         svc = self.svc
-        if not changes:
-            return
-        rows = [{**r, "run_id": svc.run.id, "dive_id": svc.dive.id} for r in changes.upserts]
-        ids = self.store.save_visit_points(svc.run.id, rows, changes.deletes)
-        for key in changes.deletes:
-            svc.events.emit("attenuation", {"visit_key": key, "deleted": True}, dive_id=svc.dive.id)
-        for r in rows:
-            svc.events.emit(
-                "attenuation",
-                {"point_id": ids.get(r["visit_key"]), **{k: v for k, v in r.items() if k != "details"}},
-                dive_id=svc.dive.id,
-            )
+        upserts = (
+            [{**r, "run_id": svc.run.id, "dive_id": svc.dive.id} for r in changes.upserts] if changes else []
+        )
+        deletes = list(changes.deletes) if changes else []
+
+        def point_events(ids: dict[str, int]) -> list[Event]:
+            now, dive = time.time(), svc.dive.id
+            out = [
+                Event(EventKind.ATTENUATION, {"visit_key": key, "deleted": True}, now, None, dive)
+                for key in deletes
+            ]
+            for r in upserts:  # the point's columns (`storage.models.AttenuationPoint`) but its details
+                payload = {
+                    "point_id": ids.get(r["visit_key"]),
+                    **{k: v for k, v in r.items() if k != "details"},
+                }
+                out.append(Event(EventKind.ATTENUATION, payload, now, None, dive))
+            return out
+
+        stored = self.store.commit_results(
+            svc.run.id, rows, events, upserts=upserts, deletes=deletes, point_events=point_events
+        )
+        svc.events.published_stored(stored)
 
     def update_linearity(self) -> None:
         svc = self.svc

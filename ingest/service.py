@@ -62,6 +62,7 @@ from ingest.gatekeeper import Gatekeeper
 from ingest.network import Incoming, Link, Network
 from ingest.storeloop import run_store_loop
 from ingest.worker import analyse_stored_frame, warm_up
+from storage import queries
 from storage.models import AnalysisRun, Dive
 from storage.store import Store
 
@@ -146,7 +147,7 @@ class IngestService:
         """Bind the sockets (so `endpoint` is known), then run the threads."""
         calibration = None
         if self.config.calibration:  # before binding anything: a wrong name leaves nothing open
-            calibration = self.store.calibration(self.config.calibration)
+            calibration = self.store.call(queries.calibration, self.config.calibration)
             if calibration is None:
                 raise ValueError(
                     f"no calibration {self.config.calibration!r} in the store (see `camcal calibration list`)"
@@ -183,7 +184,7 @@ class IngestService:
             self.pub.bind(self.config.events_bind)
             self.events_endpoint = self.pub.getsockopt(zmq.LAST_ENDPOINT).decode()
             self._sockets.append(self.pub)
-        self.counters.restore(self.store.load_counters(self.ingest_id))
+        self.counters.restore(self.store.call(queries.load_counters, self.ingest_id))
         setup = self.config.setup
         dive = self.store.current_dive(create=True, name=self.config.dive_name, setup=setup.to_json())
         assert dive is not None  # create=True
@@ -314,7 +315,9 @@ class IngestService:
 
     def recover_unanalysed(self) -> None:
         """Frames committed before a crash but never analysed go back in the queue."""
-        for f in self.store.frames_without_result(self.dive.id, self.run.id, modules=self.config.modules):
+        for f in self.store.call(
+            queries.frames_without_result, self.dive.id, self.run.id, modules=self.config.modules
+        ):
             self.queue_analysis(f.id, f.path, frame_meta_from_row(f))
 
     # -- status ----------------------------------------------------------

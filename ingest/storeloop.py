@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import zmq
 
+from camcal.core.events import EventKind
 from ingest.alarms import AlarmEvaluator
 from ingest.commit import Committer
 from ingest.counters import RateLimitedLog
@@ -115,7 +116,7 @@ class StoreState:
             tlast = last.get("t_unix_s") or 0.0
             if tlast - self.last_sensor_event.get(b.module_id, -1e18) >= 0.5:
                 self.last_sensor_event[b.module_id] = tlast
-                self.svc.events.transient("sensors", dict(last), module=b.module_id)
+                self.svc.events.transient(EventKind.SENSORS, dict(last), module=b.module_id)
 
     def sensor_tail(self, module: str, window_s: float) -> np.ndarray:
         """The samples of the last ``window_s`` seconds (rows in time order), without copying the rest.

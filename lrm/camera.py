@@ -374,12 +374,11 @@ class V4L2Camera:
             "check that the camera is plugged in and powered, that the device exists "
             "(ls /dev/video*; v4l2-ctl --list-devices) and that this user may open it (group 'video')"
         )
-        if open_capture is None:
-            if isinstance(device, str) and not Path(device).exists():
-                raise CameraUnavailable(f"camera {camera_id}: V4L2 device {device} does not exist; {hint}")
-            open_capture = cv2.VideoCapture
+        if open_capture is None and isinstance(device, str) and not Path(device).exists():
+            raise CameraUnavailable(f"camera {camera_id}: V4L2 device {device} does not exist; {hint}")
+        opener: Any = open_capture or cv2.VideoCapture
         try:
-            cap = open_capture(device, cv2.CAP_V4L2)
+            cap = opener(device, cv2.CAP_V4L2)
         except cv2.error as exc:
             raise CameraUnavailable(
                 f"camera {camera_id}: opening {self.device_path} failed ({exc}); {hint}"

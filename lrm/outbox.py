@@ -246,7 +246,7 @@ class Outbox:
             row: ManifestRow = e.ref
             data = (self.root / "frames" / row.file).read_bytes()
             width, height = png_size(data)
-            header = wire.FrameMsg(
+            header: wire.FrameMsg | wire.SensorsMsg = wire.FrameMsg(
                 module=module,
                 boot=e.boot,
                 seq=e.seq,

@@ -22,6 +22,7 @@ from typing import Any
 
 import zmq
 
+from camcal.core.events import Event, EventError, EventKind
 from camcal.core.settings import endpoint_list
 from ingest.derived import dive_phase
 from storage import queries
@@ -89,7 +90,7 @@ class LiveHub:
         self.depths: dict[str, deque[tuple[float, float]]] = {}
         self.deepest_m: dict[str, float] = {}  # over the whole run, not just the recent samples
         self.station_depth_m = station_depth_m
-        self.last_event_id = store.last_event_id()  # the highest id delivered
+        self.last_event_id = store.call(queries.last_event_id)  # the highest id delivered
         # Ids delivered recently, and below them the floor under which every id counts as delivered:
         # with several ingests on PostgreSQL, ids are taken in one order and committed in another,
         # so an id below the highest may still be new.
@@ -133,27 +134,28 @@ class LiveHub:
                     except ValueError:
                         continue
                     try:
-                        event = json.loads(body)
-                    except json.JSONDecodeError:
+                        event = Event.from_json(body)
+                    except EventError:
                         continue
                     self._incoming(event)
         finally:
             sub.close(0)
 
-    def _incoming(self, event: dict[str, Any]) -> None:
+    def _incoming(self, event: Event) -> None:
         """In the hub thread: recover missed stored events, then hand over to the loop."""
         self.received += 1
-        eid = event.get("id")
+        eid = event.id
         if eid is not None:
             if eid <= self._floor or eid in self._seen:
                 return
             if eid > self.last_event_id + 1:
-                with self.store.read() as s:
-                    missed = queries.events_after(s, self.last_event_id, eid - self.last_event_id - 1)
+                missed = self.store.call(
+                    queries.events_after, self.last_event_id, eid - self.last_event_id - 1
+                )
                 for m in missed:
-                    if m["id"] < eid and m["id"] not in self._seen:
+                    if m.id is not None and m.id < eid and m.id not in self._seen:
                         self.recovered += 1
-                        self._mark(m["id"])
+                        self._mark(m.id)
                         self._post(m)
             self._mark(eid)
         self._post(event)
@@ -167,31 +169,33 @@ class LiveHub:
             self._seen.discard(old)
             self._floor = max(self._floor, old)
 
-    def _post(self, event: dict[str, Any]) -> None:
+    def _post(self, event: Event) -> None:
         if self._loop is not None and not self._loop.is_closed():
             self._loop.call_soon_threadsafe(self.deliver, event)
 
+    def deliver_threadsafe(self, event: Event) -> None:
+        """`deliver` from any thread (a plain ``def`` route runs in the threadpool): on the loop."""
+        self._post(event)
+
     # ------------------------------------------------------------ delivery (event loop)
-    def deliver(self, event: dict[str, Any]) -> None:
-        kind = event.get("kind", "")
-        module = event.get("module")
-        payload = event.get("payload") or {}
-        if kind == "health":
+    def deliver(self, event: Event) -> None:
+        kind, module, payload = event.kind, event.module, event.payload
+        if kind == EventKind.HEALTH:
             self.record_health(payload)
-        elif kind == "sensors" and module:
+        elif kind == EventKind.SENSORS and module:
             self.sensors[module] = payload
             if payload.get("depth_m") is not None and payload.get("t_unix_s") is not None:
                 hist = self.depths.setdefault(module, deque(maxlen=600))
                 hist.append((payload["t_unix_s"], payload["depth_m"]))
                 self.deepest_m[module] = max(self.deepest_m.get(module, 0.0), float(payload["depth_m"]))
-        elif kind == "attitude" and module:
+        elif kind == EventKind.ATTITUDE and module:
             self.attitude[module] = payload
         message = {
             "type": "event",
-            "kind": kind,
-            "event_id": event.get("id"),
+            "kind": str(kind),
+            "event_id": event.id,
             "module": module,
-            "t": event.get("t"),
+            "t": event.t,
             "payload": payload,
         }
         if self.clients:

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from camcal.core.events import EventKind
 
 
 class DivePublic(BaseModel):
@@ -131,3 +133,273 @@ class ReanalysisCreate(BaseModel):
 class AckRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
     note: str = Field("", max_length=500)
+
+
+# ------------------------------------------------------------------ responses
+# Every JSON route names one of these as its ``response_model``: /docs shows it and schemathesis
+# checks each answer against it. Fields that only some rows carry are optional; objects whose keys
+# are data (module ids, wavelengths) are dicts.
+
+#: A JSON column as stored: an object as the API writes it, but any JSON value a row may hold.
+Stored = Annotated[Any, Field(description="a JSON document as stored (normally an object)")]
+
+
+class Open(BaseModel):
+    """A response that may carry more fields than its model lists (documented where they come from)."""
+
+    model_config = ConfigDict(extra="allow")
+
+
+class Healthz(BaseModel):
+    status: str
+    version: str
+
+
+class OperatorPublic(BaseModel):
+    operator: str
+
+
+class DiveSettings(BaseModel):
+    """The distinct settings of a dive's frames (for the filter menus)."""
+
+    modules: list[str]
+    wavelengths_nm: list[int]
+    exposures_s: list[float]
+    gains_db: list[float]
+
+
+class DepthSeries(BaseModel):
+    t_unix_s: list[float]
+    depth_m: list[float | None]
+
+
+class FrameMark(BaseModel):
+    t_unix_s: float
+    depth_m: float | None
+    module: str
+    id: int
+
+
+class Timeline(BaseModel):
+    depth: DepthSeries
+    frames: list[FrameMark]
+    frame_step: int = Field(description="every n-th frame is marked (at most ~2000 marks)")
+    alarms: list[AlarmPublic]
+
+
+class AttenuationRow(Open):
+    """λ_att of one wavelength over a span, with the near/far setting pairs it combines."""
+
+    wavelength_nm: int
+    lambda_att_m: float | None
+    stat_err_m: float | None
+    sys_err_m: float | None
+    total_err_m: float | None
+    n_pairs: int
+    pairs: list[dict[str, Any]]
+
+
+class AttenuationTable(BaseModel):
+    run_id: int
+    span: Stored
+    calibration: dict[str, Any]
+    rows: list[AttenuationRow]
+
+
+class ChisqFitSummary(BaseModel):
+    id: int
+    dive_id: int
+    run_id: int | None
+    calibration_id: int | None
+    created_unix_s: float
+    software_version: str
+    label: str
+    span: Stored
+
+
+class ChisqFitPublic(ChisqFitSummary):
+    result: Stored = Field(description="the fit's document: λ_abs, λ_sca per wavelength, Δχ² map")
+
+
+class FrameDetail(FramePublic):
+    """One frame with its full analysis (the fields after ``background_gray`` once it has a result)."""
+
+    received_unix_s: float
+    size_bytes: int
+    sha256: str
+    schedule_version: int
+    source: str
+    detail: str | None = None
+    elongation: float | None = None
+    center_gray: float | None = None
+    center_err_gray: float | None = None
+    background_err_gray: float | None = None
+    fit: Stored = None
+    profile: Stored = None
+    run_id: int | None = None
+    analysed_unix_s: float | None = None
+
+
+class FrameAnalysis(BaseModel):
+    id: int
+    status: str
+    reason: str | None
+    detail: str | None
+    centroid_px: list[float] | None
+    radius_px: float | None
+    elongation: float | None
+    center_gray: float | None
+    center_err_gray: float | None
+    background_gray: float | None
+    background_err_gray: float | None
+    i_center_gray: float | None
+    i_center_err_gray: float | None
+    profile: Stored
+    fit: Stored
+    run_id: int | None
+
+
+class ModuleSchedule(BaseModel):
+    name: str | None
+    version: int | None
+    state: str | None
+
+
+class ModulePublic(BaseModel):
+    id: str
+    distance_m: float | None
+    last_seen_unix_s: float
+    boot: str | None
+    software: str | None
+    schedule: ModuleSchedule
+
+
+class Series(Open):
+    """A time series, averaged into buckets when long (then ``<first column>_min``/``_max`` too)."""
+
+    module: str
+    t_unix_s: list[float]
+    downsampled: bool
+    bucket_s: float | None
+    n_samples: int
+
+
+class AttenuationSeries(BaseModel):
+    dive_id: int | None
+    run_id: int | None
+    series: dict[str, list[AttenuationPointPublic]] = Field(description="by wavelength in nm")
+
+
+class LinearityCheckPublic(BaseModel):
+    module: str
+    wavelength_nm: int
+    sweep: str
+    fixed_value: float | None
+    slope: float | None
+    slope_err: float | None
+    intercept_gray: float | None
+    r2: float | None
+    n_used: int | None
+    linear_max_gray: float | None
+    knee_x: float | None
+    points: Stored
+    updated_unix_s: float | None
+
+
+class LinearityPublic(BaseModel):
+    run_id: int | None
+    checks: list[LinearityCheckPublic]
+
+
+class AuditEntryPublic(BaseModel):
+    id: int
+    t_unix_s: float
+    actor: str
+    action: str
+    target: str
+    details: Stored
+
+
+class CalibrationPublic(BaseModel):
+    id: int
+    name: str
+    version: int
+    source: str
+    valid_from_unix_s: float | None
+    valid_to_unix_s: float | None
+    values: Stored
+    created_unix_s: float
+
+
+class CommandPublic(BaseModel):
+    id: str
+    module: str
+    action: str
+    target_version: int
+    payload: Stored
+    apply: str
+    issued_by: str
+    issued_unix_s: float
+    state: str
+    reason: str | None
+    attempts: int
+    updated_unix_s: float
+
+
+class PresetPublic(Open):
+    """A named schedule (its fields as `camcal.core.schedule.Schedule`) with its size and duration."""
+
+    n_frames: int
+    pass_duration_s: float
+
+
+class Problem(BaseModel):
+    field: str
+    reason: str
+
+
+class Preview(BaseModel):
+    ok: bool
+    problems: list[Problem]
+    n_frames: int
+    pass_duration_s: float
+    predictions: dict[str, list[dict[str, Any]]] = Field(description="per module, per setting")
+    summary: dict[str, dict[str, int]]
+
+
+class Health(Open):
+    """Per-module link state and the ingest's heartbeat (its queues, counters, refusals)."""
+
+    status: str = Field(description="ok, or degraded without a recent heartbeat from every ingest")
+    server: dict[str, Any]
+    ingest: dict[str, Any]
+    modules: dict[str, dict[str, Any]]
+
+
+class LiveSnapshot(Open):
+    """What the live view shows: the dive, each module, λ_att, the alarms (``GET /api/live/snapshot``)."""
+
+    server_time_unix_s: float
+    dive: DivePublic | None
+    run_id: int | None
+    ingest: dict[str, Any]
+    modules: dict[str, dict[str, Any]]
+    attenuation: dict[str, list[AttenuationPointPublic]]
+    alarms: list[AlarmPublic]
+    last_event_id: int
+
+
+class EventPublic(BaseModel):
+    """One stored event (`camcal.core.events.Event`; its payload per kind in docs/protocol.md)."""
+
+    id: int | None
+    kind: EventKind
+    t: float
+    module: str | None
+    dive_id: int | None
+    payload: Stored
+
+
+class EventPage(BaseModel):
+    items: list[EventPublic]
+    last_id: int = Field(description="ask again with after=last_id for what follows")

@@ -24,6 +24,8 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
+from camcal.core.wire.sensors import SENSOR_SPEC
+
 #: Integer primary keys that autoincrement on SQLite (INTEGER) and PostgreSQL (BIGINT).
 BigId = BigInteger().with_variant(Integer(), "sqlite")
 
@@ -227,15 +229,11 @@ class SensorSample(Base):
     module_id: Mapped[str] = mapped_column(ForeignKey("modules.id"))
     dive_id: Mapped[int | None] = mapped_column(ForeignKey("dives.id"))
     t_unix_s: Mapped[float] = mapped_column(Float)
-    temperature_c: Mapped[float | None] = mapped_column(Float)
-    humidity_pct: Mapped[float | None] = mapped_column(Float)
-    acc_x_m_s2: Mapped[float | None] = mapped_column(Float)
-    acc_y_m_s2: Mapped[float | None] = mapped_column(Float)
-    acc_z_m_s2: Mapped[float | None] = mapped_column(Float)
-    gyro_x_dps: Mapped[float | None] = mapped_column(Float)
-    gyro_y_dps: Mapped[float | None] = mapped_column(Float)
-    gyro_z_dps: Mapped[float | None] = mapped_column(Float)
-    depth_m: Mapped[float | None] = mapped_column(Float)
+    # One nullable column per sensor of the wire's definition (`camcal.core.wire.sensors.SENSOR_SPEC`):
+    # temperature_c, humidity_pct, acc_{x,y,z}_m_s2, gyro_{x,y,z}_dps, depth_m.
+    locals().update(
+        {c.name: mapped_column(Float, nullable=True) for c in SENSOR_SPEC if c.name != "t_unix_s"}
+    )
 
 
 class AttitudeSample(Base):

@@ -175,23 +175,25 @@ def emission_ratios(
 
     out: dict[int, EmissionRatioResult] = {}
     for wl, items in sorted(runs.items()):
-        known = sorted((r for r in items if r.temperature_c is not None), key=lambda r: r.temperature_c)  # type: ignore[arg-type,return-value]
+        pairs = sorted(
+            ((r.temperature_c, r) for r in items if r.temperature_c is not None), key=lambda p: p[0]
+        )
+        temps_c, known = [t for t, _ in pairs], [r for _, r in pairs]
         if len(items) > 1 and len(known) < len(items):
             raise ValueError(f"{wl} nm: frames with and without temperature_c cannot be combined")
         if len(known) >= 2:
-            line = fit_line(
-                [r.temperature_c for r in known], [r.ratio for r in known], [r.ratio_err for r in known]
-            )  # type: ignore[misc]
+            line = fit_line(temps_c, [r.ratio for r in known], [r.ratio_err for r in known])
             value, err = float(line.predict(temperature_c)), float(line.predict_err(temperature_c))
-            slope, slope_err, at = line.slope, line.slope_err, temperature_c
+            at: float | None = temperature_c
+            slope, slope_err = line.slope, line.slope_err
             cold, warm = known[0], known[-1]
             rc, rc_err = _ratio(
                 Combined(warm.ratio, warm.ratio_err, 1, 0.0), Combined(cold.ratio, cold.ratio_err, 1, 0.0)
             )
             bc, bc_err = _ratio(warm.near, cold.near)
             effect = TemperatureEffect(
-                cold_c=cold.temperature_c,  # type: ignore[arg-type]
-                warm_c=warm.temperature_c,  # type: ignore[arg-type]
+                cold_c=temps_c[0],
+                warm_c=temps_c[-1],
                 ratio_change=rc - 1.0,
                 ratio_change_err=rc_err,
                 brightness_change=bc - 1.0,

@@ -76,7 +76,7 @@ class TemplateCache:
         fd, tmp = tempfile.mkstemp(dir=self.directory, prefix=f".{key}.", suffix=".npz")
         try:
             with os.fdopen(fd, "wb") as fh:
-                np.savez_compressed(fh, **payload)
+                np.savez_compressed(fh, **payload)  # type: ignore[arg-type]
             os.replace(tmp, self.path(key))
         except BaseException:
             Path(tmp).unlink(missing_ok=True)

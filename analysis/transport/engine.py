@@ -54,7 +54,13 @@ from analysis.transport.sampling import (
     sample_mixed_cos,
     segment_hits_sphere,
 )
-from analysis.transport.scene import CameraSite, ScatteringMedium, TransportConfig, TransportScene
+from analysis.transport.scene import (
+    CameraSite,
+    ScatteringMedium,
+    TransportConfig,
+    TransportScene,
+    emission_shares,
+)
 
 #: Mixture of the axial position in the cone proposal: ∝ 1/t² beyond the forward peak,
 #: uniform on [0, L], log-uniform on [a, L].
@@ -302,8 +308,8 @@ class _Accumulator:
         """Add contributions seen at image radius ``r_px`` after total path ``path_m``.
 
         ``emission_mu`` is the z-cosine of each photon's emission direction:
-        the contribution is split (1 + μ)/2 : (1 - μ)/2 between the two
-        emission components.
+        the contribution is split between the two emission components by
+        the scene's emission shape (`analysis.transport.scene.emission_shares`).
         """
         band = np.searchsorted(self.edges_px, r_px, side="right") - 1
         keep = (band >= 0) & (band < self.shape[3]) & (value > 0)
@@ -314,7 +320,7 @@ class _Accumulator:
         excess = np.maximum(path - (cam.distance_m - self.scene.lem_radius_m), 0.0)
         pbin = np.minimum(np.searchsorted(self.path_edges, excess, side="right") - 1, self.shape[4] - 1)
         _, n_comp, n_ord, n_band, n_path = self.shape
-        for comp, share in ((0, 0.5 * (1.0 + mu)), (1, 0.5 * (1.0 - mu))):
+        for comp, share in enumerate(emission_shares(mu, self.scene.emission_shape)):
             v = value * share
             flat = (((camera * n_comp + comp) * n_ord + order) * n_band + band) * n_path + pbin
             for i, weights in enumerate((v, v * path, v * path * path, v * v)):

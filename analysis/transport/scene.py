@@ -67,6 +67,23 @@ def band_edges_px(n_fine: int, outer_px: float | None = None, n_outer: int = 0) 
 #: (1 + μ)/2 toward component 0 (the +z side, the near camera) and (1 - μ)/2 toward
 #: component 1 (the -z side, the far camera). See `analysis.transport.templates.EmissionProfile`.
 N_COMPONENTS = 2
+#: How the two components share light leaving at z-cosine μ: ``linear`` (1 + μ)/2 : (1 - μ)/2, the
+#: model the fit uses; ``hemispheres`` (1 + sin(πμ/2))/2 : (1 - sin(πμ/2))/2, the same at the poles
+#: and the equator but flat near the poles: each hemisphere's LEDs keep their own brightness and
+#: the change happens near the equator (the alternative of the systematic budget).
+EMISSION_SHAPES = ("linear", "hemispheres")
+
+
+def emission_shares(mu: np.ndarray, shape: str = "linear") -> tuple[np.ndarray, np.ndarray]:
+    """The shares of components 0 (+z side) and 1 (-z side) of light emitted at z-cosine ``mu``."""
+    mu = np.asarray(mu, dtype=np.float64)
+    if shape == "linear":
+        s0 = 0.5 * (1.0 + mu)
+    elif shape == "hemispheres":
+        s0 = 0.5 * (1.0 + np.sin(0.5 * np.pi * mu))
+    else:
+        raise ValueError(f"emission shape {shape!r} unknown (one of {', '.join(EMISSION_SHAPES)})")
+    return s0, 1.0 - s0
 
 
 @dataclass(frozen=True)
@@ -82,8 +99,13 @@ class TransportScene:
     cameras: tuple[CameraSite, ...]
     band_edges_px: tuple[float, ...]
     lem_radius_m: float = LEM_RADIUS_M
+    emission_shape: str = "linear"
 
     def __post_init__(self) -> None:
+        if self.emission_shape not in EMISSION_SHAPES:
+            raise ValueError(
+                f"emission_shape {self.emission_shape!r} unknown (one of {', '.join(EMISSION_SHAPES)})"
+            )
         if not self.cameras:
             raise ValueError("cameras: at least one camera is needed")
         if not self.lem_radius_m > 0:

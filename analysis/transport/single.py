@@ -26,7 +26,7 @@ from scipy.special import roots_legendre
 
 from analysis.transport.engine import PathMoments, cap_solid_angle_sr
 from analysis.transport.sampling import mixed_phase_sr
-from analysis.transport.scene import TransportScene
+from analysis.transport.scene import TransportScene, emission_shares
 
 #: The array fields of a `CapTable` (what a cache stores).
 CAP_TABLE_ARRAYS = ("log_h", "gamma", "mean_phase", "excess", "spread", "dir_par", "dir_perp")
@@ -220,9 +220,8 @@ def first_order_lines(
         mu = np.clip(d_par * z / r + d_perp * e_z, -1.0, 1.0)
         w = ds * g * 0.5 * gw[None, :, None]  # band average of the two radii
         n_band = psi.shape[0]
-        out_w.append(
-            np.stack([(0.5 * (1.0 + mu) * w).reshape(n_band, -1), (0.5 * (1.0 - mu) * w).reshape(n_band, -1)])
-        )
+        s0, s1 = emission_shares(mu, scene.emission_shape)
+        out_w.append(np.stack([(s0 * w).reshape(n_band, -1), (s1 * w).reshape(n_band, -1)]))
         out_l.append((s + dist).reshape(n_band, -1))
         out_v.append(var.reshape(n_band, -1))
     return FirstOrderLines(np.stack(out_w), np.stack(out_l), np.stack(out_v))

@@ -29,6 +29,7 @@ import os
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
+from functools import partial
 
 import numpy as np
 
@@ -119,6 +120,7 @@ class TemplateSettings:
     mc_band_px: int = 8
     path_max_m: float = 400.0
     seed: int = 0
+    emission_shape: str = "linear"
 
     def __post_init__(self) -> None:
         if not self.cameras:
@@ -154,20 +156,27 @@ class TemplateSettings:
     def scene(self) -> TransportScene:
         """The bands of the templates: one pixel wide, then the outer bins."""
         return TransportScene(
-            self._sites(), band_edges_px(self.n_bands, self.outer_px, self.n_outer), self.lem_radius_m
+            self._sites(),
+            band_edges_px(self.n_bands, self.outer_px, self.n_outer),
+            self.lem_radius_m,
+            self.emission_shape,
         )
 
     def mc_scene(self) -> TransportScene:
         """The Monte Carlo's coarser bins: ``mc_band_px`` wide, then the same outer bins."""
         fine = np.asarray(band_edges_px(self.n_bands, self.outer_px, self.n_outer))
         coarse = np.concatenate([np.arange(0, self.n_bands + 1, self.mc_band_px), fine[self.n_bands + 1 :]])
-        return TransportScene(self._sites(), tuple(float(e) for e in coarse), self.lem_radius_m)
+        return TransportScene(
+            self._sites(), tuple(float(e) for e in coarse), self.lem_radius_m, self.emission_shape
+        )
 
     def geometry_description(self) -> dict[str, object]:
         """What the cached pieces depend on, besides their own node (and, for the MC, the seed)."""
         d = asdict(self)
         for k in ("lambda_sca_nodes_m", "mie_g_nodes", "seed", "n_photons", "max_order", "path_max_m"):
             d.pop(k)
+        if d["emission_shape"] == "linear":
+            d.pop("emission_shape")  # the caches made before the shape could change stay valid
         return d
 
     def mc_config(self) -> TransportConfig:
@@ -426,7 +435,7 @@ def build_template_grid(
     dist = np.array([c.distance_m - settings.lem_radius_m for c in settings.cameras])
     for g in settings.mie_g_nodes:
         desc = {"geometry": geo, "mie_g": g, "path_max_m": settings.path_max_m}
-        arr = cache.get(cache_key("first-order", desc), desc, lambda g=g: _lines_piece(settings, g, cache))
+        arr = cache.get(cache_key("first-order", desc), desc, partial(_lines_piece, settings, g, cache))
         lines = FirstOrderLines(arr["weight"], arr["path_m"], arr["spread_m2"])
         first[g] = bin_first_order(lines, path_edges, dist)
         done += 1

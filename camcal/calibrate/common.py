@@ -16,7 +16,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 import cv2
 import numpy as np
@@ -78,6 +78,24 @@ class Selection:
     camera: str
     rows: list[ManifestRow]
     setup: Setup
+
+
+K = TypeVar("K")
+R = TypeVar("R")
+
+
+@dataclass(frozen=True)
+class LabCalibration(Generic[K, R]):
+    """What a lab calibration found: the frames it read (``selection``), each frame's outcome,
+    the results per key (a wavelength, or a wavelength and a sweep) and the inputs it ran with.
+
+    Every experiment returns one (`camcal.calibrate.EXPERIMENTS`); a few add what their plots need.
+    """
+
+    selection: Selection
+    frames: list[FrameOutcome]
+    results: dict[K, R]
+    inputs: dict[str, Any]
 
 
 def select_rows(folder: Path, command: str, camera: str | None = None) -> Selection:

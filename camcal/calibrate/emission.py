@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -15,7 +14,7 @@ from analysis.frame import FrameConfig, analyze_frame
 from camcal.calibrate.common import (
     CalibrationError,
     FrameOutcome,
-    Selection,
+    LabCalibration,
     map_frames,
     no_usable_frames,
     normalisation,
@@ -51,14 +50,8 @@ def measure_i_center(config: FrameConfig, row: ManifestRow, frame: np.ndarray) -
     )
 
 
-@dataclass(frozen=True)
-class EmissionRatioCalibration:
-    """I0'/I0 of each wavelength (`EmissionRatioResult`), from one camera's frames."""
-
-    selection: Selection
-    frames: list[FrameOutcome]
-    results: dict[int, EmissionRatioResult]
-    inputs: dict[str, Any]
+#: I0'/I0 of each wavelength (`EmissionRatioResult`), from one camera's frames.
+EmissionRatioCalibration = LabCalibration[int, EmissionRatioResult]
 
 
 def run_emission_ratio(

@@ -24,7 +24,7 @@ from analysis.profile import DEFAULT_CENTER_PIXELS
 from camcal.calibrate.common import (
     CalibrationError,
     FrameOutcome,
-    Selection,
+    LabCalibration,
     line_fit_json,
     map_frames,
     no_usable_frames,
@@ -59,18 +59,18 @@ def _gray(
 
 
 @dataclass(frozen=True)
-class LinearityCalibration:
+class LinearityCalibration(LabCalibration[tuple[int, str], ResponseCurve]):
     """The response sweeps of one camera, per wavelength.
 
     ``curves`` maps ``(wavelength_nm, sweep)`` to the fitted `ResponseCurve`;
     ``positions`` the pixel position (x, y) read in every frame of a wavelength.
     """
 
-    selection: Selection
-    frames: list[FrameOutcome]
     positions: dict[int, tuple[float, float]]
-    curves: dict[tuple[int, str], ResponseCurve]
-    inputs: dict[str, Any]
+
+    @property
+    def curves(self) -> dict[tuple[int, str], ResponseCurve]:
+        return self.results
 
     @property
     def linear_range_gray(self) -> tuple[float, float]:
@@ -163,7 +163,7 @@ def run_linearity(
             "linearity needs >= 3 exposures at one gain or >= 3 gains at one exposure, for one wavelength"
         )
     inputs = {"tolerance": tolerance, "n_sigma": n_sigma, "center_pixels": center_pixels}
-    return LinearityCalibration(sel, frames, positions, curves, inputs)
+    return LinearityCalibration(sel, frames, curves, inputs, positions)
 
 
 def linearity_values(cal: LinearityCalibration) -> list[dict[str, Any]]:

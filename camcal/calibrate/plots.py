@@ -12,6 +12,7 @@ import numpy as np
 from matplotlib.patches import Circle, Ellipse
 from matplotlib.ticker import NullFormatter, ScalarFormatter
 
+from camcal.calibrate.common import FrameOutcome
 from camcal.calibrate.emission import EmissionRatioCalibration
 from camcal.calibrate.linearity import LinearityCalibration
 from camcal.calibrate.psf import PSFCalibration
@@ -151,8 +152,7 @@ def plot_emission(cal: EmissionRatioCalibration, out: Path) -> list[Path]:
         ax.ticklabel_format(axis="y", useOffset=False)
     axes[0][0].set_ylabel("I0' / I0 (far hemisphere / near)")
     tax = axes[0][-1]
-    shown = [(i, wl, cal.results[wl].temperature_effect) for i, wl in enumerate(wls)]
-    shown = [(i, wl, e) for i, wl, e in shown if e is not None]
+    shown = [(i, wl, e) for i, wl in enumerate(wls) if (e := cal.results[wl].temperature_effect) is not None]
     if shown:
         for i, wl, e in shown:
             tax.errorbar(
@@ -277,7 +277,7 @@ def plot_hough_montage(cal: AirScanCalibration, path: Path, n: int = 4) -> Path 
     if not ok:
         return None
     wl = min(f.row.wavelength_nm for f in ok)
-    by_d: dict[float, object] = {}
+    by_d: dict[float, FrameOutcome] = {}
     for f in ok:
         if f.row.wavelength_nm == wl:
             by_d.setdefault(float(f.row.distance_m), f)  # type: ignore[arg-type]

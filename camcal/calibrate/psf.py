@@ -15,7 +15,7 @@ from analysis.detect import locate_source
 from camcal.calibrate.common import (
     CalibrationError,
     FrameOutcome,
-    Selection,
+    LabCalibration,
     map_frames,
     no_usable_frames,
     num,
@@ -64,18 +64,14 @@ def _fit(half_size_px: int, max_gray: float, row: ManifestRow, frame: np.ndarray
 
 
 @dataclass(frozen=True)
-class PSFCalibration:
+class PSFCalibration(LabCalibration[int, PSFResult]):
     """The PSF width per wavelength (`PSFResult`) and each frame's fit.
 
     ``frame_shape`` is ``(height, width)`` of the frames: the PSF may vary
     over the field, so the plots show it against the distance from the centre.
     """
 
-    selection: Selection
-    frames: list[FrameOutcome]
-    results: dict[int, PSFResult]
     frame_shape: tuple[int, int]
-    inputs: dict[str, Any]
 
     def field_radius_px(self, frame: FrameOutcome) -> float:
         """Distance of a frame's source from the frame centre."""
@@ -122,7 +118,7 @@ def run_psf(
     first = next(f for f in frames if f.ok)
     shape = read_frame(sel.folder / first.row.file).shape
     inputs = {"window_px": window_px, "max_sigma_px": max_sigma_px}
-    return PSFCalibration(sel, frames, results, (int(shape[0]), int(shape[1])), inputs)
+    return PSFCalibration(sel, frames, results, inputs, (int(shape[0]), int(shape[1])))
 
 
 def in_focus(cal: PSFCalibration, wavelength_nm: int) -> bool | None:

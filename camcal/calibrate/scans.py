@@ -36,6 +36,7 @@ from analysis.frame import FrameConfig
 from camcal.calibrate.common import (
     CalibrationError,
     FrameOutcome,
+    LabCalibration,
     Selection,
     line_fit_json,
     map_frames,
@@ -124,12 +125,7 @@ class AirScanResult:
     notes: tuple[str, ...]
 
 
-@dataclass(frozen=True)
-class AirScanCalibration:
-    selection: Selection
-    frames: list[FrameOutcome]
-    results: dict[int, AirScanResult]
-    inputs: dict[str, Any]
+AirScanCalibration = LabCalibration[int, AirScanResult]
 
 
 def run_air_scan(
@@ -269,12 +265,7 @@ class TankScanResult:
     relative: MediumComparison | None
 
 
-@dataclass(frozen=True)
-class TankScanCalibration:
-    selection: Selection
-    frames: list[FrameOutcome]
-    results: dict[int, TankScanResult]
-    inputs: dict[str, Any]
+TankScanCalibration = LabCalibration[int, TankScanResult]
 
 
 def run_tank_scan(

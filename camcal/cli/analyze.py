@@ -96,7 +96,7 @@ def print_frame(an: FrameSetAnalysis) -> None:
     (row,), (f,) = an.rows, an.frames
     setting = f"{row.wavelength_nm} nm, {row.exposure_s:g} s, {row.gain_db:g} dB"
     what = f"{row.file} (camera {row.camera}, {setting})"
-    if not f.ok:
+    if not f.ok or f.centroid_px is None:
         console.print(
             f"{what}: [yellow]rejected[/] ({f.reason}: {f.detail or REASON_HELP.get(f.reason or '', '')})",
             highlight=False,

@@ -50,6 +50,7 @@ def add(
     """Store a new version of a calibration from lab results and/or a setup.json."""
     from camcal.core.calibrations import CalibrationError, load_json, merge_results, record_values
     from camcal.core.frameset import FrameSetError, Setup, parse_setup
+    from storage import queries
 
     store = open_store(data, db_url, create=True)
     try:
@@ -59,7 +60,7 @@ def add(
             except (OSError, ValueError, FrameSetError) as exc:
                 raise fail(f"{setup}: {exc}") from None
         else:
-            prev = store.calibration(name)
+            prev = store.call(queries.calibration, name)
             base = parse_setup(prev["values"]["setup"], name) if prev else Setup()
         try:
             merged, rows, sources = merge_results(base, [load_json(p) for p in result or []])
@@ -87,9 +88,11 @@ def list_cmd(
     db_url: DbUrlOption = None,
 ) -> None:
     """Every stored calibration version."""
+    from storage import queries
+
     store = open_store(data, db_url)
     try:
-        cals = store.calibrations(name)
+        cals = store.call(queries.calibrations, name)
     finally:
         store.close()
     t = Table(title="calibrations", title_justify="left")
@@ -130,9 +133,11 @@ def show(
     db_url: DbUrlOption = None,
 ) -> None:
     """One calibration record as JSON."""
+    from storage import queries
+
     store = open_store(data, db_url)
     try:
-        rec = store.calibration(ref)
+        rec = store.call(queries.calibration, ref)
     finally:
         store.close()
     if rec is None:

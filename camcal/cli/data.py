@@ -44,8 +44,10 @@ def open_store(data: Path | None, db_url: str | None, *, create: bool = False):
 
 
 def pick_dive(store, name: str | None, *, create_as: str | None = None):
+    from storage import queries
+
     if name:
-        dive = store.dive_by_name(name)
+        dive = store.call(queries.dive_by_name, name)
         if dive is None:
             if create_as is not None:
                 return store.create_dive(name)

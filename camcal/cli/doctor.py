@@ -13,6 +13,7 @@ from rich.table import Table
 
 from camcal.cli.common import console
 from camcal.cli.config import settings_or_fail
+from camcal.core.events import Event
 
 if TYPE_CHECKING:
     from camcal.core.settings import Settings
@@ -111,7 +112,7 @@ def check_ingest(s: Settings, wait_s: float) -> tuple[list[tuple[str, str, str]]
     try:
         if sub.poll(int(wait_s * 1000)):
             _, body = sub.recv_multipart()
-            health = json.loads(body)["payload"]
+            health = Event.from_json(body).payload
     finally:
         sub.close(0)
     if health is None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -18,6 +19,7 @@ from camcal.cli.overrides import DistanceErrOption, DistanceOption, RatioOption,
 from camcal.core.files import write_atomic
 
 if TYPE_CHECKING:
+    from analysis.chisq import ChiSquareFit, Estimate
     from camcal.fitset import FitOptions, FolderFit
     from camcal.pipeline import Overrides
 
@@ -98,6 +100,13 @@ def fit(
     min_frames: Annotated[int, typer.Option(help="Accepted frames needed per camera and wavelength.")] = 3,
     psf_sigma: Annotated[float, typer.Option(help="Gaussian PSF width [px] (prior centre).")] = 1.2,
     psf_sigma_err: Annotated[float, typer.Option(help="Prior width of the PSF width [px].")] = 0.3,
+    systematics: Annotated[
+        bool,
+        typer.Option(
+            help="Vary what the fit holds fixed (⟨cos θ⟩, Rayleigh share, LEM emission shape) and report "
+            "the shifts as the systematic budget (builds alternative templates once)."
+        ),
+    ] = True,
     template_errors: Annotated[
         bool,
         typer.Option(
@@ -123,8 +132,10 @@ def fit(
         raise fail("give a frame-set FOLDER or --dive NAME (one of them)")
     nodes = parse_floats(sca_nodes, "--sca-nodes")
     from analysis.chisq import FitConfig, FitInputError
+    from analysis.chisq.systematics import SystematicsConfig
     from camcal.core.frameset import FrameSetError
-    from camcal.fitset import FitOptions, fit_folder, to_json
+    from camcal.fitdoc import to_json
+    from camcal.fitset import FitOptions, fit_folder
 
     try:
         options = FitOptions(
@@ -142,6 +153,7 @@ def fit(
             fit=FitConfig(
                 psf_sigma_px=psf_sigma, psf_sigma_err_px=psf_sigma_err, template_errors=template_errors
             ),
+            systematics=SystematicsConfig() if systematics else None,
         )
         overrides = overrides_from(distance, distance_err, ratio)
         if dive is not None:
@@ -176,6 +188,8 @@ def fit(
 
         for p in write_fit_plots(result, plots):
             console.print(f"wrote {p}")
+    if not result.has_result:
+        raise fail("no wavelength gave a result: every length is unconstrained (see the table above)", 1)
 
 
 def fit_stored_dive(
@@ -223,7 +237,7 @@ def fit_stored_dive(
 
 
 def print_fits(result: FolderFit) -> None:
-    """λ_abs, λ_sca and the λ_att check per wavelength, as a table; skipped wavelengths below."""
+    """Values or limits per wavelength, the λ_att check, the budget, and what was flagged or skipped."""
     table = Table(title="absorption and scattering lengths (χ² fit)", title_justify="left")
     for col in (
         "wavelength",
@@ -241,20 +255,71 @@ def print_fits(result: FolderFit) -> None:
             ic, verdict = "—", "—"
         else:
             ic = f"{chk.lambda_att_icenter_m:.2f} ± {chk.lambda_att_icenter_err_m:.2f}"
-            verdict = f"{'[green]agrees' if chk.agrees else '[red]differs'}[/] ({chk.z:+.1f}σ)"
-        edge = " [yellow](grid edge)[/]" if f.at_edge else ""
+            colour = "green" if chk.agrees else ("bold red" if chk.flagged else "yellow")
+            word = "agrees" if chk.agrees else ("FLAGGED" if chk.flagged else "differs")
+            verdict = f"[{colour}]{word}[/] ({chk.z:+.1f}σ)"
+        scaled = f" [yellow](errors ×{f.error_scale:.2f})[/]" if f.error_scale > 1 else ""
         table.add_row(
             str(wl),
-            f"{f.lambda_abs_m:.2f} ± {f.lambda_abs_err_m:.2f}",
-            f"{f.lambda_sca_m:.2f} ± {f.lambda_sca_err_m:.2f} ± {f.lambda_sca_sys_err_m:.2f}{edge}",
-            f"{f.lambda_att_m:.2f} ± {f.lambda_att_err_m:.2f}",
+            _length(f.lambda_abs, f.lambda_abs_sys_err_m),
+            _length(f.lambda_sca, f.lambda_sca_sys_err_m),
+            f"{f.lambda_att_m:.2f} ± {chk.lambda_att_fit_err_m:.2f}",
             ic,
             verdict,
-            f"{f.chi2:.0f}/{f.ndof}",
+            f"{f.chi2:.0f}/{f.ndof}{scaled}",
         )
     console.print(table)
     console.print(
-        "errors: statistical (Δχ² = 1); λ_sca's second error is the templates' systematic", style="dim"
+        "errors: fit (statistical and floated nuisances, ×√(χ²/ndof) where that exceeds 1) ± systematic; "
+        "a length the data only bound is a one-sided 95 % CL limit",
+        style="dim",
     )
+    for _, f in sorted(result.fits.items()):
+        if f.systematics is not None:
+            print_budget(f)
+    for wl, chk in sorted(result.checks.items()):
+        if chk.flagged:
+            console.print(f"[bold red]{wl} nm flagged:[/] {chk.advice}")
+    for wl, why in sorted(result.notes.items()):
+        console.print(f"[yellow]{wl} nm:[/] {why}")
     for wl, why in sorted(result.skipped.items()):
         console.print(f"[yellow]{wl} nm skipped:[/] {why}")
+
+
+def _length(e: Estimate, sys_err_m: float) -> str:
+    if e.measured:
+        return f"{e.value_m:.2f} ± {e.err_m:.2f} ± {sys_err_m:.2f}"
+    return e.text("").strip()
+
+
+def print_budget(f: ChiSquareFit) -> None:
+    """One wavelength's systematic budget: each item's error on λ_abs, λ_sca, λ_att."""
+    b = f.systematics
+    assert b is not None
+    table = Table(title=f"{f.wavelength_nm} nm: systematic budget [m]", title_justify="left")
+    for col, just in (("varied", "left"), ("cases", "left"), ("λ_abs", "right"), ("λ_sca", "right")):
+        table.add_column(col, justify=just)  # type: ignore[arg-type]
+    table.add_column("λ_att", justify="right")
+    table.add_column("note", justify="left")
+    for i in b.items:
+        table.add_row(
+            i.label,
+            ", ".join(i.cases),
+            _num(i.lambda_abs_m),
+            _num(i.lambda_sca_m),
+            _num(i.lambda_att_m),
+            ("floated in the fit: inside its error, not added. " if i.profiled else "") + i.note,
+        )
+    table.add_row(
+        "[bold]sum in quadrature[/]",
+        "",
+        _num(b.lambda_abs_sys_m),
+        _num(b.lambda_sca_sys_m),
+        _num(b.lambda_att_sys_m),
+        f"{b.seconds:.1f} s",
+    )
+    console.print(table)
+
+
+def _num(x: float) -> str:
+    return "—" if not math.isfinite(x) else f"{x:.3f}"

@@ -196,12 +196,10 @@ def simulate(
 
     Exits with status 3 if the ship at --connect is not the right one (another dive, or
     not a camcal ingest)."""
-    from camcal.core.schedule import CameraLimits
-    from lrm.agent import Agent, AgentConfig
-    from lrm.camera import SimulatedCamera, SimulatedSensors
+    from lrm.agent import AgentConfig
     from lrm.clock import SimClock
     from lrm.dive import DiveProfile, DiveSimulation, LEMTimetable, WaterColumn
-    from lrm.runner import LemTimetableClock, ScheduleRunner
+    from lrm.simmodule import simulated_module
 
     logging.basicConfig(level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     sched = load_schedule(schedule)
@@ -239,17 +237,8 @@ def simulate(
         if camera not in sim.module_ids:
             raise ValueError(f"--camera must be one of {', '.join(sim.module_ids)}, got {camera!r}")
         clock = SimClock.synced(start, speed, epoch_s - begin_s / speed)
-        lem = LemTimetableClock(sim.timetable, sim.start, settle_s=lem_settle_s)
     except ValueError as exc:
         raise fail(str(exc)) from None
-    cam = SimulatedCamera(sim, camera, clock, readout_s=readout_s)
-    runner = ScheduleRunner(
-        cam,
-        clock,
-        sched,
-        lem=lem,
-        gate=lambda: profile.captures_enabled(sim.dive_time_s(clock.now())),
-    )
     if not (sensor_rate_hz > 0 and math.isfinite(sensor_rate_hz)):
         raise fail(f"--sensor-rate-hz must be > 0, got {sensor_rate_hz}")
     cfg = AgentConfig(
@@ -262,13 +251,7 @@ def simulate(
         keys=module_keys,
         plaintext=plaintext,
     )
-    agent = Agent(
-        cfg,
-        clock=clock,
-        runner=runner,
-        sensors=SimulatedSensors(sim, camera, clock),
-        camera_limits=CameraLimits(cam.exposure_range_s, cam.gain_range_db, cam.gain_step_db),
-    )
+    agent = simulated_module(sim, cfg, clock, sched, readout_s=readout_s, lem_settle_s=lem_settle_s)
     agent.start()
     console.print(
         f"module {camera}: dive of {profile.duration_s / 60:.0f} min at {speed:g}x "

@@ -144,8 +144,6 @@ def reanalyze(
     folder and an S3-compatible bucket work the same.
     """
     from camcal.cli.data import open_store
-    from camcal.core.calibrations import setup_of
-    from camcal.core.frameset import FrameSetError
     from ingest.reanalysis import ReanalysisOptions
 
     frm, to = parse_time(t_from, "--from"), parse_time(t_to, "--to")
@@ -173,23 +171,12 @@ def reanalyze(
         t_to=to,
     )
 
-    def effective(base: Setup) -> Setup:
-        try:
-            return overrides.apply(chosen or base)
-        except FrameSetError as exc:
-            raise fail(str(exc)) from None
-
     store = open_store(data, db_url, create=bool(folders))
     runner = None
     summaries: list[dict[str, Any]] = []
-    record = None
     try:
         if calibration:
-            record = _calibration_record(store, calibration)
-            try:
-                chosen = setup_of(record)
-            except FrameSetError as exc:
-                raise fail(f"--calibration {calibration}: {exc}") from None
+            _check_calibration(store, calibration)
         jobs = (
             _import_folders(store, folders, dive, storage_options)
             if folders
@@ -199,7 +186,8 @@ def reanalyze(
             raise fail("no stored frames match (check --dive, --from and --to)")
         runner = _start_runner(workers, scheduler)
         for job in jobs:
-            summaries.append(_run(store, job, effective(job["base"]), options, runner, label, record))
+            started = _start(store, job, chosen, overrides.apply, label, calibration, options)
+            summaries.append(_run(store, job, started, options, runner))
     finally:
         if runner is not None:
             runner.close()
@@ -213,26 +201,16 @@ def reanalyze(
 
 def _stored(store: Any, name: str | None, frm: float | None, to: float | None) -> list[dict[str, Any]]:
     """A job per dive: the named one, or every dive with frames in the span."""
+    from storage import queries
+
     if name is not None:
-        d = store.dive_by_name(name)
+        d = store.call(queries.dive_by_name, name)
         if d is None:
             raise fail(f"--dive: no dive named {name!r} in the store")
         dives = [d]
     else:
-        dives = store.dives_with_frames(frm, to)
-    return [{"dive": d, "base": _base_setup(store, d), "sources": None} for d in dives]
-
-
-def _base_setup(store: Any, dive: Any) -> Setup:
-    """The calibration the dive was analysed with: its live run's, else the dive's, else T-REX."""
-    from camcal.core.frameset import FrameSetError, Setup, parse_setup
-
-    live = store.analysis_run(dive.id, "live", create=False)
-    cal = (live.calibration if live is not None else None) or dive.setup or {}
-    try:
-        return parse_setup(cal, f"dive {dive.name}") if cal else Setup()
-    except FrameSetError:
-        return Setup()
+        dives = store.call(queries.dives_with_frames, frm, to)
+    return [{"dive": d, "base": None, "sources": None} for d in dives]  # base: as the dive was analysed
 
 
 def _import_folders(
@@ -241,6 +219,7 @@ def _import_folders(
     """Import each folder (frames already stored are matched, not copied again); a job per dive."""
     from camcal.core.frameset import FrameSetError
     from ingest.importer import import_frame_set, read_frame_set
+    from storage import queries
     from storage.files import RemoteFolder
 
     jobs: list[dict[str, Any]] = []
@@ -257,7 +236,7 @@ def _import_folders(
             raise fail(f"{folder}: {exc}") from None
         for file, why in report.problems:
             console.print(f"[yellow]skipped[/] {file}: {why}")
-        located = store.locate_frames(report.sources)
+        located = store.call(queries.locate_frames, report.sources)
         by_dive: dict[int, dict[int, str]] = {}
         for key, (fid, dive_id) in located.items():
             by_dive.setdefault(dive_id, {})[fid] = report.sources[key]
@@ -290,47 +269,65 @@ def _start_runner(workers: int, scheduler: str | None) -> Any:
     return runner
 
 
-def _calibration_record(store: Any, ref: str) -> dict[str, Any]:
-    record = store.calibration(ref)
-    if record is None:
-        known = ", ".join(sorted({f"{c['name']}@{c['version']}" for c in store.calibrations()})) or "none"
-        raise fail(f"--calibration: no calibration {ref!r} in the store (stored: {known})")
-    return record
+def _check_calibration(store: Any, ref: str) -> None:
+    """Fail before any work if the named calibration is not stored or holds no valid setup."""
+    from camcal.core.calibrations import setup_of
+    from camcal.core.frameset import FrameSetError
+    from ingest.reanalysis import UnknownCalibration, find_calibration
+
+    try:
+        setup_of(find_calibration(store, ref))
+    except UnknownCalibration as exc:
+        raise fail(f"--calibration: {exc}") from None
+    except FrameSetError as exc:
+        raise fail(f"--calibration {ref}: {exc}") from None
 
 
-def _run(
+def _start(
     store: Any,
     job: dict[str, Any],
-    setup: Setup,
-    options: Any,
-    runner: Any,
+    chosen: Setup | None,
+    adjust: Any,
     label: str | None,
-    record: dict[str, Any] | None = None,
-) -> dict[str, Any]:
-    from ingest.derived import attenuation_dict, result_row, span_attenuation
-    from ingest.reanalysis import reanalyse, start_run
+    calibration: str | None,
+    options: Any,
+) -> Any:
+    """The job's run, started as the API starts one (`ingest.reanalysis.start_reanalysis`)."""
+    from ingest.reanalysis import ReanalysisInputError, start_reanalysis
 
-    d = job["dive"]
     what = job.get("folder") or (
         "frames in the span" if options.t_from is not None or options.t_to is not None else "all frames"
     )
-    cal_id = record["id"] if record else None
-    if label is None and record is not None:
-        label = f"calibration {record['name']} v{record['version']}: {what}"
-    run_id = start_run(store, d.id, setup, label or f"camcal reanalyze: {what}", cal_id)
-    store.audit(
-        "cli",
-        "reanalysis.start",
-        f"dive:{d.id}",
-        {"run_id": run_id, "calibration_id": cal_id, "calibration": setup.to_json()},
-    )
+    try:
+        return start_reanalysis(
+            store,
+            job["dive"].id,
+            actor="cli",
+            default_label=f"camcal reanalyze: {what}",
+            label=label,
+            calibration=calibration,
+            setup=chosen or job["base"],
+            adjust=adjust,
+            what=f": {what}",
+        )
+    except ReanalysisInputError as exc:
+        raise fail(str(exc)) from None
+
+
+def _run(store: Any, job: dict[str, Any], started: Any, options: Any, runner: Any) -> dict[str, Any]:
+    from ingest.derived import attenuation_dict, result_row, span_attenuation
+    from ingest.reanalysis import reanalyse
+    from storage import queries
+
+    d = job["dive"]
+    run_id, setup, record = started.run_id, started.setup, started.record
     t0 = time.perf_counter()
     try:
         n = reanalyse(store, d.id, run_id, setup, options, runner=runner, sources=job["sources"])
     except Exception as exc:
         raise fail(f"re-analysis of dive {d.name} failed (run {run_id}): {exc}", code=1) from None
     elapsed = time.perf_counter() - t0
-    rows = [result_row(r) for r in store.result_rows(run_id, d.id)]
+    rows = [result_row(r) for r in store.call(queries.result_rows, run_id, d.id)]
     table = span_attenuation(rows, setup)
     return {
         "dive": d.name,

@@ -92,17 +92,30 @@ def simulate_set(
             "(photon transport, the χ² fit's physics; computed once, then cached)."
         ),
     ] = "single",
+    halo_orders: Annotated[
+        int,
+        typer.Option(
+            help="With --halo transport: scattering orders followed (twice the fit templates' 6, so the "
+            "frames are a truth the templates did not make; their Monte Carlo seed differs too)."
+        ),
+    ] = 12,
+    halo_photons: Annotated[
+        int, typer.Option(help="With --halo transport: Monte Carlo photons per camera and wavelength.")
+    ] = 1_000_000,
     workers: Annotated[int, typer.Option(help="Worker processes (default: all cores).")] = 0,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
 ) -> None:
     """Simulate a dive's frame set (manifest, setup.json, PNGs) and its ground truth (truth.json)."""
     from camcal.core.schedule import Schedule, trex_schedule, trex_subsampled
     from lrm.sim.camera import CameraModel
+    from lrm.sim.render import TransportHalo
     from lrm.sim.scene import TREX_PLACEMENTS, Placement
     from lrm.simset import SimulationSpec, simulate_frame_set
 
     if halo not in ("single", "transport"):
         raise fail(f"--halo: unknown halo model {halo!r} (single, transport)")
+    if not 2 <= halo_orders <= 30 or halo_photons < 10_000:
+        raise fail("--halo-orders must lie in 2..30 and --halo-photons be >= 10000")
     w = build_water(water, absorption, scattering, mie_g, rayleigh_fraction)
     distances = parse_mapping(distance, "--distance")
     placements = list(TREX_PLACEMENTS)
@@ -148,6 +161,9 @@ def simulate_set(
         sway_m_per_s=sway,
         flashes_per_frame=flashes,
         halo_model=halo,
+        transport=TransportHalo(n_photons=halo_photons, max_order=halo_orders)
+        if halo == "transport"
+        else None,
     )
     n = sched.n_frames * len(placements)
     console.print(
@@ -159,9 +175,11 @@ def simulate_set(
             truth = simulate_frame_set(out, spec, workers=workers or None, progress=update)
     except FileExistsError as exc:
         raise fail(str(exc)) from None
-    for wl, o in truth["water"].items():  # type: ignore[union-attr]
+    truth_water = truth["water"]
+    assert isinstance(truth_water, dict)
+    for wl_name, o in truth_water.items():
         console.print(
-            f"  {wl} nm: λ_abs {o['lambda_abs_m']:.1f} m, λ_sca {o['lambda_sca_m']:.1f} m "
+            f"  {wl_name} nm: λ_abs {o['lambda_abs_m']:.1f} m, λ_sca {o['lambda_sca_m']:.1f} m "
             f"-> λ_att {o['lambda_att_m']:.2f} m"
         )
     console.print(f"wrote {out}/manifest.csv, setup.json, truth.json")

@@ -13,6 +13,10 @@ from typing import Any
 
 from camcal.core.frameset import FrameSetError, Setup, parse_setup
 
+#: The lab experiments of the paper's "Calibration" section, by the name every part uses: the
+#: simulator (`lrm.labset`), ``camcal calibrate`` and ``camcal simulate-lab``, the bench, the tests.
+LAB_EXPERIMENTS = ("linearity", "emission-ratio", "air-scan", "tank-scan", "psf")
+
 
 class CalibrationError(ValueError):
     """A lab result or setup that cannot make a calibration."""

@@ -66,20 +66,20 @@ def collect(store: Store, dive_name: str, run_id: int | None = None) -> ReportDa
 
     Raises `DiveLookupError` for an unknown dive or run.
     """
-    d = store.dive_by_name(dive_name)
+    d = store.call(queries.dive_by_name, dive_name)
     if d is None:
         with store.read() as s:
             names = ", ".join(x["name"] for x in queries.dives(s)[:5]) or "none"
         raise DiveLookupError(f"no dive named {dive_name!r} (dives in the store: {names})")
     run = pick_run(store, d.id, run_id)
     setup, record = run_calibration(store, run)
-    rows = store.result_rows(run["id"], d.id)
+    rows = store.call(queries.result_rows, run["id"], d.id)
     span, table = attenuation_over_span(rows, setup, Span())
     with store.read() as s:
         dive = queries.dive_record(s, d.id)
         assert dive is not None
         if record is None and dive.get("calibration_id"):
-            record = store.calibration(dive["calibration_id"])
+            record = store.call(queries.calibration, dive["calibration_id"])
         frames = queries.frame_outcomes(s, d.id, run["id"])
         module_ids = sorted({f["module"] for f in frames})
         series_kw = {"dive_id": d.id, "t_from": None, "t_to": None, "max_points": MAX_POINTS}

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from camcal.core.calibrations import LAB_EXPERIMENTS
 from camcal.core.files import write_atomic
 from camcal.core.frameset import MANIFEST, FrameSetWriter, ManifestRow, Setup
 from lrm.labset.base import LabBase, LabShot
@@ -32,7 +33,7 @@ from lrm.labset.darkroom import LINEARITY_EXPOSURES_S, EmissionRatioLab, Lineari
 from lrm.labset.scans import AirScanLab, TankScanLab
 
 TRUTH = "truth.json"
-LAB_KINDS = ("linearity", "emission-ratio", "air-scan", "tank-scan", "psf")
+LAB_KINDS = LAB_EXPERIMENTS  # the experiments this simulator renders: all of them
 
 __all__ = [
     "LAB_KINDS",
@@ -56,6 +57,7 @@ __all__ = [
 SPEC_CLASSES: dict[str, type[LabBase]] = {
     c.kind: c for c in (LinearityLab, EmissionRatioLab, AirScanLab, TankScanLab, PSFLab)
 }
+assert tuple(SPEC_CLASSES) == LAB_EXPERIMENTS, "a lab experiment without its simulation"
 
 
 def lab_spec(kind: str, **values: Any) -> LabBase:

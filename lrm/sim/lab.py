@@ -160,7 +160,7 @@ def expected_mean_gray(
 
 
 def departure_gray(
-    camera: CameraModel, electrons: np.ndarray, gain_db: np.ndarray | float, tolerance: float
+    camera: CameraModel, electrons: np.ndarray | float, gain_db: np.ndarray | float, tolerance: float
 ) -> float:
     """The mean gray at which the expected response first falls ``tolerance`` below the line.
 

@@ -284,7 +284,7 @@ class FrameRenderer:
             rho = np.sqrt((gy[:, None] - cy) ** 2 + (gx[None, :] - cx) ** 2)
             coarse = self._halo_e_per_s(wavelength_nm, rho)
             big = cv2.resize(coarse, (nx * step, ny * step), interpolation=cv2.INTER_LINEAR)
-            rate = big[:height, :width]
+            rate = big[:height, :width].astype(np.float32, copy=False)
 
         # The disk (and the steep inner halo) exactly, in a window around the LEM.
         blur_len = math.hypot(*blur_px)

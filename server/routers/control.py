@@ -2,20 +2,25 @@
 
 from __future__ import annotations
 
+import csv
+import io
+import json
 import uuid
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Path, Query
-from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
 from pydantic import BaseModel, ConfigDict, Field
+from sqlalchemy.orm import Session
 
 from camcal.core.schedule import Schedule, presets
 from ingest.derived import predict_settings, result_row
 from server.deps import ModuleId, OperatorDep, SettingsDep, StoreDep
 from server.errors import Conflict, Invalid, NotFound
 from server.openapi import CONFLICT
+from server.schemas import CommandPublic, PresetPublic, Preview
 from storage import queries
+from storage.store import Store
 
 router = APIRouter(tags=["control"])
 
@@ -44,7 +49,7 @@ def _problems(settings: Any, schedule: Schedule) -> list[dict[str, str]]:
     return [{"field": f"schedule.{f}", "reason": r} for f, r in settings.camera_limits.problems(schedule)]
 
 
-@router.get("/api/schedules/presets")
+@router.get("/api/schedules/presets", response_model=dict[str, PresetPublic])
 def list_presets(settings: SettingsDep) -> dict[str, Any]:
     """The named schedules to start from: T-REX, quick λ_att check, linearity scan, monitoring.
 
@@ -60,8 +65,8 @@ def list_presets(settings: SettingsDep) -> dict[str, Any]:
     }
 
 
-@router.post("/api/schedules/preview")
-async def preview(body: PreviewRequest, store: StoreDep, settings: SettingsDep) -> dict[str, Any]:
+@router.post("/api/schedules/preview", response_model=Preview)
+def preview(body: PreviewRequest, store: StoreDep, settings: SettingsDep) -> dict[str, Any]:
     """Check a schedule and estimate one pass before sending it.
 
     Returns the problems (field and reason) the camera limits find, the
@@ -71,18 +76,14 @@ async def preview(body: PreviewRequest, store: StoreDep, settings: SettingsDep) 
     """
     sched = body.schedule
 
-    def predictions() -> dict[str, list[dict[str, Any]]]:
-        with store.read() as s:
-            dives = queries.dives(s)
-            run = queries.live_run_id(s, dives[0]["id"]) if dives else None
-        if run is None:
-            return {}
-        rows = store.result_rows(run, dives[0]["id"])[-3000:]
-        rr = [result_row(r) for r in rows if body.module is None or r["module"] == body.module]
-        setts = [(wl, e, g) for wl in sched.wavelengths_nm for e, g, _ in sched.settings()]
-        return predict_settings(rr, setts, settings.linear_range)
+    def newest_results(s: Session) -> list[dict[str, Any]]:
+        dives = queries.dives(s)
+        run = queries.live_run_id(s, dives[0]["id"]) if dives else None
+        return queries.result_rows(s, run, dives[0]["id"])[-3000:] if run is not None else []
 
-    pred = await run_in_threadpool(predictions)
+    rr = [result_row(r) for r in store.call(newest_results) if body.module in (None, r["module"])]
+    setts = [(wl, e, g) for wl in sched.wavelengths_nm for e, g, _ in sched.settings()]
+    pred = predict_settings(rr, setts, settings.linear_range) if rr else {}
     problems = _problems(settings, sched)
     summary = {
         m: {v: sum(1 for p in ps if p["verdict"] == v) for v in ("ok", "too_dark", "saturated", "unknown")}
@@ -98,13 +99,15 @@ async def preview(body: PreviewRequest, store: StoreDep, settings: SettingsDep) 
     }
 
 
-def _module_or_404(store: Any, module_id: str) -> None:
-    if not store.module_exists(module_id):
+def _module_or_404(store: Store, module_id: str) -> None:
+    if not store.call(queries.module_exists, module_id):
         raise NotFound(f"no module {module_id!r} has connected to this ship")
 
 
-@router.post("/api/modules/{module_id}/schedule", status_code=202, responses={**CONFLICT})
-async def send_schedule(
+@router.post(
+    "/api/modules/{module_id}/schedule", status_code=202, response_model=CommandPublic, responses={**CONFLICT}
+)
+def send_schedule(
     module_id: ModuleId, body: ScheduleCommand, store: StoreDep, settings: SettingsDep, who: OperatorDep
 ) -> dict[str, Any]:
     """Send a schedule to a module (operator token). Queued while the module is offline.
@@ -117,7 +120,7 @@ async def send_schedule(
     problems = _problems(settings, body.schedule)
     if problems:
         raise Invalid(f"{problems[0]['field']}: {problems[0]['reason']}", problems)
-    current = await run_in_threadpool(store.schedule_version, module_id)
+    current = store.call(queries.schedule_version, module_id)
     version = body.version if body.version is not None else current + 1
     if version <= current:
         raise Conflict(
@@ -125,22 +128,19 @@ async def send_schedule(
             {"current_version": current},
         )
     sched = body.schedule.model_copy(update={"version": version})
-    cmd = await run_in_threadpool(
-        lambda: store.create_command(
-            uuid.uuid4().hex,
-            module_id,
-            "set_schedule",
-            who,
-            payload={"schedule": sched.model_dump(mode="json")},
-            target_version=version,
-            apply=body.apply,
-        )
+    return store.create_command(
+        uuid.uuid4().hex,
+        module_id,
+        "set_schedule",
+        who,
+        payload={"schedule": sched.model_dump(mode="json")},
+        target_version=version,
+        apply=body.apply,
     )
-    return cmd
 
 
-@router.post("/api/modules/{module_id}/commands", status_code=202)
-async def send_action(
+@router.post("/api/modules/{module_id}/commands", status_code=202, response_model=CommandPublic)
+def send_action(
     module_id: ModuleId, body: ActionCommand, store: StoreDep, who: OperatorDep
 ) -> dict[str, Any]:
     """Start, pause, resume or stop whatever schedule the module runs (operator token).
@@ -150,56 +150,45 @@ async def send_action(
     be refused because the new version is not running yet.
     """
     _module_or_404(store, module_id)
-    return await run_in_threadpool(
-        lambda: store.create_command(uuid.uuid4().hex, module_id, body.action, who, target_version=0)
-    )
+    return store.create_command(uuid.uuid4().hex, module_id, body.action, who, target_version=0)
 
 
-@router.get("/api/modules/{module_id}/commands")
-async def module_commands(
+@router.get("/api/modules/{module_id}/commands", response_model=list[CommandPublic])
+def module_commands(
     module_id: ModuleId, store: StoreDep, limit: Annotated[int, Query(ge=1, le=1000)] = 50
 ) -> list[dict[str, Any]]:
     _module_or_404(store, module_id)
-    return await run_in_threadpool(lambda: store.commands(module_id, limit=limit))
+    return store.call(queries.commands, module_id, limit=limit)
 
 
-@router.get("/api/commands")
-async def all_commands(
+@router.get("/api/commands", response_model=list[CommandPublic])
+def all_commands(
     store: StoreDep,
     state: Annotated[str | None, Query(max_length=16)] = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
 ) -> list[dict[str, Any]]:
-    return await run_in_threadpool(lambda: store.commands(states=(state,) if state else None, limit=limit))
+    return store.call(queries.commands, states=(state,) if state else None, limit=limit)
 
 
-@router.get("/api/commands/{command_id}")
-async def get_command(command_id: Annotated[str, Path(max_length=64)], store: StoreDep) -> dict[str, Any]:
-    cmd = await run_in_threadpool(store.command, command_id)
+@router.get("/api/commands/{command_id}", response_model=CommandPublic)
+def get_command(command_id: Annotated[str, Path(max_length=64)], store: StoreDep) -> dict[str, Any]:
+    cmd = store.call(queries.command, command_id)
     if cmd is None:
         raise NotFound(f"no command {command_id}")
     return cmd
 
 
 @router.get("/api/audit/export", response_class=Response, responses={200: {"content": {"text/csv": {}}}})
-async def audit_export(store: StoreDep) -> Response:
+def audit_export(store: StoreDep) -> Response:
     """The whole audit log as CSV."""
-    import csv
-    import io
-    import json
-
-    def build() -> str:
-        with store.read() as s:
-            rows = queries.audit(s, limit=1_000_000)
-        buf = io.StringIO()
-        w = csv.writer(buf)
-        w.writerow(["id", "t_unix_s", "actor", "action", "target", "details"])
-        for r in reversed(rows):
-            w.writerow(
-                [r["id"], r["t_unix_s"], r["actor"], r["action"], r["target"], json.dumps(r["details"])]
-            )
-        return buf.getvalue()
-
-    text = await run_in_threadpool(build)
+    rows = store.call(queries.audit, limit=1_000_000)
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["id", "t_unix_s", "actor", "action", "target", "details"])
+    for r in reversed(rows):
+        w.writerow([r["id"], r["t_unix_s"], r["actor"], r["action"], r["target"], json.dumps(r["details"])])
     return Response(
-        text, media_type="text/csv", headers={"Content-Disposition": 'attachment; filename="audit.csv"'}
+        buf.getvalue(),
+        media_type="text/csv",
+        headers={"Content-Disposition": 'attachment; filename="audit.csv"'},
     )

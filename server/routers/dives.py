@@ -9,106 +9,96 @@ from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request
-from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse
+from sqlalchemy.orm import Session
 from starlette.background import BackgroundTask
 
-from camcal.core.calibrations import setup_of
 from camcal.core.frameset import Setup, parse_setup
 from ingest.derived import Span, attenuation_dict, attenuation_over_span
-from ingest.reanalysis import ReanalysisOptions, reanalyse, start_run
+from ingest.reanalysis import (
+    ReanalysisInputError,
+    ReanalysisOptions,
+    UnknownCalibration,
+    reanalyse,
+    start_reanalysis,
+)
 from server.deps import FloatQuery, IdPath, IdQuery, OperatorDep, SettingsDep, StoreDep
 from server.errors import Invalid, NotFound
 from server.openapi import BUSY, NOT_FOUND
-from server.schemas import DivePublic, ReanalysisCreate, RunPublic
+from server.schemas import (
+    AttenuationTable,
+    ChisqFitPublic,
+    ChisqFitSummary,
+    DivePublic,
+    DiveSettings,
+    ReanalysisCreate,
+    RunPublic,
+    Timeline,
+)
 from storage import queries
 from storage.export import export_dive
 from storage.models import Dive
+from storage.store import Store
 
 router = APIRouter(tags=["dives"])
 
 
-def dive_or_404(store: Any, dive_id: IdPath) -> Dive:
-    with store.read() as s:
-        dive = s.get(Dive, dive_id)
+def dive_or_404(store: Store, dive_id: IdPath) -> Dive:
+    dive = store.call(Session.get, Dive, dive_id)
     if dive is None:
         raise NotFound(f"no dive {dive_id}")
     return dive
 
 
 @router.get("/api/dives", response_model=list[DivePublic])
-async def list_dives(store: StoreDep) -> list[dict[str, Any]]:
+def list_dives(store: StoreDep) -> list[dict[str, Any]]:
     """Every dive, newest first, with its frame count, time range and deepest depth."""
-
-    def q() -> list[dict[str, Any]]:
-        with store.read() as s:
-            return queries.dives(s)
-
-    return await run_in_threadpool(q)
+    return store.call(queries.dives)
 
 
 @router.get("/api/dives/{dive_id}", response_model=DivePublic)
-async def get_dive(dive_id: IdPath, store: StoreDep) -> dict[str, Any]:
-    rows = [d for d in await list_dives(store) if d["id"] == dive_id]
+def get_dive(dive_id: IdPath, store: StoreDep) -> dict[str, Any]:
+    rows = store.call(queries.dives, dive_id)
     if not rows:
         raise NotFound(f"no dive {dive_id}")
     return rows[0]
 
 
-@router.get("/api/dives/{dive_id}/timeline")
-async def timeline(
+@router.get("/api/dives/{dive_id}/timeline", response_model=Timeline)
+def timeline(
     dive_id: IdPath, store: StoreDep, max_points: Annotated[int, Query(ge=10, le=5000)] = 600
 ) -> dict[str, Any]:
     """Depth over the dive, the frames on it (thinned to ~2000 marks) and the alarms."""
     dive_or_404(store, dive_id)
-
-    def q() -> dict[str, Any]:
-        with store.read() as s:
-            return queries.timeline(s, dive_id, max_points)
-
-    return await run_in_threadpool(q)
+    return store.call(queries.timeline, dive_id, max_points)
 
 
-@router.get("/api/dives/{dive_id}/settings")
-async def settings_of_dive(dive_id: IdPath, store: StoreDep) -> dict[str, Any]:
+@router.get("/api/dives/{dive_id}/settings", response_model=DiveSettings)
+def settings_of_dive(dive_id: IdPath, store: StoreDep) -> dict[str, Any]:
     """The modules, wavelengths, exposures and gains the dive's frames were taken with."""
     dive_or_404(store, dive_id)
-
-    def q() -> dict[str, Any]:
-        with store.read() as s:
-            return queries.frame_settings(s, dive_id)
-
-    return await run_in_threadpool(q)
+    return store.call(queries.frame_settings, dive_id)
 
 
 @router.get("/api/dives/{dive_id}/runs", response_model=list[RunPublic])
-async def runs(dive_id: IdPath, store: StoreDep) -> list[dict[str, Any]]:
+def runs(dive_id: IdPath, store: StoreDep) -> list[dict[str, Any]]:
     """The dive's analysis runs: the live one and every re-analysis."""
     dive_or_404(store, dive_id)
-
-    def q() -> list[dict[str, Any]]:
-        with store.read() as s:
-            return queries.runs(s, dive_id)
-
-    return await run_in_threadpool(q)
+    return store.call(queries.runs, dive_id)
 
 
-def run_setup(store: Any, dive_id: IdPath, run_id: int | None) -> tuple[int, Setup]:
-    with store.read() as s:
-        runs = {r["id"]: r for r in queries.runs(s, dive_id)}
-    if not runs:
-        raise NotFound(f"dive {dive_id} has no analysis yet")
-    if run_id is None:
-        live = [r for r in runs.values() if r["kind"] == "live"]
-        run_id = live[0]["id"] if live else max(runs)
-    if run_id not in runs:
-        raise NotFound(f"no run {run_id} in dive {dive_id}")
-    cal = runs[run_id]["calibration"] or {}
-    return run_id, parse_setup(cal, f"run {run_id}") if cal else Setup()
+def run_setup(store: Store, dive_id: IdPath, run_id: int | None) -> tuple[int, Setup]:
+    """The run asked for (default: the live run, else the newest) and the setup it was analysed with."""
+    try:
+        run = store.call(queries.chosen_run, dive_id, run_id)
+    except queries.RunLookupError as exc:
+        raise NotFound(str(exc)) from None
+    cal = run["calibration"] or {}
+    return run["id"], parse_setup(cal, f"run {run['id']}") if cal else Setup()
 
 
-@router.get("/api/dives/{dive_id}/attenuation")
-async def attenuation_table(
+@router.get("/api/dives/{dive_id}/attenuation", response_model=AttenuationTable)
+def attenuation_table(
     dive_id: IdPath,
     store: StoreDep,
     run: IdQuery = None,
@@ -125,42 +115,29 @@ async def attenuation_table(
     dive_or_404(store, dive_id)
     run_id, setup = run_setup(store, dive_id, run)
 
-    def q() -> dict[str, Any]:
-        rows = store.result_rows(run_id, dive_id)
-        span, table = attenuation_over_span(rows, setup, Span(depth_min_m, depth_max_m, t_from, t_to))
-        return {
-            "run_id": run_id,
-            "span": span,
-            "calibration": setup.to_json(),
-            "rows": [attenuation_dict(table[wl]) for wl in sorted(table)],
-        }
-
-    return await run_in_threadpool(q)
+    rows = store.call(queries.result_rows, run_id, dive_id)
+    span, table = attenuation_over_span(rows, setup, Span(depth_min_m, depth_max_m, t_from, t_to))
+    return {
+        "run_id": run_id,
+        "span": span,
+        "calibration": setup.to_json(),
+        "rows": [attenuation_dict(table[wl]) for wl in sorted(table)],
+    }
 
 
-@router.get("/api/dives/{dive_id}/fits")
-async def chisq_fits(dive_id: IdPath, store: StoreDep) -> list[dict[str, Any]]:
+@router.get("/api/dives/{dive_id}/fits", response_model=list[ChisqFitSummary])
+def chisq_fits(dive_id: IdPath, store: StoreDep) -> list[dict[str, Any]]:
     """The χ² fits (λ_abs, λ_sca) kept for the dive by ``camcal fit --dive``, oldest first (no documents)."""
     dive_or_404(store, dive_id)
-
-    def q() -> list[dict[str, Any]]:
-        with store.read() as s:
-            return queries.chisq_fits(s, dive_id)
-
-    return await run_in_threadpool(q)
+    return store.call(queries.chisq_fits, dive_id)
 
 
-@router.get("/api/dives/{dive_id}/fits/latest")
-async def latest_chisq_fit(dive_id: IdPath, store: StoreDep, run: IdQuery = None) -> dict[str, Any]:
+@router.get("/api/dives/{dive_id}/fits/latest", response_model=ChisqFitPublic)
+def latest_chisq_fit(dive_id: IdPath, store: StoreDep, run: IdQuery = None) -> dict[str, Any]:
     """The newest χ² fit of the dive (of one run's inputs if ``run`` is given), with its document:
     λ_abs, λ_sca per wavelength with errors, the I_center check, the Δχ² map and the fitted profiles."""
     dive = dive_or_404(store, dive_id)
-
-    def q() -> dict[str, Any] | None:
-        with store.read() as s:
-            return queries.latest_chisq_fit(s, dive_id, run)
-
-    fit = await run_in_threadpool(q)
+    fit = store.call(queries.latest_chisq_fit, dive_id, run)
     if fit is None:
         raise NotFound(f"no χ² fit kept for dive {dive_id}: run `camcal fit --dive {dive.name}`")
     return fit
@@ -172,7 +149,7 @@ async def latest_chisq_fit(dive_id: IdPath, store: StoreDep, run: IdQuery = None
     response_model=RunPublic,
     responses={**NOT_FOUND, **BUSY},
 )
-async def create_reanalysis(
+def create_reanalysis(
     dive_id: IdPath,
     body: ReanalysisCreate,
     request: Request,
@@ -187,41 +164,39 @@ async def create_reanalysis(
     /api/dives/{id}/runs`` for its end.
     """
     dive_or_404(store, dive_id)
-    _, base = run_setup(store, dive_id, None)
-    label = body.label or f"re-analysis by {who}"
-    if body.calibration_id is not None:
-        record = store.calibration(body.calibration_id)
-        if record is None:
-            raise NotFound(f"no calibration {body.calibration_id}")
-        base = setup_of(record)
-        label = body.label or f"calibration {record['name']} v{record['version']}"
-    data = base.model_dump()
-    if body.cameras:
-        for cam, d in body.cameras.items():
+    run_setup(store, dive_id, None)  # 404 for a dive that was never analysed
+
+    def adjust(base: Setup) -> Setup:
+        data = base.model_dump()
+        for cam, d in (body.cameras or {}).items():
             data["cameras"][cam] = d.model_dump()
-    if body.emission_ratio:
-        for wl, r in body.emission_ratio.items():
+        for wl, r in (body.emission_ratio or {}).items():
             data["emission_ratio"][wl] = r.model_dump()
-    if body.linear_range:
-        data["linear_range"] = body.linear_range
+        if body.linear_range:
+            data["linear_range"] = body.linear_range
+        return parse_setup(data, "re-analysis")
+
     try:
-        setup = parse_setup(data, "re-analysis")
-    except Exception as exc:
+        started = start_reanalysis(
+            store,
+            dive_id,
+            actor=who,
+            default_label=f"re-analysis by {who}",
+            label=body.label,
+            calibration=body.calibration_id,
+            adjust=adjust,
+        )
+    except UnknownCalibration:
+        raise NotFound(f"no calibration {body.calibration_id}") from None
+    except ReanalysisInputError as exc:
         raise Invalid(str(exc)) from None
-    run_id = start_run(store, dive_id, setup, label, body.calibration_id)
-    store.audit(
-        who,
-        "reanalysis.start",
-        f"dive:{dive_id}",
-        {"run_id": run_id, "calibration_id": body.calibration_id, "calibration": setup.to_json()},
-    )
+    run_id, setup = started.run_id, started.setup
 
     def job() -> None:
         reanalyse(store, dive_id, run_id, setup, ReanalysisOptions(workers=settings.reanalysis_workers))
 
     request.app.state.reanalyses.submit(run_id, job)
-    with store.read() as s:
-        return next(r for r in queries.runs(s, dive_id) if r["id"] == run_id)
+    return next(r for r in store.call(queries.runs, dive_id) if r["id"] == run_id)
 
 
 @router.get(
@@ -229,7 +204,7 @@ async def create_reanalysis(
     response_class=FileResponse,
     responses={200: {"content": {"application/zip": {}}}, **NOT_FOUND, **BUSY},
 )
-async def export(
+def export(
     dive_id: IdPath,
     request: Request,
     store: StoreDep,
@@ -246,20 +221,8 @@ async def export(
     slots = request.app.state.exports
     slots.take()
 
-    def build() -> str:
-        fd, name = tempfile.mkstemp(prefix="camcal-export-", suffix=".zip")
-        os.close(fd)
-        try:
-            with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(name, "w", zipfile.ZIP_DEFLATED) as zf:
-                for f in export_dive(store, dive_id, Path(tmp), (fmt,), run_id):
-                    zf.write(f, f.name)
-        except BaseException:
-            os.unlink(name)
-            raise
-        return name
-
     try:
-        path = await run_in_threadpool(build)
+        path = _export_zip(store, dive_id, fmt, run_id)
     finally:
         slots.give()
     return FileResponse(
@@ -268,3 +231,17 @@ async def export(
         filename=f"{dive.name}-{fmt}.zip",
         background=BackgroundTask(os.unlink, path),
     )
+
+
+def _export_zip(store: Store, dive_id: int, fmt: str, run_id: int) -> str:
+    """The dive's tables written into a temporary ZIP file (removed again if that fails)."""
+    fd, name = tempfile.mkstemp(prefix="camcal-export-", suffix=".zip")
+    os.close(fd)
+    try:
+        with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(name, "w", zipfile.ZIP_DEFLATED) as zf:
+            for f in export_dive(store, dive_id, Path(tmp), (fmt,), run_id):
+                zf.write(f, f.name)
+    except BaseException:
+        os.unlink(name)
+        raise
+    return name

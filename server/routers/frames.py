@@ -5,8 +5,8 @@ from __future__ import annotations
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query
-from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
+from sqlalchemy.orm import Session
 
 from camcal.core.files import write_atomic
 from camcal.core.frameset import FrameReadError, decode_frame
@@ -15,9 +15,10 @@ from ingest.worker import thumbnail_jpeg
 from server.deps import FloatQuery, IdPath, IdQuery, StoreDep, WavelengthQuery
 from server.errors import Gone, NotFound, Unreadable
 from server.openapi import GONE, NOT_FOUND, UNREADABLE
-from server.schemas import FramePage
+from server.schemas import FrameAnalysis, FrameDetail, FramePage
 from storage import queries
 from storage.files import UnsafePath
+from storage.store import Store
 
 router = APIRouter(tags=["frames"])
 STATUSES = "^(ok|rejected|pending)$"
@@ -30,7 +31,7 @@ def _urls(d: dict[str, Any]) -> dict[str, Any]:
 
 
 @router.get("/api/frames", response_model=FramePage)
-async def list_frames(
+def list_frames(
     store: StoreDep,
     dive: IdQuery = None,
     module: Annotated[str | None, Query(max_length=64)] = None,
@@ -63,34 +64,36 @@ async def list_frames(
         depth_max_m,
     )
 
-    def q() -> dict[str, Any]:
-        with store.read() as s:
-            dive_id = dive if dive is not None else (queries.dives(s) or [{"id": None}])[0]["id"]
-            rid = run or (queries.live_run_id(s, dive_id) if dive_id is not None else None)
-            items, total = queries.frames_page(s, f, rid, limit, offset, order)
-        return {"items": [_urls(i) for i in items], "total": total, "limit": limit, "offset": offset}
+    def q(s: Session) -> tuple[list[dict[str, Any]], int]:
+        dive_id = dive if dive is not None else (queries.dives(s) or [{"id": None}])[0]["id"]
+        rid = run or (queries.live_run_id(s, dive_id) if dive_id is not None else None)
+        return queries.frames_page(s, f, rid, limit, offset, order)
 
-    return await run_in_threadpool(q)
+    items, total = store.call(q)
+    return {"items": [_urls(i) for i in items], "total": total, "limit": limit, "offset": offset}
 
 
-def _frame(store: Any, frame_id: IdPath, run: int | None) -> dict[str, Any]:
-    with store.read() as s:
+def _frame(store: Store, frame_id: IdPath, run: int | None) -> dict[str, Any]:
+    def q(s: Session) -> dict[str, Any] | None:
         found = queries.frame_with_result(s, frame_id, run)
-        if found is None:
-            raise NotFound(f"no frame {frame_id}")
-        return _urls(queries.frame_dict(*found, full=True))
+        return queries.frame_dict(*found, full=True) if found is not None else None
+
+    frame = store.call(q)
+    if frame is None:
+        raise NotFound(f"no frame {frame_id}")
+    return _urls(frame)
 
 
-@router.get("/api/frames/{frame_id}")
-async def get_frame(frame_id: IdPath, store: StoreDep, run: IdQuery = None) -> dict[str, Any]:
+@router.get("/api/frames/{frame_id}", response_model=FrameDetail)
+def get_frame(frame_id: IdPath, store: StoreDep, run: IdQuery = None) -> dict[str, Any]:
     """One frame with its full analysis (profile and background fit included)."""
-    return await run_in_threadpool(_frame, store, frame_id, run)
+    return _frame(store, frame_id, run)
 
 
-@router.get("/api/frames/{frame_id}/analysis")
-async def frame_analysis(frame_id: IdPath, store: StoreDep, run: IdQuery = None) -> dict[str, Any]:
+@router.get("/api/frames/{frame_id}/analysis", response_model=FrameAnalysis)
+def frame_analysis(frame_id: IdPath, store: StoreDep, run: IdQuery = None) -> dict[str, Any]:
     """Centroid, radius, radial profile, background fit and I_center of a frame."""
-    f = await run_in_threadpool(_frame, store, frame_id, run)
+    f = _frame(store, frame_id, run)
     keys = (
         "id",
         "status",
@@ -112,16 +115,15 @@ async def frame_analysis(frame_id: IdPath, store: StoreDep, run: IdQuery = None)
     return {k: f.get(k) for k in keys}
 
 
-def _stored(store: Any, frame_id: int) -> tuple[str, int, int]:
+def _stored(store: Store, frame_id: int) -> tuple[str, int, int]:
     """The stored path, width and height of a frame (404 if there is no such frame)."""
-    with store.read() as s:
-        found = queries.frame_file(s, frame_id)
+    found = store.call(queries.frame_file, frame_id)
     if found is None:
         raise NotFound(f"no frame {frame_id}")
     return found
 
 
-def _read(store: Any, frame_id: int, relative: str, under: str) -> bytes:
+def _read(store: Store, frame_id: int, relative: str, under: str) -> bytes:
     """A file of the frame, read safely (`storage.files.FrameFiles.read_regular`)."""
     try:
         return store.files.read_regular(relative, under)
@@ -145,7 +147,7 @@ FILE_CACHE = {"Cache-Control": "public, max-age=86400, immutable"}
     response_class=Response,
     responses={200: {"content": {"image/jpeg": {}}}, **NOT_FOUND, **GONE, **UNREADABLE},
 )
-async def thumbnail(frame_id: IdPath, store: StoreDep) -> Response:
+def thumbnail(frame_id: IdPath, store: StoreDep) -> Response:
     """A 512 px JPEG of the frame, made once and cached in ``thumbs/<id>.jpg``.
 
     The frame must be in the database; the cached file is read without
@@ -153,27 +155,28 @@ async def thumbnail(frame_id: IdPath, store: StoreDep) -> Response:
     made again from the frame).
     """
 
-    def make() -> bytes:
-        relative, width, height = _stored(store, frame_id)
-        thumb = f"thumbs/{frame_id}.jpg"
-        try:
-            cached = store.files.read_regular(thumb, "thumbs")
-            if _is_jpeg(cached):
-                return cached
-        except (FileNotFoundError, UnsafePath):
-            pass
-        data = _read(store, frame_id, relative, "frames")
-        _check_image(frame_id, relative, data, width, height)
-        try:
-            jpeg = thumbnail_jpeg(decode_frame(data, relative))
-        except FrameReadError as exc:
-            raise Unreadable(f"frame {frame_id}: {exc.detail}") from None
-        path = store.files.root / "thumbs" / f"{frame_id}.jpg"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        write_atomic(path, jpeg, fsync=False)  # a rename: replaces a link, never writes through one
-        return jpeg
+    return Response(_thumbnail(store, frame_id), media_type="image/jpeg", headers=FILE_CACHE)
 
-    return Response(await run_in_threadpool(make), media_type="image/jpeg", headers=FILE_CACHE)
+
+def _thumbnail(store: Store, frame_id: int) -> bytes:
+    relative, width, height = _stored(store, frame_id)
+    thumb = f"thumbs/{frame_id}.jpg"
+    try:
+        cached = store.files.read_regular(thumb, "thumbs")
+        if _is_jpeg(cached):
+            return cached
+    except (FileNotFoundError, UnsafePath):
+        pass
+    data = _read(store, frame_id, relative, "frames")
+    _check_image(frame_id, relative, data, width, height)
+    try:
+        jpeg = thumbnail_jpeg(decode_frame(data, relative))
+    except FrameReadError as exc:
+        raise Unreadable(f"frame {frame_id}: {exc.detail}") from None
+    path = store.files.root / "thumbs" / f"{frame_id}.jpg"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_atomic(path, jpeg, fsync=False)  # a rename: replaces a link, never writes through one
+    return jpeg
 
 
 def _check_image(frame_id: int, relative: str, data: bytes, width: int, height: int) -> str:
@@ -191,17 +194,14 @@ def _check_image(frame_id: int, relative: str, data: bytes, width: int, height: 
     response_class=Response,
     responses={200: {"content": {"image/png": {}, "image/tiff": {}}}, **NOT_FOUND, **GONE, **UNREADABLE},
 )
-async def image(frame_id: IdPath, store: StoreDep) -> Response:
+def image(frame_id: IdPath, store: StoreDep) -> Response:
     """The full frame as stored (lossless PNG, exactly the module's bytes).
 
     Read without following symbolic links, and served only if it is the
     8-bit grey PNG (or TIFF) of the size its row says.
     """
 
-    def load() -> tuple[bytes, str]:
-        relative, width, height = _stored(store, frame_id)
-        data = _read(store, frame_id, relative, "frames")
-        return data, _check_image(frame_id, relative, data, width, height)
-
-    data, media = await run_in_threadpool(load)
+    relative, width, height = _stored(store, frame_id)
+    data = _read(store, frame_id, relative, "frames")
+    media = _check_image(frame_id, relative, data, width, height)
     return Response(data, media_type=media, headers=FILE_CACHE)

@@ -8,34 +8,29 @@ import time
 from typing import Any
 
 from fastapi import APIRouter
-from fastapi.concurrency import run_in_threadpool
 
 from camcal.core import __version__
 from server.deps import HubDep, SettingsDep, StoreDep
+from server.schemas import Health, Healthz
 from storage import queries
 
 router = APIRouter(tags=["health"])
 
 
-@router.get("/healthz")
+@router.get("/healthz", response_model=Healthz)
 async def healthz() -> dict[str, str]:
     """200 while the server runs and its store is open; touches neither the ingest nor the database."""
     return {"status": "ok", "version": __version__}
 
 
-@router.get("/api/health")
-async def health(hub: HubDep, store: StoreDep, settings: SettingsDep) -> dict[str, Any]:
+@router.get("/api/health", response_model=Health)
+def health(hub: HubDep, store: StoreDep, settings: SettingsDep) -> dict[str, Any]:
     """Per-module link state, last packet age, frames/s and queue depths, from the ingest's heartbeat.
 
     Without a recent heartbeat from the ingest the modules' state is unknown
     (``link: "unknown"``) and ``ingest.up`` is false.
     """
-
-    def modules() -> list[dict[str, Any]]:
-        with store.read() as s:
-            return queries.modules(s)
-
-    known = await run_in_threadpool(modules)
+    known = store.call(queries.modules)
     ingest = hub.ingest_state(settings.stale_after_s)
     health = hub.live_health(settings.stale_after_s)
     live = (health or {}).get("modules", {})

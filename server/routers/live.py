@@ -10,9 +10,11 @@ from typing import Any
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from fastapi.concurrency import run_in_threadpool
+from sqlalchemy.orm import Session
 
 from server.deps import HubDep, SettingsDep, StoreDep
 from server.relay import LiveHub, encode_for
+from server.schemas import LiveSnapshot
 from server.settings import ServerSettings
 from storage import queries
 from storage.store import Store
@@ -29,23 +31,12 @@ CLOSE_TOO_BIG, CLOSE_POLICY = 1009, 1008
 
 def build_snapshot(store: Store, hub: LiveHub, settings: ServerSettings) -> dict[str, Any]:
     """Everything the live view shows, as of now."""
-    with store.read() as s:
-        dives = queries.dives(s)
-        dive = dives[0] if dives else None
-        run_id = queries.live_run_id(s, dive["id"]) if dive else None
-        modules = queries.modules(s)
-        latest = queries.latest_frames(s, dive["id"], run_id) if dive else {}
-        sensors = queries.latest_sensors(s, dive["id"] if dive else None)
-        attitude = queries.latest_attitude(s, dive["id"] if dive else None)
-        quality = queries.quality_counts(s, run_id) if run_id else {}
-        t_last = max((f["captured_unix_s"] for f in latest.values()), default=None)
-        recent_quality = queries.quality_counts(s, run_id, since=t_last - 600) if run_id and t_last else {}
-        attenuation = queries.attenuation_series(s, run_id) if run_id else {}
-        alarms = queries.alarms(s, active=True) + queries.alarms(s, active=False, limit=20)
+    r = store.call(_snapshot_reads)  # one session: the snapshot is consistent
+    dive, run_id, latest, attenuation = r["dive"], r["run_id"], r["latest"], r["attenuation"]
     ingest = hub.ingest_state(settings.stale_after_s)
     live = (hub.live_health(settings.stale_after_s) or {}).get("modules", {})
     out_modules = {}
-    for m in modules:
+    for m in r["modules"]:
         mid = m["id"]
         h = live.get(mid)
         frame = latest.get(mid)
@@ -62,11 +53,11 @@ def build_snapshot(store: Store, hub: LiveHub, settings: ServerSettings) -> dict
             "last_frame_age_s": h.get("last_frame_age_s") if h else None,
             "schedule": h["schedule"] if h else m["schedule"],
             "latest_frame": frame,
-            "sensors": hub.sensors.get(mid) or sensors.get(mid),
-            "attitude": hub.attitude.get(mid) or attitude.get(mid),
+            "sensors": hub.sensors.get(mid) or r["sensors"].get(mid),
+            "attitude": hub.attitude.get(mid) or r["attitude"].get(mid),
             "phase": hub.phase(mid),
-            "quality": quality.get(mid, {}),
-            "quality_recent": recent_quality.get(mid, {}),
+            "quality": r["quality"].get(mid, {}),
+            "quality_recent": r["recent_quality"].get(mid, {}),
         }
     return {
         "server_time_unix_s": time.time(),
@@ -77,16 +68,44 @@ def build_snapshot(store: Store, hub: LiveHub, settings: ServerSettings) -> dict
         "station_depth_m": settings.station_depth_m,
         "modules": out_modules,
         "attenuation": {str(k): v[-300:] for k, v in attenuation.items()},
-        "alarms": alarms,
+        "alarms": r["alarms"],
         "refused_connections": (hub.live_health(settings.stale_after_s) or {}).get("refused_connections"),
         "last_event_id": hub.last_event_id,
     }
 
 
-@router.get("/api/live/snapshot")
-async def snapshot(store: StoreDep, hub: HubDep, settings: SettingsDep) -> dict[str, Any]:
+def _snapshot_reads(s: Session) -> dict[str, Any]:
+    """The snapshot's reads, in one session."""
+    dives = queries.dives(s)
+    dive = dives[0] if dives else None
+    run_id = queries.live_run_id(s, dive["id"]) if dive else None
+    modules = queries.modules(s)
+    latest = queries.latest_frames(s, dive["id"], run_id) if dive else {}
+    sensors = queries.latest_sensors(s, dive["id"] if dive else None)
+    attitude = queries.latest_attitude(s, dive["id"] if dive else None)
+    quality = queries.quality_counts(s, run_id) if run_id else {}
+    t_last = max((f["captured_unix_s"] for f in latest.values()), default=None)
+    recent_quality = queries.quality_counts(s, run_id, since=t_last - 600) if run_id and t_last else {}
+    attenuation = queries.attenuation_series(s, run_id) if run_id else {}
+    alarms = queries.alarms(s, active=True) + queries.alarms(s, active=False, limit=20)
+    return {
+        "dive": dive,
+        "run_id": run_id,
+        "modules": modules,
+        "latest": latest,
+        "sensors": sensors,
+        "attitude": attitude,
+        "quality": quality,
+        "recent_quality": recent_quality,
+        "attenuation": attenuation,
+        "alarms": alarms,
+    }
+
+
+@router.get("/api/live/snapshot", response_model=LiveSnapshot)
+def snapshot(store: StoreDep, hub: HubDep, settings: SettingsDep) -> dict[str, Any]:
     """What a new WebSocket receives first (also for a browser that must resynchronise)."""
-    return await run_in_threadpool(build_snapshot, store, hub, settings)
+    return build_snapshot(store, hub, settings)
 
 
 @router.websocket("/ws/live")

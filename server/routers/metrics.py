@@ -7,7 +7,6 @@ from collections.abc import Iterator
 from typing import Any
 
 from fastapi import APIRouter
-from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
@@ -109,23 +108,18 @@ class _Snapshot:
 
 
 @router.get("/metrics", response_class=Response, responses={200: {"content": {"text/plain": {}}}})
-async def metrics(hub: HubDep, store: StoreDep, settings: SettingsDep) -> Response:
+def metrics(hub: HubDep, store: StoreDep, settings: SettingsDep) -> Response:
     """Frames received, stored, rejected by reason, acks, resends, queue depths, latencies, disk free."""
-
-    def build() -> bytes:
-        with store.read() as s:
-            alarms = queries.alarms(s, active=True)
-        registry = CollectorRegistry(auto_describe=False)
-        ingest = hub.ingest_state(settings.stale_after_s)
-        registry.register(
-            _Snapshot(
-                hub.live_health(settings.stale_after_s),
-                ingest["up"],
-                alarms,
-                shutil.disk_usage(store.files.root).free,
-                len(hub.clients),
-            )
+    alarms = store.call(queries.alarms, active=True)
+    registry = CollectorRegistry(auto_describe=False)
+    ingest = hub.ingest_state(settings.stale_after_s)
+    registry.register(
+        _Snapshot(
+            hub.live_health(settings.stale_after_s),
+            ingest["up"],
+            alarms,
+            shutil.disk_usage(store.files.root).free,
+            len(hub.clients),
         )
-        return generate_latest(registry)
-
-    return Response(await run_in_threadpool(build), media_type=CONTENT_TYPE_LATEST)
+    )
+    return Response(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)

@@ -7,9 +7,10 @@ from typing import Any
 
 import pytest
 
+from camcal.calibrate import EXPERIMENTS
 from tests.utils.labsets import make_lab_set
 
-KINDS = ("linearity", "emission-ratio", "air-scan", "tank-scan", "psf")
+KINDS = tuple(EXPERIMENTS)
 
 
 @pytest.fixture(scope="session")

@@ -80,13 +80,19 @@ def fit_args(folder: Path, cache_dir: Path, *extra: str) -> list[str]:
     ]
 
 
+#: The systematic budget refits every wavelength a dozen times: tested on its own (slow).
+NO_BUDGET = "--no-systematics"
+
+
 @pytest.fixture(scope="module")
 def fitted(
     frameset: Path, cache_dir: Path, tmp_path_factory: pytest.TempPathFactory
 ) -> tuple[int, str, Path]:
     out = tmp_path_factory.mktemp("fit-out")
     code, output = run(
-        *fit_args(frameset, cache_dir, "--json", str(out / "fit.json"), "--plots", str(out / "plots"))
+        *fit_args(
+            frameset, cache_dir, NO_BUDGET, "--json", str(out / "fit.json"), "--plots", str(out / "plots")
+        )
     )
     return code, output, out
 
@@ -137,6 +143,46 @@ def test_templates_went_to_the_cache_directory(fitted: tuple[int, str, Path], ca
     assert kinds.count("cap-table") == 1
     assert kinds.count("higher-orders") == 2 + 2  # two simulator cameras, two fit nodes
     assert not list(cache_dir.glob(".*"))  # no half-written files
+
+
+@pytest.mark.slow
+def test_fit_with_its_systematic_budget(
+    fitted: tuple[int, str, Path], frameset: Path, cache_dir: Path, tmp_path: Path
+) -> None:
+    """The default fit: each held input varied, the shifts in the JSON, the table and the report."""
+    cache = shutil.copytree(
+        cache_dir, tmp_path / "cache"
+    )  # the variants' templates stay out of the shared one
+    code, output = run(*fit_args(frameset, cache, "--json", str(tmp_path / "fit.json")))
+    assert code == 0, output
+    (f,) = json.loads((tmp_path / "fit.json").read_text())["fits"]
+    (plain,) = json.loads((fitted[2] / "fit.json").read_text())["fits"]
+    b = f["systematics"]
+    names = [i["name"] for i in b["items"]]
+    assert names[:4] == ["mie_g", "rayleigh_fraction", "emission_shape", "template_accuracy"]
+    assert {"emission_ratio", "psf_sigma", "distance_near", "distance_far"} <= set(names)
+    held = [i for i in b["items"] if not i["profiled"]]
+    for key in ("lambda_abs", "lambda_sca"):
+        total = math.sqrt(sum(i[f"{key}_err_m"] ** 2 for i in held))
+        assert b[f"{key}_sys_m"] == pytest.approx(total, rel=1e-3, abs=2e-3)
+        assert f[key]["sys_err_m"] == b[f"{key}_sys_m"]
+    # The same fit as without the budget: the budget adds errors, it does not move the values.
+    assert f["lambda_abs_m"] == plain["lambda_abs_m"] and f["lambda_sca_m"] == plain["lambda_sca_m"]
+    # A larger ⟨cos θ⟩ puts the same halo at a longer scattering length (λ_sca(1 - g) holds the
+    # halo's width): the two ends of the range shift λ_sca in opposite directions.
+    g = next(i for i in b["items"] if i["name"] == "mie_g")
+    assert g["cases"] == ["0.88", "0.96"]
+    assert g["lambda_sca_shift_m"][0] < 0 < g["lambda_sca_shift_m"][1]
+    # The line's error: the secant slope times a width no wider than the prior's (0.08/√12).
+    s0, s1 = g["lambda_sca_shift_m"]
+    assert 0 < g["lambda_sca_err_m"] <= abs(s1 - s0) / 0.08 * (0.08 / math.sqrt(12)) * 1.001
+    # Sums finite, budget shown in the table, and the fit's λ_att error grew by its systematic part.
+    assert "systematic budget" in output and "quadrature" in output  # the 80-column table wraps cells
+    assert f["lambda_att_fit_err_m"] >= plain["lambda_att_fit_err_m"]
+    from camcal.report.fitsection import _budgets
+
+    page = _budgets([f])
+    assert "460 nm: systematic budget" in page and "Mie ⟨cos θ⟩" in page
 
 
 def subset(src: Path, dst: Path, keep: object) -> Path:

@@ -65,7 +65,7 @@ def reports(dive: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> d
     code, fit_text = run(
         "fit", "--dive", name, "--data", data, "--wavelength", "460", "--photons", "20000",
         "--sca-nodes", "55,90", "--cache-dir", out / "templates", "--workers", "2", "--quiet",
-        "--json", fit_json,
+        "--no-systematics", "--json", fit_json,
     )  # fmt: skip
     assert code == 0, fit_text
     code, after_text = run("report", name, "--data", data, "--out", out / "report.html")

@@ -10,11 +10,10 @@ from sqlalchemy import func, select
 
 from camcal.core.schedule import Schedule
 from ingest.service import IngestService
-from lrm.agent import Agent, AgentConfig
-from lrm.camera import SimulatedCamera, SimulatedSensors
+from lrm.agent import AgentConfig
 from lrm.clock import SimClock
 from lrm.dive import DiveProfile, DiveSimulation, LEMTimetable, WaterColumn
-from lrm.runner import LemTimetableClock, ScheduleRunner
+from lrm.simmodule import simulated_module
 from storage.models import AttenuationPoint, AttitudeSample, Frame, FrameResult
 from tests.live.conftest import ingest_config
 from tests.live.test_ingest import wait_for
@@ -45,15 +44,8 @@ def test_simulated_dive_everything_stored_once_and_lambda_att_tracks_the_water(t
     agents = []
     for m in ("A", "B"):
         clock = SimClock.synced(start, SPEED, start_real)
-        cam = SimulatedCamera(sim, m, clock, readout_s=0.8)
-        runner = ScheduleRunner(
-            cam,
-            clock,
-            schedule,
-            lem=LemTimetableClock(sim.timetable, sim.start),
-            gate=lambda c=clock: profile.captures_enabled(sim.dive_time_s(c.now())),
-        )
-        agent = Agent(
+        agent = simulated_module(
+            sim,
             AgentConfig(
                 module=m,
                 connect=svc.endpoint,
@@ -64,9 +56,8 @@ def test_simulated_dive_everything_stored_once_and_lambda_att_tracks_the_water(t
                 sensor_rate_hz=2.0,
                 plaintext=True,
             ),
-            clock=clock,
-            runner=runner,
-            sensors=SimulatedSensors(sim, m, clock),
+            clock,
+            schedule,
         )
         agent.start()
         agents.append(agent)

@@ -17,6 +17,7 @@ from typer.testing import CliRunner
 from camcal.cli import app
 from camcal.core.frameset import read_manifest
 from ingest.service import IngestService
+from storage import queries
 from storage.models import Frame, FrameResult, SensorBatch
 from storage.store import Store
 from tests.live.conftest import ingest_config
@@ -57,10 +58,12 @@ def test_link_lost_for_good_then_the_sd_card_import_fills_the_gap_and_export_wri
         # still tell the ship how far it has got; then nothing gets through any more.
         proxy.stall()
         link = svc.links["A"]
-        assert wait_for(lambda: link.last_seq > max(svc.store.known_seqs("A", agent.boot)) + 2, 10)
+        assert wait_for(
+            lambda: link.last_seq > max(svc.store.call(queries.known_seqs, "A", agent.boot)) + 2, 10
+        )
         proxy.cut()
-        assert wait_for(lambda: svc.store.open_gaps("A"), 15), "no gap after the link was lost"
-        gap = svc.store.open_gaps("A")[0]
+        assert wait_for(lambda: svc.store.call(queries.open_gaps, "A"), 15), "no gap after the link was lost"
+        gap = svc.store.call(queries.open_gaps, "A")[0]
         assert gap.boot == agent.boot
         # The module keeps capturing into its outbox until the dive is over.
         n = agent.counters["frames_captured"]
@@ -95,7 +98,7 @@ def test_link_lost_for_good_then_the_sd_card_import_fills_the_gap_and_export_wri
             assert svc.store.files.resolve(f.path).read_bytes() == on_sd
             assert (f.source == "import") == (key in missing)
         assert sensor_keys(svc.store, "A") == sd_sensors
-        assert svc.store.open_gaps("A") == []
+        assert svc.store.call(queries.open_gaps, "A") == []
         after = mtimes()
         assert {k: after[k] for k in before} == before, "frames already stored were written again"
         n_frames = count(svc.store, Frame)

@@ -17,6 +17,7 @@ from camcal.core.frameset import Setup
 from ingest.service import IngestConfig, IngestService
 from server.app import create_app
 from server.settings import ServerSettings
+from storage import queries
 from storage.store import Store
 
 TOKEN = "calibration-operator-1"
@@ -145,10 +146,13 @@ def test_cli_builds_versions_from_lab_results_and_the_ingest_records_its_calibra
     )
     assert bad.exit_code == 2
     store = Store.open(data, sqlite_synchronous="NORMAL")
-    v2 = store.calibration("lab@2")
+    v2 = store.call(queries.calibration, "lab@2")
     assert v2["values"]["setup"]["emission_ratio"]["460"]["value"] == 1.31  # carried from v1
     assert v2["values"]["setup"]["linear_range"] == [6.0, 236.0]
-    assert store.calibration("lab")["version"] == 2 and store.calibration("lab@1")["version"] == 1
+    assert (
+        store.call(queries.calibration, "lab")["version"] == 2
+        and store.call(queries.calibration, "lab@1")["version"] == 1
+    )
     svc = IngestService(
         IngestConfig(
             data_dir=data,

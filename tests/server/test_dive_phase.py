@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from camcal.core.events import Event, EventKind
 from ingest.derived import dive_phase
 from server.relay import LiveHub
 from storage.store import Store
@@ -26,9 +27,7 @@ def hub_phases(tmp_path: Path, station_depth_m: float | None, at_s: list[float])
     out = []
     t0 = 1.7e9
     for t in np.arange(0.0, max(at_s) + 1, 1.0):
-        hub.deliver(
-            {"kind": "sensors", "module": "A", "payload": {"t_unix_s": t0 + t, "depth_m": trex_depths(t)}}
-        )
+        hub.deliver(Event(EventKind.SENSORS, {"t_unix_s": t0 + t, "depth_m": trex_depths(t)}, t0 + t, "A"))
         if t in at_s:
             out.append(hub.phase("A"))
     store.close()

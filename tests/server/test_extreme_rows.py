@@ -20,9 +20,9 @@ from typing import Any
 from fastapi.testclient import TestClient
 from sqlalchemy import JSON, BigInteger, Boolean, Float, Integer, String, Text, insert
 
+from camcal.core.events import finite_json
 from server.app import create_app
 from server.settings import ServerSettings
-from storage.jsonsafe import finite_json
 from storage.models import Base
 from storage.store import Store
 

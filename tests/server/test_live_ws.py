@@ -11,7 +11,7 @@ import pytest
 import zmq
 from fastapi.testclient import TestClient
 
-from ingest.events import event_json
+from camcal.core.events import Event, EventKind
 from server.app import create_app
 from server.settings import ServerSettings
 from storage.store import Store
@@ -30,7 +30,8 @@ def publisher() -> Iterator[tuple[zmq.Socket, str]]:
 def publish(
     pub: zmq.Socket, kind: str, payload: dict, event_id: int | None = None, module: str | None = "A"
 ) -> None:
-    pub.send_multipart([kind.encode(), event_json(event_id, kind, time.time(), module, 1, payload)])
+    event = Event(EventKind(kind), payload, time.time(), module, 1, event_id)
+    pub.send_multipart([kind.encode(), event.to_json()])
 
 
 def wait_subscribed(ws, pub) -> None:
@@ -106,10 +107,7 @@ def test_stored_events_lost_by_pubsub_are_read_back_from_the_store(
         ws.receive_json()
         wait_subscribed(ws, pub)
         ids = store.add_events(
-            [
-                {"kind": "link", "payload": {"state": s}, "module_id": "A", "t_unix_s": 1.0}
-                for s in ("down", "up", "down")
-            ]
+            [Event(EventKind.LINK, {"state": s}, 1.0, "A") for s in ("down", "up", "down")]
         )
         # Only the last one is published: the two before it were "lost" on the way.
         publish(pub, "link", {"state": "down"}, event_id=ids[-1])

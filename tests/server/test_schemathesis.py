@@ -2,8 +2,9 @@
 
 Schemathesis generates requests from the app's own OpenAPI document for
 every operation; they run in-process against the app. Every response must
-be no server error (no 5xx) and have a status code the document lists for
-its operation (no undocumented answer). Without a token the operator
+be no server error (no 5xx), have a status code the document lists for
+its operation (no undocumented answer) and a body that matches the
+response model the document gives for it. Without a token the operator
 actions are tried with a wrong one (on the shared simulated dive, which
 nothing may change); with the token they really run, on a copy of it.
 (Its pytest plugin does not work with pytest 9, so the operations are
@@ -19,7 +20,7 @@ from pathlib import Path
 import pytest
 import schemathesis
 from hypothesis import HealthCheck, given, settings
-from schemathesis.checks import not_a_server_error, status_code_conformance
+from schemathesis.checks import not_a_server_error, response_schema_conformance, status_code_conformance
 from starlette.testclient import TestClient
 
 from server.app import create_app
@@ -70,7 +71,10 @@ def exercise(app: object, token: str | None) -> tuple[list[str], Counter[int]]:
             response = case.call()
             codes[response.status_code] += 1
             try:
-                case.validate_response(response, checks=[not_a_server_error, status_code_conformance])
+                case.validate_response(
+                    response,
+                    checks=[not_a_server_error, status_code_conformance, response_schema_conformance],
+                )
             except Exception as exc:  # schemathesis raises a group of failures: keep its first line
                 first = str(exc).splitlines()[0]
                 failures.append(f"{case.method} {case.formatted_path} -> {response.status_code}: {first}")

@@ -10,7 +10,7 @@ import pytest
 import zmq
 from fastapi.testclient import TestClient
 
-from ingest.events import event_json
+from camcal.core.events import Event, EventKind
 from server.app import create_app
 from server.relay import LiveHub
 from server.settings import ServerSettings
@@ -49,7 +49,7 @@ def beat(pub: zmq.Socket, ingest_id: str, module: str, stored: int) -> None:
         "disk_free_gb": 100.0 if module == "A" else 40.0,
         "latency_p95_s": 0.1 if module == "A" else 0.3,
     }
-    pub.send_multipart([b"health", event_json(None, "health", time.time(), None, 1, payload)])
+    pub.send_multipart([b"health", Event(EventKind.HEALTH, payload, time.time(), None, 1).to_json()])
 
 
 def test_modules_of_every_ingest_are_shown_and_a_silent_one_degrades_the_status(
@@ -100,18 +100,18 @@ def test_an_event_committed_after_a_later_id_is_still_relayed_once(tmp_path: Pat
     store = Store.open(tmp_path / "data")
     hub = LiveHub(store, None)
     posted: list[int | None] = []
-    hub._post = lambda event: posted.append(event.get("id"))  # what would reach the browsers
+    hub._post = lambda event: posted.append(event.id)  # what would reach the browsers
     start = hub.last_event_id
-    (first,) = store.add_events([{"kind": "link", "payload": {}, "module_id": "A", "t_unix_s": 1.0}])
-    hub._incoming({"id": first, "kind": "link"})
+    (first,) = store.add_events([Event(EventKind.LINK, {}, 1.0, "A")])
+    hub._incoming(Event(EventKind.LINK, {}, 1.0, "A", id=first))
     late, later = (
         first + 1,
         first + 2,
     )  # "later" is committed and published first; "late" not yet in the store
-    hub._incoming({"id": later, "kind": "link"})
-    hub._incoming({"id": late, "kind": "link"})
-    hub._incoming({"id": later, "kind": "link"})  # duplicates: a resend, a read-back
-    hub._incoming({"id": late, "kind": "link"})
-    hub._incoming({"id": start, "kind": "link"})  # from before the server started
+    hub._incoming(Event(EventKind.LINK, {}, 1.0, "A", id=later))
+    hub._incoming(Event(EventKind.LINK, {}, 1.0, "A", id=late))
+    hub._incoming(Event(EventKind.LINK, {}, 1.0, "A", id=later))  # duplicates: a resend, a read-back
+    hub._incoming(Event(EventKind.LINK, {}, 1.0, "A", id=late))
+    hub._incoming(Event(EventKind.LINK, {}, 1.0, "A", id=start))  # from before the server started
     assert posted == [first, later, late]
     store.close()

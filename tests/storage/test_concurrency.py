@@ -10,6 +10,7 @@ from typing import Any
 import pytest
 from sqlalchemy import select
 
+from storage import queries
 from storage.db import current_revision, head_revision, make_engine, migrate
 from storage.models import AnalysisRun, Dive
 from storage.store import Store
@@ -88,7 +89,7 @@ def test_a_second_live_run_of_a_dive_is_refused_by_the_database(stores: list[Sto
 
 def test_modules_touched_at_once_exist_once(stores: list[Store]) -> None:
     all_at_once(lambda i: stores[i].touch_module("A", boot=f"b{i}"))
-    assert stores[0].module_exists("A")
+    assert stores[0].call(queries.module_exists, "A")
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])

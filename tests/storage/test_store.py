@@ -8,6 +8,7 @@ import pytest
 from alembic.autogenerate import compare_metadata
 from alembic.runtime.migration import MigrationContext
 
+from storage import queries
 from storage.db import current_revision, head_revision
 from storage.files import FrameFiles, UnsafePath
 from storage.models import Base
@@ -62,7 +63,7 @@ def test_resent_frames_and_sensor_batches_are_no_ops(store: Store) -> None:
     assert set(again.new_frames) == {("A", "b1", 4)}
     assert again.duplicate_frames == [("A", "b1", 2)]
     assert again.duplicate_sensor_batches == [("A", "b1", 3)]
-    assert store.known_seqs("A", "b1") == {1, 2, 3, 4}
+    assert store.call(queries.known_seqs, "A", "b1") == {1, 2, 3, 4}
     from sqlalchemy import func, select
 
     from storage.models import SensorSample
@@ -73,14 +74,14 @@ def test_resent_frames_and_sensor_batches_are_no_ops(store: Store) -> None:
 
 def test_gap_is_filled_when_every_number_arrives(store: Store) -> None:
     gid = store.record_gap("A", "b1", 5, 7)
-    assert [g.id for g in store.open_gaps("A")] == [gid]
+    assert [g.id for g in store.call(queries.open_gaps, "A")] == [gid]
 
     def has(seqs: set[int]):
         return lambda first, last: all(q in seqs for q in range(first, last + 1))
 
     assert store.fill_gaps("A", "b1", has({5, 6})) == []
     assert store.fill_gaps("A", "b1", has({5, 6, 7})) == [gid]
-    assert store.open_gaps("A") == []
+    assert store.call(queries.open_gaps, "A") == []
 
 
 def test_alarm_raise_update_clear_and_ack_is_audited(store: Store) -> None:
@@ -93,7 +94,7 @@ def test_alarm_raise_update_clear_and_ack_is_audited(store: Store) -> None:
     acked = store.ack_alarm(alarm.id, "deck")
     assert acked.acked_by == "deck"
     assert store.clear_alarm("tilt:A").active is False
-    assert store.active_alarms() == []
+    assert store.call(queries.active_alarms) == []
     from sqlalchemy import select
 
     from storage.models import AuditEntry

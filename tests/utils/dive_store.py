@@ -10,11 +10,10 @@ from pathlib import Path
 from camcal.core.schedule import Schedule
 from ingest.alarms import AlarmLimits
 from ingest.service import IngestConfig, IngestService
-from lrm.agent import Agent, AgentConfig
-from lrm.camera import SimulatedCamera, SimulatedSensors
+from lrm.agent import AgentConfig
 from lrm.clock import SimClock
 from lrm.dive import DiveProfile, DiveSimulation, LEMTimetable, WaterColumn
-from lrm.runner import LemTimetableClock, ScheduleRunner
+from lrm.simmodule import simulated_module
 
 SPEED = 10.0
 
@@ -52,15 +51,8 @@ def run_simulated_dive(data: Path, *, station_s: float = 240.0, seed: int = 5) -
     agents = []
     for m in ("A", "B"):
         clock = SimClock.synced(start, SPEED, start_real)
-        cam = SimulatedCamera(sim, m, clock, readout_s=0.8)
-        runner = ScheduleRunner(
-            cam,
-            clock,
-            schedule,
-            lem=LemTimetableClock(sim.timetable, sim.start),
-            gate=lambda c=clock: profile.captures_enabled(sim.dive_time_s(c.now())),
-        )
-        agent = Agent(
+        agent = simulated_module(
+            sim,
             AgentConfig(
                 module=m,
                 connect=svc.endpoint,
@@ -71,9 +63,8 @@ def run_simulated_dive(data: Path, *, station_s: float = 240.0, seed: int = 5) -
                 sensor_rate_hz=2.0,
                 plaintext=True,
             ),
-            clock=clock,
-            runner=runner,
-            sensors=SimulatedSensors(sim, m, clock),
+            clock,
+            schedule,
         )
         agent.start()
         agents.append(agent)

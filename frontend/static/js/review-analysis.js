@@ -3,6 +3,7 @@
 import { api, query } from "./api.js";
 import { fmt, fmtExposure, wlColor } from "./format.js";
 import { drawVisitSeries } from "./lambda-profile.js";
+import { showChisqFit } from "./review-chisq.js";
 import { draw, linearityFigure, stackedFigure } from "./plots.js";
 import { $, el, setText, toast } from "./ui.js";
 
@@ -174,6 +175,7 @@ async function loadAttenuation(ctx, runId) {
       `${describeSpan(sp, ctx.span?.mode)}: ${sp.n_frames} frames`,
     );
     $("#att-table").replaceWith(Object.assign(attenuationTable(table), { id: "att-table" }));
+    showChisqFit($("#chisq-fit"), ctx.dive, runId).catch((err) => toast(err.message));
     const smooth = $("#att-series-smooth");
     const redraw = () =>
       drawVisitSeries($("#att-series-time"), $("#att-series-depth"), series.series, {

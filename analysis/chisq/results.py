@@ -1,0 +1,314 @@
+"""What the χ² fit returns: its configuration, the estimates (values or limits), nuisances, budget."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from analysis.attenuation import EmissionRatio, Geometry
+from analysis.transport.templates import TemplateSettings
+
+#: Δχ² of a one-parameter 68 % interval and of the joint 2-D 68 % and 95 % regions.
+DCHI2_1D = 1.0
+DCHI2_2D_68 = 2.30
+DCHI2_2D_95 = 6.18
+#: Δχ² of a one-sided 95 % confidence limit on one parameter (1.645²).
+DCHI2_LIMIT_95 = 2.706
+#: A fit's λ_att that differs from the I_center λ_att by more than this many σ is flagged.
+ATT_CHECK_FLAG_SIGMA = 3.0
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    """Choices of the χ² fit.
+
+    ``psf_sigma_px`` ± ``psf_sigma_err_px`` is the Gaussian PSF (defocus
+    plus the sub-pixel spread of stacking); ``focal_rel_err`` the relative
+    uncertainty of the image scale; ``halo_scale_err`` that of the templates'
+    overall halo level (their accuracy: the quadrature's, the Monte Carlo's
+    normalisation), common to all bands; ``lambda_sca_sys_rel`` the relative
+    systematic error quoted on λ_sca for the templates' accuracy (the halo's
+    radial shape fixes λ_sca to ~0.1 % statistically, finer than the first
+    order's quadrature is exact near the LEM's limb, 0.1-0.4 %);
+    ``model_rel_err`` a relative uncertainty
+    added to every model bin (the LEM's and the optics' departures from the
+    ideal model); bands with fewer than ``min_band_pixels`` pixels are left
+    out, and so are bands whose 8-bit rounding bias could exceed
+    ``max_quantisation_bias`` times their statistical error
+    (`quantisation_bias_gray`: the faint halo at low gain).
+    ``template_errors`` adds the templates' Monte Carlo errors to σ_T (held
+    at their values for the current best water); switch it off when the data
+    were simulated from the same template grid (a shared Monte Carlo sample
+    is no independent error, and counting it de-weights the halo). ``mie_g``
+    (⟨cos θ⟩) is held at this value (None: the templates' first node).
+    ``contour_points`` per axis of the Δχ² map.
+    """
+
+    psf_sigma_px: float = 1.2
+    psf_sigma_err_px: float = 0.3
+    focal_rel_err: float = 0.003
+    halo_scale_err: float = 0.005
+    lambda_sca_sys_rel: float = 0.005
+    model_rel_err: float = 0.002
+    min_band_pixels: int = 16
+    max_quantisation_bias: float = 0.1
+    template_errors: bool = True
+    mie_g: float | None = None
+    lambda_abs_range_m: tuple[float, float] = (2.0, 2000.0)
+    contour_points: int = 25
+
+    def __post_init__(self) -> None:
+        if not self.psf_sigma_px > 0 or self.psf_sigma_err_px < 0:
+            raise ValueError(f"psf_sigma_px must be > 0 and psf_sigma_err_px >= 0, got {self.psf_sigma_px}")
+        if min(self.focal_rel_err, self.model_rel_err, self.halo_scale_err, self.lambda_sca_sys_rel) < 0:
+            raise ValueError(
+                "focal_rel_err, halo_scale_err, lambda_sca_sys_rel and model_rel_err must be >= 0"
+            )
+        if self.contour_points < 5:
+            raise ValueError(f"contour_points must be >= 5, got {self.contour_points}")
+
+
+@dataclass(frozen=True)
+class Nuisance:
+    """A fitted nuisance parameter: its shift from nominal, prior width and pull (shift/width)."""
+
+    name: str
+    unit: str
+    shift: float
+    sigma: float
+
+    @property
+    def pull(self) -> float:
+        return self.shift / self.sigma if self.sigma > 0 else 0.0
+
+
+@dataclass(frozen=True)
+class ContourMap:
+    """Δχ² (profiled over everything else) on a grid of λ_abs × λ_sca (both log-spaced)."""
+
+    lambda_abs_m: np.ndarray = field(repr=False)
+    lambda_sca_m: np.ndarray = field(repr=False)
+    delta_chi2: np.ndarray = field(repr=False)  # shape (len(lambda_sca_m), len(lambda_abs_m))
+
+
+@dataclass(frozen=True)
+class SettingModel:
+    """Data and best-fit model of one setting, normalised (for plots and residuals)."""
+
+    exposure_s: float
+    gain_db: float
+    radius_px: np.ndarray = field(repr=False)
+    data: np.ndarray = field(repr=False)  # (2, n) near, far
+    error: np.ndarray = field(repr=False)
+    model: np.ndarray = field(repr=False)
+    halo: np.ndarray = field(repr=False)
+    used: np.ndarray = field(repr=False)
+
+
+MEASURED = "measured"
+LOWER_LIMIT = "lower_limit"
+UPPER_LIMIT = "upper_limit"
+UNCONSTRAINED = "unconstrained"
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """What the fit says about one length: a value with its error, a one-sided limit, or nothing.
+
+    ``status`` is `MEASURED` (``value_m`` ± ``err_m``, the 68 % interval
+    ``interval_m`` closed on both sides inside the allowed range),
+    `LOWER_LIMIT` (the χ² keeps falling toward the range's upper edge:
+    the length exceeds ``limit_m`` at confidence ``cl``), `UPPER_LIMIT` (the
+    mirror image at the lower edge) or `UNCONSTRAINED` (open on both
+    sides). A limit never carries a value: the minimum's position on an
+    edge is the grid's, not the water's. Errors are those of the fit (data
+    plus the profiled nuisances), scaled by the fit's error scale.
+    """
+
+    name: str
+    status: str
+    value_m: float | None
+    err_m: float | None
+    interval_m: tuple[float, float] | None
+    limit_m: float | None = None
+    cl: float | None = None
+
+    @property
+    def measured(self) -> bool:
+        return self.status == MEASURED
+
+    def text(self, symbol: str, digits: int = 2, sys_err_m: float | None = None) -> str:
+        """``"λ_abs = 39.20 ± 1.10 m"``, ``"λ_abs > 180 m (95 % CL)"`` or ``"λ_abs unconstrained"``."""
+        if self.status == MEASURED:
+            sys_txt = f" ± {sys_err_m:.{digits}f} (sys)" if sys_err_m is not None else ""
+            return f"{symbol} = {self.value_m:.{digits}f} ± {self.err_m:.{digits}f}{sys_txt} m"
+        if self.status in (LOWER_LIMIT, UPPER_LIMIT):
+            sign = ">" if self.status == LOWER_LIMIT else "<"
+            return f"{symbol} {sign} {self.limit_m:.3g} m ({100 * (self.cl or 0.95):.0f} % CL)"
+        return f"{symbol} unconstrained"
+
+
+def largest_shift(values: tuple[float, ...]) -> float:
+    """The largest finite |shift| of a budget item (NaN when none is finite)."""
+    finite = [abs(v) for v in values if math.isfinite(v)]
+    return max(finite) if finite else float("nan")
+
+
+@dataclass(frozen=True)
+class SystematicShift:
+    """One line of the systematic budget: the shifts of λ_abs, λ_sca and λ_att per variation case.
+
+    ``cases`` names the variations (e.g. ``"0.88"``, ``"0.96"``) and
+    ``delta_chi2`` each case's χ² minimum less the reference's (positive: the
+    data prefer the nominal). ``errors_m`` is the item's error on (λ_abs,
+    λ_sca, λ_att): the largest |shift| unless ``note`` says how the data
+    narrowed it (`analysis.chisq.systematics`). A length the fit only bounds
+    gets NaN. ``profiled`` items are nuisances the fit already floats with a
+    prior (their error is inside the fit error): they are listed as impacts
+    and not added to the systematic error again.
+    """
+
+    name: str
+    label: str
+    cases: tuple[str, ...]
+    lambda_abs_shifts_m: tuple[float, ...]
+    lambda_sca_shifts_m: tuple[float, ...]
+    lambda_att_shifts_m: tuple[float, ...]
+    delta_chi2: tuple[float, ...]
+    errors_m: tuple[float, float, float]
+    profiled: bool = False
+    note: str = ""
+
+    @property
+    def lambda_abs_m(self) -> float:
+        return self.errors_m[0]
+
+    @property
+    def lambda_sca_m(self) -> float:
+        return self.errors_m[1]
+
+    @property
+    def lambda_att_m(self) -> float:
+        return self.errors_m[2]
+
+
+@dataclass(frozen=True)
+class SystematicBudget:
+    """The shifts of what the fit holds fixed, one at a time, and their sum in quadrature.
+
+    The sums leave out the ``profiled`` items (already in the fit error);
+    NaN when the length is only bounded.
+    """
+
+    items: tuple[SystematicShift, ...]
+    seconds: float
+
+    def _sum(self, attr: str) -> float:
+        vals = [getattr(i, attr) for i in self.items if not i.profiled]
+        if not vals or any(math.isnan(v) for v in vals):
+            return float("nan")
+        return math.sqrt(sum(v * v for v in vals))
+
+    @property
+    def lambda_abs_sys_m(self) -> float:
+        return self._sum("lambda_abs_m")
+
+    @property
+    def lambda_sca_sys_m(self) -> float:
+        return self._sum("lambda_sca_m")
+
+    @property
+    def lambda_att_sys_m(self) -> float:
+        return self._sum("lambda_att_m")
+
+
+@dataclass(frozen=True)
+class ChiSquareFit:
+    """λ_abs and λ_sca of one wavelength with errors or limits, and everything that led to them.
+
+    ``lambda_abs``/``lambda_sca`` are the results to quote (`Estimate`: a
+    value or a one-sided limit). ``lambda_abs_m``/``lambda_sca_m`` are the
+    χ² minimum's position (on an edge when that parameter is only bounded);
+    ``*_err_m`` the mean half-width of the Δχ² = error_scale² crossings,
+    ``*_interval_m`` those crossings. ``error_scale`` is √(χ²/ndof) when
+    that exceeds 1, else 1: the fit errors, intervals, covariance and the
+    Δχ² map are all scaled by it (the PDG's recipe for a model that does
+    not describe the data within their errors). ``lambda_sca_sys_err_m`` /
+    ``lambda_abs_sys_err_m`` are the systematic errors: the budget's sum in
+    quadrature when ``systematics`` is given (`with_budget`), else only the
+    templates' accuracy on λ_sca (`FitConfig.lambda_sca_sys_rel`). ``lambda_att_m``
+    follows from 1/λ_att = 1/λ_abs + 1/λ_sca with its error from the local
+    curvature of χ². ``at_edge`` names a parameter whose 68 % interval
+    reaches the edge of the allowed range.
+    """
+
+    wavelength_nm: int
+    lambda_abs_m: float
+    lambda_abs_err_m: float
+    lambda_abs_interval_m: tuple[float, float]
+    lambda_sca_m: float
+    lambda_sca_err_m: float
+    lambda_sca_interval_m: tuple[float, float]
+    lambda_sca_sys_err_m: float
+    lambda_att_m: float
+    lambda_att_err_m: float
+    correlation: float
+    chi2: float
+    ndof: int
+    mie_g: float
+    nuisances: tuple[Nuisance, ...]
+    at_edge: tuple[str, ...]
+    contour: ContourMap = field(repr=False)
+    settings: tuple[SettingModel, ...] = field(repr=False)
+    geometry: Geometry
+    emission_ratio: EmissionRatio
+    config: FitConfig
+    focal_px: float
+    templates: TemplateSettings
+    n_evaluations: int
+    lambda_abs: Estimate
+    lambda_sca: Estimate
+    error_scale: float = 1.0
+    lambda_abs_sys_err_m: float = 0.0
+    lambda_att_sys_err_m: float = 0.0
+    systematics: SystematicBudget | None = None
+
+    @property
+    def lambda_sca_total_err_m(self) -> float:
+        return math.hypot(self.lambda_sca_err_m, self.lambda_sca_sys_err_m)
+
+    @property
+    def lambda_abs_total_err_m(self) -> float:
+        return math.hypot(self.lambda_abs_err_m, self.lambda_abs_sys_err_m)
+
+    @property
+    def chi2_ndof(self) -> float:
+        return self.chi2 / self.ndof if self.ndof > 0 else float("nan")
+
+    def with_budget(self, budget: SystematicBudget) -> ChiSquareFit:
+        """This fit with the systematic budget attached and its sums as the systematic errors."""
+        return replace(
+            self,
+            systematics=budget,
+            lambda_abs_sys_err_m=budget.lambda_abs_sys_m,
+            lambda_sca_sys_err_m=budget.lambda_sca_sys_m,
+            lambda_att_sys_err_m=budget.lambda_att_sys_m,
+        )
+
+    @property
+    def has_result(self) -> bool:
+        """True when at least one of the two lengths is measured or bounded."""
+        return self.lambda_abs.status != UNCONSTRAINED or self.lambda_sca.status != UNCONSTRAINED
+
+
+NUISANCES = ("distance_near", "distance_far", "emission_ratio", "psf_sigma", "focal_scale", "halo_scale")
+UNITS = {
+    "distance_near": "m",
+    "distance_far": "m",
+    "emission_ratio": "rel",
+    "psf_sigma": "px",
+    "focal_scale": "rel",
+    "halo_scale": "rel",
+}

@@ -1,0 +1,177 @@
+"""The report's absorption-and-scattering section: the kept χ² fit, its budget and its flags."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from camcal.fitdoc import estimate_text
+from camcal.fitplots import contour_figure, profiles_figure
+from camcal.report import figures
+from camcal.report.collect import ReportData
+from camcal.report.html import Raw, esc, figure, iso, note, num, section, table
+
+
+def fit_section(d: ReportData) -> str:
+    name, data = d.dive["name"], d.data_dir
+    how = (
+        f"<pre>camcal fit --dive {esc(name)} --data {esc(data)}\n"
+        f"camcal report {esc(name)} --data {esc(data)}</pre>"
+        "<p>The first fits λ_abs and λ_sca per wavelength to the station's radial profiles (photon-transport "
+        "templates are built once and cached: a few minutes) and keeps the result in the store; the second "
+        "writes this report again with it.</p>"
+    )
+    if d.fit is None:
+        return section(
+            "absorption-scattering", note("No χ² fit has been kept for this dive yet. To make one:") + how
+        )
+    doc = d.fit["result"]
+    fits = doc.get("fits", [])
+    rows = []
+    for f in fits:
+        z = f.get("att_check_z")
+        if z is None:
+            verdict = "—"
+        elif f["att_check_agrees"]:
+            verdict = f'<span class="ok">agrees ({z:+.1f}σ)</span>'
+        elif f.get("att_check_flagged"):
+            verdict = f'<span class="bad"><b>flagged</b> ({z:+.1f}σ)</span>'
+        else:
+            verdict = f'<span class="bad">differs ({z:+.1f}σ)</span>'
+        scale = f.get("error_scale") or 1.0
+        rows.append(
+            (
+                f"{f['wavelength_nm']} nm",
+                estimate_text(f, "lambda_abs"),
+                estimate_text(f, "lambda_sca"),
+                f"{num(f['lambda_att_fit_m'])} ± {num(f['lambda_att_fit_err_m'])}",
+                f"{num(f['lambda_att_icenter_m'])} ± {num(f['lambda_att_icenter_err_m'])}",
+                Raw(verdict),
+                f"{f['chi2']:.0f}/{f['ndof']}" + (f" (errors ×{scale:.2f})" if scale > 1 else ""),
+            )
+        )
+    span = d.fit["span"] or {}
+    inputs = doc.get("inputs", {})
+    tmpl = inputs.get("templates", {})
+    body = (
+        f"<p>Fit {d.fit['id']}, made {iso(d.fit['created_unix_s'])} "
+        f"with camcal {esc(d.fit['software_version'])} "
+        f"from run {d.fit['run_id']}'s inputs over {span.get('n_frames', '?')} frames at depth ≥ "
+        f"{num(span.get('depth_min_m'), 1)} m. Templates: ⟨cos θ⟩ {tmpl.get('mie_g_nodes')}, Rayleigh share "
+        f"{tmpl.get('rayleigh_fraction')}, {tmpl.get('n_photons')} photons per λ_sca node "
+        f"{tmpl.get('lambda_sca_nodes_m')} m. Each length is a value ± the fit's error (statistical and the "
+        "floated nuisances, multiplied by √(χ²/ndof) where that exceeds 1) ± the systematic error, or a "
+        "one-sided 95 % CL limit where the data only bound it. The check compares 1/λ_abs + 1/λ_sca with "
+        "the I_center λ_att of the same frames (agrees within 2σ; flagged beyond 3σ).</p>"
+    )
+    poor = [f"{f['wavelength_nm']} nm" for f in fits if f["ndof"] and f["chi2"] / f["ndof"] > 2]
+    if poor:
+        body += note(
+            f"χ²/ndof is well above 1 at {', '.join(poor)}: the templates do not describe these profiles "
+            "within their errors. The fit errors were scaled by √(χ²/ndof), but the lengths may still "
+            "carry the model's bias: look at the pulls below and at the systematic budget."
+        )
+    if d.fit["run_id"] != d.run["id"]:
+        body += note(
+            f"This fit used run {d.fit['run_id']}'s inputs, not run {d.run['id']}'s shown elsewhere."
+        )
+    for f in fits:
+        if f.get("att_check_flagged") and f.get("att_check_advice"):
+            body += note(f"<b>{f['wavelength_nm']} nm flagged.</b> {esc(f['att_check_advice'])}")
+    body += table(
+        [
+            "wavelength",
+            "λ_abs [m] (fit, sys)",
+            "λ_sca [m] (fit, sys)",
+            "λ_att fit [m]",
+            "λ_att I_center [m]",
+            "check",
+            "χ²/ndof",
+        ],
+        rows,
+    )
+    nuis = [
+        (
+            f"{f['wavelength_nm']} nm",
+            n["name"],
+            n["unit"],
+            f"{n['shift']:+.4g}",
+            f"{n['sigma']:.4g}",
+            f"{n['pull']:+.2f}",
+        )
+        for f in fits
+        for n in f["nuisances"]
+    ]
+    if nuis:
+        body += (
+            "<details><summary>nuisance parameters (shift from nominal, prior width, pull)</summary>"
+            + table(["wavelength", "nuisance", "unit", "shift", "prior σ", "pull"], nuis, text_cols=3)
+            + "</details>"
+        )
+    body += _budgets(fits)
+    for f in fits:
+        if "contour" in f:
+            body += f"<h3>{f['wavelength_nm']} nm</h3>"
+            body += figure(
+                figures.png_uri(contour_figure(f)),
+                "Δχ² over (λ_abs, λ_sca), profiled over the "
+                "nuisances: the joint 68 % (solid) and 95 % (dashed) regions, the fit with its one-"
+                "parameter errors, and the I_center λ_att ± error (green).",
+                "chi-square contours",
+            )
+            if f.get("profiles"):
+                body += figure(
+                    figures.png_uri(profiles_figure(f)),
+                    "Both cameras' radial profiles "
+                    "(normalised by the near camera's sum) with the fitted model and the pulls.",
+                    "profile fit",
+                )
+    for wl, why in sorted(doc.get("skipped", {}).items()):
+        body += note(f"{esc(wl)} nm not fitted: {esc(why)}")
+    body += "<details><summary>how to fit again</summary>" + how + "</details>"
+    return section("absorption-scattering", body)
+
+
+_FLOATED = "floated in the fit: inside the fit error, not added. "
+
+
+_FLOATED = "floated in the fit: inside the fit error, not added. "
+
+
+def _budgets(fits: list[dict[str, Any]]) -> str:
+    """Each wavelength's systematic budget as a table (nothing for documents without one)."""
+    out = ""
+    for f in fits:
+        b = f.get("systematics")
+        if not b:
+            continue
+        rows = [
+            (
+                i["label"],
+                ", ".join(i["cases"]),
+                (_FLOATED if i["profiled"] else "") + i["note"],
+                num(i["lambda_abs_err_m"], 3),
+                num(i["lambda_sca_err_m"], 3),
+                num(i["lambda_att_err_m"], 3),
+            )
+            for i in b["items"]
+        ]
+        rows.append(
+            (
+                Raw("<b>sum in quadrature</b>"),
+                "",
+                f"refits took {num(b['seconds'], 1)} s",
+                num(b["lambda_abs_sys_m"], 3),
+                num(b["lambda_sca_sys_m"], 3),
+                num(b["lambda_att_sys_m"], 3),
+            )
+        )
+        head = ["varied (one at a time)", "cases", "note", "λ_abs [m]", "λ_sca [m]", "λ_att [m]"]
+        out += f"<h3>{f['wavelength_nm']} nm: systematic budget</h3>" + table(head, rows, text_cols=3)
+    if out:
+        out = (
+            "<p>What the fit holds fixed, varied one at a time: each line's error on the lengths "
+            "(⟨cos θ⟩ and the Rayleigh share: a prior uniform over the range, narrowed by the data's own "
+            "Δχ²; the emission shape: the full shift). The sum in quadrature is the systematic error "
+            "quoted above.</p>" + out
+        )
+    return out

@@ -1,0 +1,214 @@
+"""The store's writes of analysis: runs, frame results, λ_att points, attitude, linearity, χ² fits."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from sqlalchemy import delete, insert, literal, select, text, update
+from sqlalchemy.orm import Session
+
+from camcal.core.events import Event
+from storage.base import StoreBase, now_unix_s
+from storage.models import (
+    AnalysisRun,
+    AttenuationPoint,
+    AttitudeSample,
+    ChiSquareFitRecord,
+    FrameResult,
+    LinearityCheck,
+)
+from storage.queries.frames import frames_in
+
+
+class AnalysisWrites(StoreBase):
+    """What the analysis (live, re-analysis, ``camcal fit``) writes."""
+
+    def analysis_run(
+        self,
+        dive_id: int,
+        kind: str = "live",
+        *,
+        label: str = "",
+        calibration: dict[str, Any] | None = None,
+        calibration_id: int | None = None,
+        software_version: str = "",
+        create: bool = True,
+    ) -> AnalysisRun | None:
+        """The dive's live run (one per dive, shared by every ingest), or a new run of another kind."""
+        values = {
+            "dive_id": dive_id,
+            "kind": kind,
+            "label": label,
+            "calibration": calibration or {},
+            "calibration_id": calibration_id,
+            "software_version": software_version,
+            "created_unix_s": now_unix_s(),
+            "status": "running",
+            "n_frames": 0,
+        }
+        with self.session() as s:
+            if kind == "live":
+                if create:  # the partial unique index turns a concurrent second insert into a no-op
+                    s.execute(
+                        self._insert(AnalysisRun.__table__)
+                        .values(**values)
+                        .on_conflict_do_nothing(index_elements=["dive_id"], index_where=text("kind = 'live'"))
+                    )
+                return s.scalars(
+                    select(AnalysisRun).where(AnalysisRun.dive_id == dive_id, AnalysisRun.kind == "live")
+                ).first()
+            run = AnalysisRun(**values)
+            s.add(run)
+            s.flush()
+            return run
+
+    def finish_run(self, run_id: int, status: str = "done", n_frames: int | None = None) -> None:
+        with self.session() as s:
+            values: dict[str, Any] = {"status": status}
+            if n_frames is not None:
+                values["n_frames"] = n_frames
+            s.execute(update(AnalysisRun).where(AnalysisRun.id == run_id).values(**values))
+
+    def save_results(self, run_id: int, results: Sequence[dict[str, Any]]) -> int:
+        """Store frame results (dicts of `FrameResult` columns with ``frame_id``); duplicates skipped."""
+        if not results:
+            return 0
+        with self.session() as s:
+            return self._insert_results(s, run_id, results)
+
+    def _insert_results(self, s: Session, run_id: int, results: Sequence[dict[str, Any]]) -> int:
+        stmt = (
+            self._insert(FrameResult.__table__)
+            .values([{**r, "run_id": run_id} for r in results])
+            .on_conflict_do_nothing(index_elements=["frame_id", "run_id"])
+            .returning(FrameResult.id)
+        )
+        return len(s.execute(stmt).all())  # rowcount is -1 for this statement on psycopg
+
+    def commit_results(
+        self,
+        run_id: int,
+        results: Sequence[dict[str, Any]],
+        events: Sequence[Event] = (),
+        *,
+        upserts: Sequence[dict[str, Any]] = (),
+        deletes: Sequence[str] = (),
+        point_events: Callable[[dict[str, int]], list[Event]] | None = None,
+    ) -> list[Event]:
+        """Frame results, the λ_att visits they changed and the events of both, in one transaction
+        (one commit, one fsync: a crash keeps all of them or none). ``point_events`` makes the
+        visits' events from their point ids. Returns the events stored (``id`` set)."""
+        stored = list(events)
+        with self.session() as s:
+            if results:
+                self._insert_results(s, run_id, results)
+            if upserts or deletes:
+                ids = self._upsert_visit_points(s, run_id, upserts, deletes)
+                if point_events is not None:
+                    stored += point_events(ids)
+            if stored:
+                self._insert_events(s, stored)
+        return stored
+
+    def copy_results(
+        self, src_run_id: int, dst_run_id: int, t_from: float | None = None, t_to: float | None = None
+    ) -> int:
+        """Copy the frame results of one run into another (a re-analysis that keeps I_center),
+        of frames captured in [t_from, t_to] if given."""
+        cols = [c.name for c in FrameResult.__table__.columns if c.name not in ("id", "run_id")]
+        with self.session() as s:
+            src = select(*[FrameResult.__table__.c[c] for c in cols], literal(dst_run_id)).where(
+                FrameResult.run_id == src_run_id
+            )
+            if t_from is not None or t_to is not None:
+                src = src.where(FrameResult.frame_id.in_(frames_in(None, t_from, t_to)))
+            stmt = insert(FrameResult).from_select([*cols, "run_id"], src).returning(FrameResult.id)
+            return len(s.execute(stmt).all())
+
+    def add_attenuation_points(self, points: Sequence[dict[str, Any]]) -> list[int]:
+        if not points:
+            return []
+        with self.session() as s:
+            objs = [AttenuationPoint(**p) for p in points]
+            s.add_all(objs)
+            s.flush()
+            return [o.id for o in objs]
+
+    def save_visit_points(
+        self, run_id: int, upserts: Sequence[dict[str, Any]], deletes: Sequence[str] = ()
+    ) -> dict[str, int]:
+        """Insert or update λ_att points by (run, ``visit_key``) and delete visits that are gone,
+        in one transaction. Returns the point id of every upserted visit key."""
+        if not upserts and not deletes:
+            return {}
+        with self.session() as s:
+            return self._upsert_visit_points(s, run_id, upserts, deletes)
+
+    def _upsert_visit_points(
+        self, s: Session, run_id: int, upserts: Sequence[dict[str, Any]], deletes: Sequence[str]
+    ) -> dict[str, int]:
+        table = AttenuationPoint.__table__
+        if deletes:
+            s.execute(
+                delete(AttenuationPoint).where(
+                    AttenuationPoint.run_id == run_id, AttenuationPoint.visit_key.in_(list(deletes))
+                )
+            )
+        for row in upserts:
+            stmt = self._insert(table).values(**row)
+            s.execute(
+                stmt.on_conflict_do_update(
+                    index_elements=["run_id", "visit_key"],
+                    set_={k: stmt.excluded[k] for k in row if k not in ("run_id", "visit_key")},
+                )
+            )
+        keys = [r["visit_key"] for r in upserts]
+        ids = s.execute(
+            select(AttenuationPoint.visit_key, AttenuationPoint.id).where(
+                AttenuationPoint.run_id == run_id, AttenuationPoint.visit_key.in_(keys)
+            )
+        ).all()
+        return {str(k): int(i) for k, i in ids}
+
+    def add_attitude(self, samples: Sequence[dict[str, Any]]) -> None:
+        if samples:
+            with self.session() as s:
+                s.execute(insert(AttitudeSample), list(samples))
+
+    def upsert_linearity(self, row: dict[str, Any]) -> None:
+        """Insert or replace the linearity fit of (run, module, wavelength, sweep)."""
+        keys = ("run_id", "module_id", "wavelength_nm", "sweep")
+        stmt = self._insert(LinearityCheck.__table__).values(**row)
+        stmt = stmt.on_conflict_do_update(
+            index_elements=list(keys), set_={k: stmt.excluded[k] for k in row if k not in keys}
+        )
+        with self.session() as s:
+            s.execute(stmt)
+
+    def add_chisq_fit(
+        self,
+        dive_id: int,
+        result: dict[str, Any],
+        *,
+        run_id: int | None = None,
+        calibration_id: int | None = None,
+        span: dict[str, Any] | None = None,
+        label: str = "",
+        software_version: str = "",
+    ) -> int:
+        """Keep a χ² fit of a dive (its JSON document); earlier fits stay. Returns its id."""
+        with self.session() as s:
+            rec = ChiSquareFitRecord(
+                dive_id=dive_id,
+                run_id=run_id,
+                calibration_id=calibration_id,
+                created_unix_s=now_unix_s(),
+                software_version=software_version,
+                label=label,
+                span=span or {},
+                result=result,
+            )
+            s.add(rec)
+            s.flush()
+            return rec.id

@@ -1,0 +1,99 @@
+"""The store's base: the engine, transactions, and ``call`` (run a read of `storage.queries`)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from typing import Any, Concatenate, ParamSpec, TypeVar
+
+from sqlalchemy import Engine, literal, text, update
+from sqlalchemy.dialects import postgresql, sqlite
+from sqlalchemy.orm import Session, sessionmaker
+
+from camcal.core.events import Event, finite_json
+from storage.files import FrameFiles
+from storage.models import Dive
+from storage.models import Event as EventRow
+
+P = ParamSpec("P")
+R = TypeVar("R")
+
+
+def now_unix_s() -> float:
+    return time.time()
+
+
+class StoreBase:
+    """The database (any SQLAlchemy URL; SQLite by default) and the frame files."""
+
+    def __init__(self, engine: Engine, files: FrameFiles) -> None:
+        self.engine = engine
+        self.files = files
+        self._sessions = sessionmaker(engine, expire_on_commit=False)
+
+    def close(self) -> None:
+        self.engine.dispose()
+
+    @contextmanager
+    def session(self) -> Iterator[Session]:
+        """A session in a transaction: committed on success, rolled back on error."""
+        with self._sessions() as s, s.begin():
+            yield s
+
+    def read(self) -> Session:
+        """A session for reading (the caller closes it)."""
+        return self._sessions()
+
+    def call(self, fn: Callable[Concatenate[Session, P], R], *args: P.args, **kwargs: P.kwargs) -> R:
+        """``fn(session, *args, **kwargs)`` in a read session: the one way to run a query of
+        `storage.queries` (``store.call(queries.runs, dive_id)``). It blocks: call it from a thread
+        (a plain ``def`` route runs in FastAPI's threadpool), never on an event loop."""
+        with self._sessions() as s:
+            return fn(s, *args, **kwargs)
+
+    # ------------------------------------------------------------ helpers
+    @staticmethod
+    def _insert_events(s: Session, events: Sequence[Event]) -> list[int]:
+        """Add event rows in ``s`` (payloads made valid JSON: no NaN, no infinities); sets each ``id``."""
+        rows = [
+            EventRow(
+                kind=str(e.kind),
+                payload=finite_json(e.payload),
+                module_id=e.module,
+                dive_id=e.dive_id,
+                t_unix_s=e.t,
+            )
+            for e in events
+        ]
+        s.add_all(rows)
+        s.flush()
+        for e, row in zip(events, rows, strict=True):
+            e.id = row.id
+        return [row.id for row in rows]
+
+    def _insert(self, table: Any) -> Any:
+        name = self.engine.dialect.name
+        if name == "sqlite":
+            return sqlite.insert(table)
+        if name == "postgresql":
+            return postgresql.insert(table)
+        raise NotImplementedError(f"conflict-free inserts are written for SQLite and PostgreSQL, not {name}")
+
+    def _serialise(self, s: Session, key: int) -> None:
+        """Hold a lock until ``s`` commits, so get-or-create steps of several processes queue.
+
+        PostgreSQL: a transaction-level advisory lock on ``key``. SQLite: a
+        write statement that changes nothing takes the database's write lock.
+        """
+        if self.engine.dialect.name == "postgresql":
+            s.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": key})
+        else:
+            s.execute(update(Dive).where(literal(False)).values(name=Dive.name))
+
+    def integrity_check(self) -> str:
+        """``PRAGMA integrity_check`` on SQLite ("ok" when sound); "ok" elsewhere."""
+        if self.engine.dialect.name != "sqlite":
+            return "ok"
+        with self.engine.connect() as conn:
+            return str(conn.exec_driver_sql("PRAGMA integrity_check").scalar())

@@ -1,0 +1,266 @@
+"""Reads of dives and analysis runs: the dive list, runs, results, χ² fits, the timeline."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from sqlalchemy import and_, func, select
+from sqlalchemy.orm import Session
+
+from storage.models import (
+    Alarm,
+    AnalysisRun,
+    ChiSquareFitRecord,
+    Dive,
+    Frame,
+    FrameResult,
+    SensorSample,
+)
+from storage.queries.operations import alarm_dict
+from storage.queries.series import downsampled
+
+
+def live_run_id(s: Session, dive_id: int) -> int | None:
+    return s.scalar(select(AnalysisRun.id).where(AnalysisRun.dive_id == dive_id, AnalysisRun.kind == "live"))
+
+
+def dives(s: Session, dive_id: int | None = None) -> list[dict[str, Any]]:
+    """Every dive (or only ``dive_id``) with its frame count and time range, newest first."""
+    counts = (
+        select(
+            Frame.dive_id,
+            func.count(Frame.id).label("n"),
+            func.min(Frame.captured_unix_s).label("t0"),
+            func.max(Frame.captured_unix_s).label("t1"),
+            func.max(Frame.depth_m).label("dmax"),
+        )
+        .group_by(Frame.dive_id)
+        .subquery()
+    )
+    q = select(Dive, counts.c.n, counts.c.t0, counts.c.t1, counts.c.dmax).outerjoin(
+        counts, counts.c.dive_id == Dive.id
+    )
+    if dive_id is not None:
+        q = q.where(Dive.id == dive_id)
+    rows = s.execute(q.order_by(Dive.id.desc())).all()
+    return [
+        {
+            "id": d.id,
+            "name": d.name,
+            "started_unix_s": d.started_unix_s,
+            "ended_unix_s": d.ended_unix_s,
+            "notes": d.notes,
+            "calibration_id": d.calibration_id,
+            "n_frames": n or 0,
+            "first_frame_unix_s": t0,
+            "last_frame_unix_s": t1,
+            "max_depth_m": dmax,
+        }
+        for d, n, t0, t1, dmax in rows
+    ]
+
+
+def dive_record(s: Session, dive_id: int) -> dict[str, Any] | None:
+    """One dive as `dives` lists it (frame count, time range, deepest depth), with its setup."""
+    rows = dives(s, dive_id)
+    if not rows:
+        return None
+    dive = s.get(Dive, dive_id)
+    return {**rows[0], "setup": dive.setup if dive else {}}
+
+
+def dive_by_name(s: Session, name: str) -> Dive | None:
+    return s.scalars(select(Dive).where(Dive.name == name)).first()
+
+
+def runs(s: Session, dive_id: int) -> list[dict[str, Any]]:
+    return [
+        {
+            "id": r.id,
+            "kind": r.kind,
+            "label": r.label,
+            "calibration": r.calibration if isinstance(r.calibration, dict) else {},
+            "calibration_id": r.calibration_id,
+            "software_version": r.software_version,
+            "created_unix_s": r.created_unix_s,
+            "status": r.status,
+            "n_frames": r.n_frames,
+        }
+        for r in s.scalars(select(AnalysisRun).where(AnalysisRun.dive_id == dive_id).order_by(AnalysisRun.id))
+    ]
+
+
+class RunLookupError(LookupError):
+    """No such run of the dive, or the dive has none yet (the message says which)."""
+
+
+def chosen_run(s: Session, dive_id: int, run_id: int | None = None) -> dict[str, Any]:
+    """Run ``run_id`` of the dive, or by default its live run, else its newest (as `runs` gives them).
+
+    Raises `RunLookupError` when the dive has no run or no run ``run_id``.
+    """
+    by_id = {r["id"]: r for r in runs(s, dive_id)}
+    if not by_id:
+        raise RunLookupError(f"dive {dive_id} has no analysis run yet (nothing was ingested or imported)")
+    if run_id is None:
+        live = [r for r in by_id.values() if r["kind"] == "live"]
+        return live[0] if live else by_id[max(by_id)]
+    if run_id not in by_id:
+        have = ", ".join(map(str, sorted(by_id)))
+        raise RunLookupError(f"no run {run_id} in dive {dive_id} (runs: {have})")
+    return by_id[run_id]
+
+
+def frame_settings(s: Session, dive_id: int) -> dict[str, list[Any]]:
+    """The distinct modules, wavelengths, exposures and gains of a dive's frames (for filter menus)."""
+    out: dict[str, list[Any]] = {}
+    for key, col in (
+        ("modules", Frame.module_id),
+        ("wavelengths_nm", Frame.wavelength_nm),
+        ("exposures_s", Frame.exposure_s),
+        ("gains_db", Frame.gain_db),
+    ):
+        q = select(col).where(Frame.dive_id == dive_id).distinct().order_by(col)
+        out[key] = [v for (v,) in s.execute(q)]
+    return out
+
+
+def timeline(s: Session, dive_id: int, max_points: int = 600) -> dict[str, Any]:
+    """Depth over the dive (from the frames and the sensors), frame marks and alarms."""
+    depth = downsampled(
+        s,
+        SensorSample,
+        ("depth_m",),
+        module=None,
+        dive_id=dive_id,
+        t_from=None,
+        t_to=None,
+        max_points=max_points,
+    )
+    frames = s.execute(
+        select(Frame.captured_unix_s, Frame.depth_m, Frame.module_id, Frame.id)
+        .where(Frame.dive_id == dive_id)
+        .order_by(Frame.captured_unix_s)
+    ).all()
+    step = max(1, len(frames) // 2000)
+    marks = [{"t_unix_s": t, "depth_m": d, "module": m, "id": i} for t, d, m, i in frames[::step]]
+    dive = s.get(Dive, dive_id)
+    t_lo = frames[0][0] if frames else (dive.started_unix_s if dive else None)
+    alarm_rows = s.scalars(select(Alarm).where(Alarm.raised_unix_s >= (t_lo or 0) - 3600)).all()
+    return {
+        "depth": {"t_unix_s": depth["t_unix_s"], "depth_m": depth["depth_m"]},
+        "frames": marks,
+        "frame_step": step,
+        "alarms": [alarm_dict(a) for a in alarm_rows],
+    }
+
+
+def frame_outcomes(s: Session, dive_id: int, run_id: int | None) -> list[dict[str, Any]]:
+    """Every frame of a dive in capture order with its outcome in a run (``pending`` without one)."""
+    join = and_(FrameResult.frame_id == Frame.id, FrameResult.run_id == (run_id or -1))
+    rows = s.execute(
+        select(
+            Frame.captured_unix_s,
+            Frame.depth_m,
+            Frame.module_id,
+            Frame.wavelength_nm,
+            FrameResult.status,
+            FrameResult.reason,
+        )
+        .outerjoin(FrameResult, join)
+        .where(Frame.dive_id == dive_id)
+        .order_by(Frame.captured_unix_s, Frame.id)
+    ).all()
+    return [
+        {
+            "t_unix_s": t,
+            "depth_m": d,
+            "module": m,
+            "wavelength_nm": wl,
+            "status": status or "pending",
+            "reason": reason,
+        }
+        for t, d, m, wl, status, reason in rows
+    ]
+
+
+def result_rows(s: Session, run_id: int, dive_id: int) -> list[dict[str, Any]]:
+    """Frames of a dive joined with their result in a run, in capture order."""
+    rows = s.execute(
+        select(
+            Frame.id,
+            Frame.module_id,
+            Frame.wavelength_nm,
+            Frame.exposure_s,
+            Frame.gain_db,
+            Frame.captured_unix_s,
+            Frame.depth_m,
+            Frame.path,
+            FrameResult.status,
+            FrameResult.center_gray,
+            FrameResult.i_center_gray,
+            FrameResult.i_center_err_gray,
+        )
+        .join(FrameResult, (FrameResult.frame_id == Frame.id) & (FrameResult.run_id == run_id))
+        .where(Frame.dive_id == dive_id)
+        .order_by(Frame.captured_unix_s, Frame.id)
+    ).all()
+    keys = (
+        "frame_id",
+        "module",
+        "wavelength_nm",
+        "exposure_s",
+        "gain_db",
+        "captured_unix_s",
+        "depth_m",
+        "path",
+        "status",
+        "center_gray",
+        "i_center_gray",
+        "i_center_err_gray",
+    )
+    return [dict(zip(keys, r, strict=True)) for r in rows]
+
+
+def frames_without_result(
+    s: Session, dive_id: int, run_id: int, limit: int = 100_000, modules: Sequence[str] = ()
+) -> list[Frame]:
+    """Stored frames of a dive that the run has not analysed (e.g. after a crash), of ``modules``
+    if given (an ingest recovers only the frames of the modules it serves)."""
+    done = select(FrameResult.frame_id).where(FrameResult.run_id == run_id)
+    q = select(Frame).where(Frame.dive_id == dive_id, Frame.id.not_in(done))
+    if modules:
+        q = q.where(Frame.module_id.in_(list(modules)))
+    return list(s.scalars(q.order_by(Frame.id).limit(limit)))
+
+
+def chisq_fit_dict(r: ChiSquareFitRecord, *, full: bool = True) -> dict[str, Any]:
+    out: dict[str, Any] = {
+        "id": r.id,
+        "dive_id": r.dive_id,
+        "run_id": r.run_id,
+        "calibration_id": r.calibration_id,
+        "created_unix_s": r.created_unix_s,
+        "software_version": r.software_version,
+        "label": r.label,
+        "span": r.span,
+    }
+    if full:
+        out["result"] = r.result
+    return out
+
+
+def chisq_fits(s: Session, dive_id: int) -> list[dict[str, Any]]:
+    """The χ² fits kept for a dive, oldest first, without their documents."""
+    q = select(ChiSquareFitRecord).where(ChiSquareFitRecord.dive_id == dive_id)
+    return [chisq_fit_dict(r, full=False) for r in s.scalars(q.order_by(ChiSquareFitRecord.id))]
+
+
+def latest_chisq_fit(s: Session, dive_id: int, run_id: int | None = None) -> dict[str, Any] | None:
+    """The newest χ² fit of a dive (of one run's calibration if given), with its document."""
+    q = select(ChiSquareFitRecord).where(ChiSquareFitRecord.dive_id == dive_id)
+    if run_id is not None:
+        q = q.where(ChiSquareFitRecord.run_id == run_id)
+    r = s.scalars(q.order_by(ChiSquareFitRecord.id.desc()).limit(1)).first()
+    return chisq_fit_dict(r) if r is not None else None

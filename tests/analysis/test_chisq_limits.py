@@ -1,0 +1,135 @@
+"""Failures look like failures: limits instead of grid edges, errors scaled by √(χ²/ndof), budget maths."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from analysis.chisq import LOWER_LIMIT, MEASURED, FitConfig, SettingProfiles, fit_wavelength
+from analysis.chisq.limits import error_scale, estimate
+from analysis.chisq.systematics import SystematicsConfig, constrained_error, nodes_around, variation_settings
+from analysis.chisq.wavelength import make_objective
+from analysis.transport.scene import emission_shares
+from analysis.transport.templates import TemplateGrid
+from camcal.fitdoc import estimate_text
+from camcal.fitset import AttenuationCheck
+from tests.analysis.transport_cases import CASES, EMISSION_RATIO, GEOMETRY, WAVELENGTH_NM
+
+QUICK = FitConfig(template_errors=False, contour_points=7)
+
+
+def test_a_minimum_beyond_the_range_is_a_lower_limit_not_a_value(
+    grids: dict[str, TemplateGrid], profiles: dict[str, list]
+) -> None:
+    # Clear water, λ_abs 100 m, fitted with λ_abs allowed only up to 60 m: the χ² falls all the
+    # way to the edge. The fit must say "λ_abs > X", never "λ_abs = 60 ± ...".
+    config = replace(QUICK, lambda_abs_range_m=(2.0, 60.0))
+    fit = fit_wavelength(WAVELENGTH_NM, profiles["clear"], grids["clear"], GEOMETRY, EMISSION_RATIO, config)
+    est = fit.lambda_abs
+    assert est.status == LOWER_LIMIT
+    assert est.value_m is None and est.err_m is None
+    assert est.limit_m is not None and 2.0 < est.limit_m < 60.0
+    assert est.cl == pytest.approx(0.95)
+    assert "lambda_abs" in fit.at_edge
+    assert est.text("λ_abs").startswith("λ_abs > ") and "95 % CL" in est.text("λ_abs")
+    # λ_sca is still measured, and the wavelength still gives a result.
+    assert fit.lambda_sca.status == MEASURED and fit.has_result
+    entry = {"lambda_abs": {"status": est.status, "limit_m": est.limit_m, "cl": est.cl}}
+    assert estimate_text(entry, "lambda_abs") == f"> {est.limit_m:.3g} m (95 % CL)"
+
+
+def _shrink_errors(settings: list[SettingProfiles], factor: float) -> list[SettingProfiles]:
+    out = []
+    for s in settings:
+        near = replace(s.near, sem_gray=s.near.sem_gray * factor)
+        far = replace(s.far, sem_gray=s.far.sem_gray * factor)
+        out.append(replace(s, near=near, far=far))
+    return out
+
+
+def test_errors_are_scaled_when_the_model_does_not_describe_the_data(
+    grids: dict[str, TemplateGrid], profiles: dict[str, list]
+) -> None:
+    # The same profiles with errors claimed 2.5x too small (where the floor of 8-bit rounding
+    # lets them shrink): χ²/ndof rises, and the fit must widen its intervals to Δχ² = χ²/ndof
+    # instead of quoting the Δχ² = 1 ones.
+    grid, prof = grids["turbid"], profiles["turbid"]
+    honest = fit_wavelength(WAVELENGTH_NM, prof, grid, GEOMETRY, EMISSION_RATIO, QUICK)
+    claimed = fit_wavelength(WAVELENGTH_NM, _shrink_errors(prof, 0.4), grid, GEOMETRY, EMISSION_RATIO, QUICK)
+    assert honest.error_scale == pytest.approx(max(1.0, math.sqrt(honest.chi2_ndof)))
+    assert claimed.chi2_ndof > 1.8
+    assert claimed.error_scale == pytest.approx(math.sqrt(claimed.chi2_ndof))
+    # The same data's intervals at Δχ² = 1 (unscaled), from the fit's own objective and minimum.
+    obj = make_objective(_shrink_errors(prof, 0.4), grid, GEOMETRY, EMISSION_RATIO, QUICK)
+    best = obj.minimise(np.log([claimed.lambda_abs_m, claimed.lambda_sca_m]))
+    for k, attr in enumerate(("lambda_abs_err_m", "lambda_sca_err_m")):
+        raw, _, _ = estimate(obj, best, k, attr, obj(best), 0.05, 1.0)
+        assert raw.err_m is not None
+        assert getattr(claimed, attr) == pytest.approx(claimed.error_scale * raw.err_m, rel=0.1), attr
+
+
+def test_error_scale_is_never_below_one() -> None:
+    assert error_scale(50.0, 100) == 1.0
+    assert error_scale(400.0, 100) == pytest.approx(2.0)
+    assert error_scale(10.0, 0) == 1.0
+
+
+def test_constrained_error_follows_the_data_and_the_prior() -> None:
+    # Δλ = 100 m per unit of x; the data's Δχ² = a·δ².
+    ends = (0.88, 0.96)
+    nominal = 0.93
+    prior = (ends[1] - ends[0]) / math.sqrt(12)
+
+    def shifts(a: float) -> np.ndarray:
+        dx = np.array(ends) - nominal
+        return np.stack([100 * dx, 50 * dx, 10 * dx, a * dx * dx], axis=1)
+
+    err, width = constrained_error(nominal, ends, shifts(0.0), 1.0)
+    assert width == pytest.approx(prior)  # no information in the data: the prior's width
+    assert err == pytest.approx([100 * prior, 50 * prior, 10 * prior])
+    err, width = constrained_error(nominal, ends, shifts(1e6), 1.0)
+    assert width == pytest.approx(1 / math.sqrt(1e6 + 1 / prior**2))
+    # An error scale of 3 divides the data's Δχ² by 9: a wider width.
+    _, scaled = constrained_error(nominal, ends, shifts(1e6), 3.0)
+    assert scaled == pytest.approx(1 / math.sqrt(1e6 / 9 + 1 / prior**2))
+
+
+def test_variations_need_templates_only_near_the_fitted_scattering_lengths() -> None:
+    nodes = (12.0, 20.0, 33.0, 55.0, 90.0, 150.0, 250.0)
+    assert nodes_around(nodes, [40.0]) == (20.0, 33.0, 55.0, 90.0)
+    assert nodes_around(nodes, [10.0, 300.0]) == (12.0, 20.0, 150.0, 250.0)
+    from tests.analysis.transport_cases import grid_settings
+
+    base = grid_settings(CASES["turbid"])
+    v = variation_settings(base, [25.0], SystematicsConfig())
+    assert set(v) == {"mie_g", "rayleigh=0.1", "rayleigh=0.25", "emission=hemispheres"}
+    assert v["mie_g"].mie_g_nodes == (0.88, 0.93, 0.96)
+    assert v["emission=hemispheres"].emission_shape == "hemispheres"
+    # The variants share the nominal's seed (correlated Monte Carlo), and only the emission variant
+    # describes itself differently from a nominal cache entry.
+    assert {s.seed for s in v.values()} == {base.seed}
+    assert "emission_shape" not in base.geometry_description()
+    assert v["emission=hemispheres"].geometry_description()["emission_shape"] == "hemispheres"
+
+
+def test_emission_shapes_agree_at_the_poles_and_the_equator() -> None:
+    mu = np.array([-1.0, 0.0, 1.0, 0.5])
+    lin = emission_shares(mu, "linear")
+    hemi = emission_shares(mu, "hemispheres")
+    assert np.allclose(lin[0][:3], hemi[0][:3]) and np.allclose(lin[0] + lin[1], 1.0)
+    assert np.allclose(hemi[0] + hemi[1], 1.0)
+    assert hemi[0][3] > lin[0][3]  # flatter near the pole: more of the near side's light at μ = 0.5
+    with pytest.raises(ValueError, match="emission shape"):
+        emission_shares(mu, "conical")
+
+
+def test_a_disagreement_beyond_three_sigma_is_flagged_with_what_to_do() -> None:
+    far_off = AttenuationCheck(47.5, 1.0, 28.6, 1.0, 13.4)
+    assert far_off.flagged and not far_off.agrees
+    assert far_off.advice is not None and "do not quote" in far_off.advice and "I0'/I0" in far_off.advice
+    near = AttenuationCheck(30.0, 1.0, 28.0, 0.8, 2.5)
+    assert not near.flagged and not near.agrees and near.advice is None
+    assert AttenuationCheck(30.0, 1.0, None, None, None).flagged is False

@@ -59,8 +59,7 @@ def ship(
 def dive_names(data: Path, url: str) -> list[str]:
     store = Store.open(data, url)
     try:
-        with store.read() as s:
-            return [d["name"] for d in queries.dives(s)]
+        return [d["name"] for d in store.call(queries.dives)]
     finally:
         store.close()
 
@@ -72,7 +71,7 @@ def env_of(ship: dict[str, Any]) -> dict[str, str]:
 def stored_calibrations(ship: dict[str, Any]) -> list[str]:
     store = Store.open(ship["data"], ship["url"])
     try:
-        return [f"{c['name']}@{c['version']}" for c in store.calibrations()]
+        return [f"{c['name']}@{c['version']}" for c in store.call(queries.calibrations)]
     finally:
         store.close()
 
@@ -161,6 +160,6 @@ def test_on_postgresql_the_environment_is_enough(pg_url: str, trex_small_set: Pa
     assert dive_names(tmp_path / "data", pg_url) == ["pg-dive"]
     store = Store.open(tmp_path / "data", pg_url)
     try:
-        assert [c["name"] for c in store.calibrations()] == ["pg-check"]
+        assert [c["name"] for c in store.call(queries.calibrations)] == ["pg-check"]
     finally:
         store.close()

@@ -16,7 +16,9 @@ COPY ingest ./ingest
 COPY storage ./storage
 COPY server ./server
 COPY frontend ./frontend
-RUN pip install . && mkdir -p /data
+# The ship's extras (ingest, dashboard, store on PostgreSQL, export, figures, Dask); a module
+# needs none of them (`pip install camcal`), and the simulated modules below run on the same image.
+RUN pip install '.[ship,postgres,scale,export,plots]' && mkdir -p /data
 
 EXPOSE 5555 5556 8000
 VOLUME ["/data"]

@@ -1,5 +1,7 @@
 # camcal: `make run` starts the system, `make test` runs every test.
-# Both create .venv and install what they need on a fresh machine.
+# Both create .venv and install what they need on a fresh machine (camcal with every extra).
+# `make test-core` installs what a module installs (`pip install camcal`, no extra) in a venv of
+# its own and runs the module side's tests there.
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
@@ -7,12 +9,14 @@ STAMP  := $(VENV)/.installed
 DATA   ?= camcal-data
 PORT   ?= 8000
 
-.PHONY: run test test-browser fuzz lint bench bench-dashboard demo clean
+CORE   := .venv-core
+
+.PHONY: run test test-core test-browser fuzz lint bench bench-dashboard demo clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet -e '.[all,test]'
 	touch $(STAMP)
 
 run: $(STAMP)
@@ -24,8 +28,19 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/lint-imports
+	$(BIN)/deptry .
 	$(BIN)/mypy
 	$(BIN)/python -m pytest -n 2 --dist loadgroup
+
+# A module's install: the core alone (no extra), built and installed as `pip install camcal` would,
+# in a fresh venv; then `camcal lrm --help` and the module side's tests (their sources from here).
+test-core:
+	rm -rf $(CORE)
+	$(PYTHON) -m venv $(CORE)
+	$(CORE)/bin/python -m pip install --quiet . pytest pytest-xdist hypothesis
+	$(CORE)/bin/camcal lrm --help >/dev/null
+	$(CORE)/bin/python -m pytest -n 2 --dist loadgroup -p no:cacheprovider tests/lrm tests/sim tests/camcal \
+		tests/test_wire.py tests/test_frameset.py tests/cli/test_startup.py
 
 # The protocol fuzzer's slow lane: 10 000 generated messages against a real ingest (make test sends 800).
 fuzz: $(STAMP)
@@ -39,6 +54,7 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check .
 
 bench: $(STAMP)
+	$(BIN)/python bench/bench_startup.py
 	$(BIN)/python bench/bench_analysis.py
 	$(BIN)/python bench/bench_detect.py
 	$(BIN)/python bench/bench_ingest.py
@@ -47,4 +63,4 @@ bench-dashboard: $(STAMP)
 	$(BIN)/python bench/bench_dashboard.py
 
 clean:
-	rm -rf $(VENV) demo-output .pytest_cache .ruff_cache
+	rm -rf $(VENV) $(CORE) demo-output .pytest_cache .ruff_cache

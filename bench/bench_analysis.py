@@ -7,7 +7,9 @@
    with camcal's decoder (``camcal.core.frameset.read_frame``: libdeflate for
    the unfiltered PNGs modules write); OpenCV's decoder is timed beside it.
    The same on 24 of the frames separates what each frame costs from what
-   does not depend on the set's size (starting Python, imports, the pool).
+   does not depend on the set's size (starting Python, imports, the pool);
+3. ``camcal analyze FILE`` on one frame of the set against decoding that frame
+   (what is left is starting Python, the imports and the analysis).
 
 Run: ``.venv/bin/python bench/bench_analysis.py [--frames N]``.
 """
@@ -93,6 +95,12 @@ def main() -> None:
         cmd_small = [*cmd[:4], str(small), *cmd[5:]]
         t_cli_small = median_time(lambda: subprocess.run(cmd_small, check=True, capture_output=True), 2)
 
+        # 4. one frame file
+        one = paths[0]
+        t_decode_one = median_time(lambda: read_frame(one), 7)
+        cmd_one = [*cmd[:4], str(one), "--quiet"]
+        t_cli_one = median_time(lambda: subprocess.run(cmd_one, check=True, capture_output=True), 5)
+
     print()
     print("| figure | time | floor | ratio | aim |")
     print("| --- | --- | --- | --- | --- |")
@@ -113,6 +121,10 @@ def main() -> None:
     print(
         f"| `camcal analyze` on {len(small_paths)} frames (start, imports, pool, output) | "
         f"{t_cli_small:.2f} s | {t_decode_small:.2f} s |  |  |"
+    )
+    print(
+        f"| `camcal analyze FILE` on one frame vs decoding it | {t_cli_one:.2f} s | "
+        f"{t_decode_one * 1e3:.1f} ms | {t_cli_one - t_decode_one:.2f} s more | <= 0.5 s more |"
     )
     print(
         f"| camcal's PNG decoding vs OpenCV's (`cv2.imread`), {len(paths)} frames, one core | "

@@ -8,7 +8,6 @@ from typing import Any
 
 import pytest
 
-from tests.utils.pg import SKIP_REASON, fresh_database, migrated_template, pg_admin_url
 from tests.utils.sim import small_frame_set
 
 
@@ -36,6 +35,8 @@ def dive_data(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str,
 @pytest.fixture(scope="session")
 def pg_template() -> Iterator[tuple[str, str] | None]:
     """(server URL, name of a migrated template database), or None without ``CAMCAL_TEST_PG_URL``."""
+    from tests.utils.pg import migrated_template, pg_admin_url  # the ship's stack: not in a module's install
+
     admin = pg_admin_url()
     if admin is None:
         yield None
@@ -47,6 +48,8 @@ def pg_template() -> Iterator[tuple[str, str] | None]:
 @pytest.fixture(params=["sqlite", "postgresql"])
 def db_url(request: pytest.FixtureRequest, pg_template: tuple[str, str] | None) -> Iterator[str | None]:
     """The store's database: ``None`` (SQLite in the data folder) or a fresh PostgreSQL database."""
+    from tests.utils.pg import SKIP_REASON, fresh_database
+
     if request.param == "sqlite":
         yield None
         return
@@ -59,6 +62,8 @@ def db_url(request: pytest.FixtureRequest, pg_template: tuple[str, str] | None) 
 @pytest.fixture
 def pg_url(pg_template: tuple[str, str] | None) -> Iterator[str]:
     """A fresh, migrated PostgreSQL database (skips without ``CAMCAL_TEST_PG_URL``)."""
+    from tests.utils.pg import SKIP_REASON, fresh_database
+
     if pg_template is None:
         pytest.skip(SKIP_REASON)
     with fresh_database(*pg_template) as url:
@@ -68,6 +73,8 @@ def pg_url(pg_template: tuple[str, str] | None) -> Iterator[str]:
 @pytest.fixture
 def pg_empty_url() -> Iterator[str]:
     """A fresh, empty PostgreSQL database (skips without ``CAMCAL_TEST_PG_URL``)."""
+    from tests.utils.pg import SKIP_REASON, fresh_database, pg_admin_url
+
     admin = pg_admin_url()
     if admin is None:
         pytest.skip(SKIP_REASON)

@@ -1,68 +1,178 @@
-"""The ``camcal`` command line."""
+"""The ``camcal`` command line.
+
+Starting it is cheap: ``camcal --help`` imports no command at all (the list
+below holds each one's name, module and one-line help), ``camcal COMMAND``
+imports and builds that command alone, and each command's module declares
+its options with plain defaults (`camcal.cli.defaults`) and imports what its
+work needs when it runs. No SciPy, OpenCV, database or web framework is
+loaded to parse a command line or print help; ``tests/cli/test_startup.py``
+checks that, and that this list matches the commands.
+
+``camcal.cli.app`` is the whole Typer application with every command
+registered (what tests invoke); ``main`` is the ``camcal`` entry point.
+"""
 
 from __future__ import annotations
 
+import importlib
 import importlib.machinery
 import sys
+from typing import Any
 
 import typer
+from typer.core import TyperCommand, TyperGroup
 
-from camcal.cli import (
-    analyze,
-    calibrate,
-    calibration,
-    config,
-    data,
-    demo,
-    doctor,
-    fit,
-    ingest,
-    keys,
-    lrm,
-    reanalyze,
-    report,
-    serve,
-    simulate,
-    simulate_lab,
-    transport,
-    up,
-)
-from camcal.core import supervise
+HELP = "Camera-based optical calibration for deep-sea neutrino telescopes."
 
-app = typer.Typer(
-    name="camcal",
-    help="Camera-based optical calibration for deep-sea neutrino telescopes.",
-    no_args_is_help=True,
-    add_completion=False,
-    pretty_exceptions_enable=False,
+#: Every command in the order ``camcal --help`` lists them: name, module of `camcal.cli`, one-line help.
+COMMANDS: tuple[tuple[str, str, str], ...] = (
+    # The science: simulate, analyse, fit.
+    (
+        "simulate-set",
+        "simulate",
+        "Simulate a dive's frame set (manifest, setup.json, PNGs) and its ground truth (truth.json).",
+    ),
+    ("analyze", "analyze", "Measure I_center on every frame and the attenuation length per wavelength."),
+    ("demo", "demo", "Simulate a T-REX frame set at 3420 m, analyse it and compare λ_att with the truth."),
+    ("fit", "fit", "Fit absorption and scattering lengths to both cameras' radial profiles, per wavelength."),
+    (
+        "report",
+        "report",
+        "Write a dive's report as ONE self-contained HTML file that opens offline (a USB stick, e-mail).",
+    ),
+    # The live system.
+    (
+        "ingest",
+        "ingest",
+        "Receive frames and sensor packets from the modules, store, analyse and publish them.",
+    ),
+    ("serve", "serve", "Serve the dashboard and the API (OpenAPI at /docs) for a data folder."),
+    (
+        "up",
+        "up",
+        "Start the whole system: ingest, two simulated modules on a simulated dive, and the dashboard.",
+    ),
+    (
+        "import",
+        "data",
+        "Load an SD-card frame set into a dive: frames already stored are skipped, gaps are filled.",
+    ),
+    (
+        "export",
+        "data",
+        "Write a dive's tables (frames with results, sensors, attitude, λ_att, alarms...) to CSV and "
+        "Parquet.",
+    ),
+    # Calibrations and operations.
+    (
+        "simulate-lab",
+        "simulate_lab",
+        "Simulate a lab calibration: linearity, emission-ratio, air-scan, tank-scan or psf (+ truth.json).",
+    ),
+    (
+        "doctor",
+        "doctor",
+        "Check the configuration, data folder, disk, database, ingest, modules, dashboard, and list "
+        "camcal's processes (with the ports they hold; those left behind by a camcal that ended are a "
+        "warning).",
+    ),
+    (
+        "reanalyze",
+        "reanalyze",
+        "Re-analyse a stored dive, a time span, or frame-set folders with another calibration, on Dask.",
+    ),
+    # Groups of subcommands.
+    (
+        "transport",
+        "transport",
+        "Photon transport: the refined model's c1/c2 coefficients, the template cache.",
+    ),
+    ("keys", "keys", "The module link's keys (ZeroMQ CURVE): one pair for the ship, one per module."),
+    ("lrm", "lrm", "Run a light receiver module: a real camera, simulated, or replaying a frame set."),
+    (
+        "calibrate",
+        "calibrate",
+        "Lab calibrations of the camera system: one subcommand per experiment, each on a frame set.",
+    ),
+    ("calibration", "calibration", "Versioned calibration records: add, list, show."),
+    ("config", "config", "The configuration: CAMCAL_ environment variables and an optional TOML file."),
 )
-# The science: simulate, analyse, fit.
-simulate.register(app)
-analyze.register(app)
-demo.register(app)
-fit.register(app)
-transport.register(app)
-report.register(app)
-# The live system.
-ingest.register(app)
-keys.register(app)
-lrm.register(app)
-serve.register(app)
-up.register(app)
-data.register(app)
-# Calibrations and operations.
-simulate_lab.register(app)
-calibrate.register(app)
-calibration.register(app)
-config.register(app)
-doctor.register(app)
-reanalyze.register(app)
+_MODULE_OF = {name: module for name, module, _ in COMMANDS}
+_HELP_OF = {name: text for name, _, text in COMMANDS}
+
+
+def _typer(**kwargs: Any) -> typer.Typer:
+    return typer.Typer(add_completion=False, pretty_exceptions_enable=False, **kwargs)
+
+
+def _register(target: typer.Typer, module: str) -> None:
+    importlib.import_module(f"camcal.cli.{module}").register(target)
+
+
+def build_app() -> typer.Typer:
+    """The whole application, every command registered (their modules imported)."""
+    full = _typer(name="camcal", help=HELP, no_args_is_help=True)
+    for module in dict.fromkeys(_MODULE_OF.values()):  # each module once, in the listed order
+        _register(full, module)
+    return full
+
+
+class _LazyGroup(TyperGroup):
+    """The root group of ``camcal``: lists every command, builds only the one it runs."""
+
+    def list_commands(self, ctx: Any) -> list[str]:
+        return [name for name, _, _ in COMMANDS]
+
+    def get_command(self, ctx: Any, cmd_name: str) -> Any:
+        if cmd_name in self.commands:
+            return self.commands[cmd_name]
+        if cmd_name in _HELP_OF:  # listed in the root's help: its one line is all that is needed
+            return TyperCommand(cmd_name, help=_HELP_OF[cmd_name])
+        return None
+
+    def resolve_command(self, ctx: Any, args: list[str]) -> Any:
+        name = args[0] if args else None
+        if name in _MODULE_OF and name not in self.commands:
+            one = _typer()
+            _register(one, _MODULE_OF[name])
+            self.commands.update(typer.main.get_group(one).commands)
+        return super().resolve_command(ctx, args)
+
+
+_root = _typer(name="camcal", help=HELP, no_args_is_help=True, cls=_LazyGroup)
+
+
+@_root.callback()
+def _root_options() -> None:
+    pass
+
+
+def __getattr__(name: str) -> Any:
+    if name == "app":  # built on first use: importing `camcal.cli` imports no command
+        globals()["app"] = built = build_app()
+        return built
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def main() -> None:
+    from camcal.core import supervise
+
     supervise.attach()  # started by `camcal up`: end with it, however it ends
     _workers_skip_the_entry_script()
-    app()
+    try:
+        _root()
+    except ImportError as exc:
+        from camcal.cli.extras import missing_extra
+
+        message = missing_extra(exc)
+        if message is None:
+            raise
+        from rich.markup import escape
+
+        from camcal.cli.common import err_console
+
+        err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
+        raise SystemExit(2) from None
 
 
 def _workers_skip_the_entry_script() -> None:

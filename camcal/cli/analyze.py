@@ -18,7 +18,6 @@ from camcal.cli.overrides import (
     overrides_from,
 )
 from camcal.core.files import write_atomic
-from camcal.core.frameset import FrameSetError
 
 if TYPE_CHECKING:
     from camcal.pipeline import FrameSetAnalysis
@@ -29,7 +28,12 @@ def register(app: typer.Typer) -> None:
 
 
 def analyze(
-    folder: Annotated[Path, typer.Argument(help="Frame-set folder (manifest.csv, setup.json, images).")],
+    folder: Annotated[
+        Path,
+        typer.Argument(
+            help="Frame-set folder (manifest.csv, setup.json, images), or one frame file of a frame set."
+        ),
+    ],
     json_out: Annotated[Path | None, typer.Option("--json", help="Write the results as JSON here.")] = None,
     plots: Annotated[Path | None, typer.Option(help="Write figures (PNG) into this folder.")] = None,
     distance: DistanceOption = None,
@@ -39,25 +43,72 @@ def analyze(
     workers: Annotated[int, typer.Option(help="Worker processes (default: all cores).")] = 0,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
 ) -> None:
-    """Measure I_center on every frame and the attenuation length per wavelength."""
+    """Measure I_center on every frame and the attenuation length per wavelength.
+
+    Given one frame file of a frame set, measure that frame alone (its
+    manifest row and the set's setup.json say how): I_center and why a frame
+    is rejected, without starting worker processes.
+    """
+    if not folder.exists():
+        raise fail(f"{folder}: no such frame-set folder or frame file")
+    single = folder.is_file()
+    if not single and workers != 1:
+        from camcal.core.parallel import start_fork_server
+
+        start_fork_server()  # the workers' imports run while this process imports and reads the set
+
+    from camcal.core.frameset import FrameSetError
     from camcal.pipeline import analyze_rows, load_frame_set, to_json
-    from camcal.plots import write_plots
 
     overrides = overrides_from(distance, distance_err, ratio, linear_range)
+    if single:
+        folder, name = folder.parent, folder.name
     try:
         rows, setup = load_frame_set(folder, overrides)
     except FrameSetError as exc:
         raise fail(str(exc)) from None
-    with progress_bar("analysing", quiet=quiet) as update:
+    if single:
+        rows = [r for r in rows if Path(r.file).name == name and (folder / r.file).samefile(folder / name)]
+        if not rows:
+            raise fail(f"{folder / name}: not a frame of the manifest in {folder}")
+        workers = 1
+    with progress_bar("analysing", quiet=quiet or single) as update:
         result = analyze_rows(folder, rows, setup, workers=workers or None, progress=update)
-    print_summary(result)
+    if single:
+        print_frame(result)
+    else:
+        print_summary(result)
     if json_out:
         json_out.parent.mkdir(parents=True, exist_ok=True)
         write_atomic(json_out, (json.dumps(to_json(result), indent=1) + "\n").encode(), fsync=False)
         console.print(f"wrote {json_out}")
     if plots:
+        from camcal.plots import write_plots
+
         for p in write_plots(result, plots):
             console.print(f"wrote {p}")
+
+
+def print_frame(an: FrameSetAnalysis) -> None:
+    """One frame's measurement, or why it was rejected."""
+    from analysis import REASON_HELP
+
+    (row,), (f,) = an.rows, an.frames
+    setting = f"{row.wavelength_nm} nm, {row.exposure_s:g} s, {row.gain_db:g} dB"
+    what = f"{row.file} (camera {row.camera}, {setting})"
+    if not f.ok or f.centroid_px is None:
+        console.print(
+            f"{what}: [yellow]rejected[/] ({f.reason}: {f.detail or REASON_HELP.get(f.reason or '', '')})",
+            highlight=False,
+        )
+        return
+    x, y = f.centroid_px
+    console.print(
+        f"{what}: I_center {f.i_center_gray:.2f} ± {f.i_center_err_gray:.2f} gray "
+        f"(centre {f.center_gray:.1f}, background {f.background_gray:.2f} gray; "
+        f"LEM at ({x:.1f}, {y:.1f}) px, radius {f.radius_px:.1f} px)",
+        highlight=False,
+    )
 
 
 def print_summary(an: FrameSetAnalysis) -> None:

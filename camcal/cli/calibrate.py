@@ -7,33 +7,20 @@ import shlex
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from analysis import REASON_HELP
-from analysis.calibration import DEEP_SEA_TEMPERATURE_C
-from camcal.calibrate import (
-    CalibrationError,
-    air_scan_document,
-    emission_document,
-    linearity_document,
-    psf_document,
-    run_air_scan,
-    run_emission_ratio,
-    run_linearity,
-    run_psf,
-    run_tank_scan,
-    tank_scan_document,
-)
-from camcal.calibrate.common import FrameOutcome, reason_counts
-from camcal.calibrate.psf import in_focus
-from camcal.calibrate.scans import LEM_DIAMETER_M
 from camcal.cli.common import console, err_console, fail
+from camcal.cli.defaults import DEEP_SEA_TEMPERATURE_C, LEM_DIAMETER_M
 from camcal.core.files import write_atomic
-from camcal.core.frameset import FrameSetError
+
+if TYPE_CHECKING:
+    from types import ModuleType
+
+    from camcal.calibrate.common import FrameOutcome
 
 calibrate_app = typer.Typer(
     help="Lab calibrations of the camera system: one subcommand per experiment, each on a frame set.",
@@ -41,10 +28,17 @@ calibrate_app = typer.Typer(
 )
 
 
-def _plots():
+def _plots() -> ModuleType:
     from camcal.calibrate import plots
 
     return plots
+
+
+def _cal() -> ModuleType:
+    """The calibrations (`camcal.calibrate`), imported when a command runs, not for ``--help``."""
+    import camcal.calibrate
+
+    return camcal.calibrate
 
 
 def register(app: typer.Typer) -> None:
@@ -111,10 +105,12 @@ def _lazy_progress(label: str, quiet: bool) -> Iterator[Callable[[int, int], Non
 
 def _run(label: str, quiet: bool, func: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
     """Run a calibration with a progress bar; unusable inputs end the command with one line."""
+    from camcal.core.frameset import FrameSetError
+
     try:
         with _lazy_progress(label, quiet) as update:
             return func(*args, progress=update, **kwargs)
-    except (FrameSetError, CalibrationError) as exc:
+    except (FrameSetError, _cal().CalibrationError) as exc:
         raise fail(str(exc)) from None
 
 
@@ -145,6 +141,9 @@ def _table(title: str, columns: list[str]) -> Table:
 
 
 def _frames_table(frames: list[FrameOutcome]) -> None:
+    from analysis import REASON_HELP
+    from camcal.calibrate.common import reason_counts
+
     counts = reason_counts(frames)
     t = _table(f"frames: {len(frames)}", ["status", "count", "what it means"])
     t.add_row("accepted", str(counts.pop("ok", 0)), "measured")
@@ -168,7 +167,13 @@ def linearity(
 ) -> None:
     """Linear response from darkroom sweeps (1-350 ms at one gain; gains at one exposure)."""
     cal = _run(
-        "reading", quiet, run_linearity, folder, camera=camera, tolerance=tolerance, workers=workers or None
+        "reading",
+        quiet,
+        _cal().run_linearity,
+        folder,
+        camera=camera,
+        tolerance=tolerance,
+        workers=workers or None,
     )
     t = _table(
         f"linear response, camera {cal.selection.camera}",
@@ -200,7 +205,7 @@ def linearity(
     lo, hi = cal.linear_range_gray
     console.print(f"recommended linear range: {lo:.1f} – {hi:.1f} gray (setup.json linear_range)")
     _frames_table(cal.frames)
-    doc = linearity_document(cal, _command_line(ctx))
+    doc = _cal().linearity_document(cal, _command_line(ctx))
     _outputs(doc, json_out, plots, lambda out: _plots().plot_linearity(cal, out))
 
 
@@ -224,7 +229,7 @@ def emission_ratio(
     cal = _run(
         "reading",
         quiet,
-        run_emission_ratio,
+        _cal().run_emission_ratio,
         folder,
         camera=camera,
         temperature_tolerance_c=temperature_tolerance,
@@ -257,7 +262,7 @@ def emission_ratio(
         )
     console.print(t)
     _frames_table(cal.frames)
-    doc = emission_document(cal, _command_line(ctx))
+    doc = _cal().emission_document(cal, _command_line(ctx))
     _outputs(doc, json_out, plots, lambda out: _plots().plot_emission(cal, out))
 
 
@@ -279,7 +284,7 @@ def air_scan(
     cal = _run(
         "reading",
         quiet,
-        run_air_scan,
+        _cal().run_air_scan,
         folder,
         camera=camera,
         source_diameter_m=source_diameter,
@@ -311,7 +316,7 @@ def air_scan(
         )
     console.print(t)
     _frames_table(cal.frames)
-    doc = air_scan_document(cal, _command_line(ctx))
+    doc = _cal().air_scan_document(cal, _command_line(ctx))
     _outputs(doc, json_out, plots, lambda out: _plots().plot_air_scan(cal, out))
 
 
@@ -330,7 +335,7 @@ def tank_scan(
     cal = _run(
         "reading",
         quiet,
-        run_tank_scan,
+        _cal().run_tank_scan,
         folder,
         camera=camera,
         distance_err_m=distance_err,
@@ -351,7 +356,7 @@ def tank_scan(
         )
     console.print(t)
     _frames_table(cal.frames)
-    doc = tank_scan_document(cal, _command_line(ctx))
+    doc = _cal().tank_scan_document(cal, _command_line(ctx))
     _outputs(doc, json_out, plots, lambda out: _plots().plot_tank_scan(cal, out))
 
 
@@ -373,7 +378,7 @@ def psf(
     cal = _run(
         "fitting",
         quiet,
-        run_psf,
+        _cal().run_psf,
         folder,
         camera=camera,
         window_px=window,
@@ -385,7 +390,7 @@ def psf(
         ["wavelength", "σ [px]", "σ_x [px]", "σ_y [px]", "FWHM [px]", "frames", "in focus"],
     )
     for wl, r in sorted(cal.results.items()):
-        focus = in_focus(cal, wl)
+        focus = _cal().psf.in_focus(cal, wl)
         t.add_row(
             f"{wl} nm",
             f"{r.sigma.mean:.3f} ± {r.sigma.err:.3f}",
@@ -397,5 +402,5 @@ def psf(
         )
     console.print(t)
     _frames_table(cal.frames)
-    doc = psf_document(cal, _command_line(ctx))
+    doc = _cal().psf_document(cal, _command_line(ctx))
     _outputs(doc, json_out, plots, lambda out: _plots().plot_psf(cal, out))

@@ -10,11 +10,8 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from camcal.cli.common import console, fail
+from camcal.cli.common import DataOption, DbUrlOption, console, fail
 from camcal.cli.data import open_store
-from camcal.core.calibrations import CalibrationError, load_json, merge_results, record_values
-from camcal.core.frameset import FrameSetError, Setup, parse_setup
-from storage import queries
 
 app = typer.Typer(help="Versioned calibration records: add, list, show.", no_args_is_help=True)
 
@@ -47,10 +44,14 @@ def add(
     valid_from: Annotated[str | None, typer.Option(help="Valid from (ISO UTC).")] = None,
     valid_to: Annotated[str | None, typer.Option(help="Valid until (ISO UTC).")] = None,
     actor: Annotated[str, typer.Option(help="Who adds it (for the audit log).")] = "cli",
-    data: Annotated[Path, typer.Option(help="Data folder of the store.")] = Path("camcal-data"),
-    db_url: Annotated[str | None, typer.Option(help="SQLAlchemy URL.")] = None,
+    data: DataOption = None,
+    db_url: DbUrlOption = None,
 ) -> None:
     """Store a new version of a calibration from lab results and/or a setup.json."""
+    from camcal.core.calibrations import CalibrationError, load_json, merge_results, record_values
+    from camcal.core.frameset import FrameSetError, Setup, parse_setup
+    from storage import queries
+
     store = open_store(data, db_url, create=True)
     try:
         if setup is not None:
@@ -83,10 +84,12 @@ def add(
 @app.command("list")
 def list_cmd(
     name: Annotated[str | None, typer.Option(help="Only this name.")] = None,
-    data: Annotated[Path, typer.Option(help="Data folder of the store.")] = Path("camcal-data"),
-    db_url: Annotated[str | None, typer.Option(help="SQLAlchemy URL.")] = None,
+    data: DataOption = None,
+    db_url: DbUrlOption = None,
 ) -> None:
     """Every stored calibration version."""
+    from storage import queries
+
     store = open_store(data, db_url)
     try:
         cals = store.call(queries.calibrations, name)
@@ -126,10 +129,12 @@ def list_cmd(
 @app.command("show")
 def show(
     ref: Annotated[str, typer.Argument(help="NAME, NAME@VERSION or an id.")],
-    data: Annotated[Path, typer.Option(help="Data folder of the store.")] = Path("camcal-data"),
-    db_url: Annotated[str | None, typer.Option(help="SQLAlchemy URL.")] = None,
+    data: DataOption = None,
+    db_url: DbUrlOption = None,
 ) -> None:
     """One calibration record as JSON."""
+    from storage import queries
+
     store = open_store(data, db_url)
     try:
         rec = store.call(queries.calibration, ref)

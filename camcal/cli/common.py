@@ -1,16 +1,40 @@
-"""Shared pieces of the command line: errors, progress, consoles."""
+"""Shared pieces of the command line: errors, progress, consoles, the options every store command takes."""
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
+from typing import Annotated
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+from camcal.cli.defaults import DATA_DIR
 
 console = Console()
 err_console = Console(stderr=True)
+
+# Where the store is: one declaration for every command that opens it. Unset, both come
+# from the typed settings (`camcal.core.settings`): CAMCAL_DATA_DIR, CAMCAL_DATABASE_URL,
+# the TOML file CAMCAL_CONFIG names, then the default (camcal-data, SQLite in it).
+DataOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--data",
+        help=f"Data folder of the store (else CAMCAL_DATA_DIR, the config file's data_dir, {DATA_DIR}).",
+        show_default=False,
+    ),
+]
+DbUrlOption = Annotated[
+    str | None,
+    typer.Option(
+        "--db-url",
+        help="SQLAlchemy URL of the store (else CAMCAL_DATABASE_URL, the config file's database_url, "
+        "SQLite in the data folder).",
+        show_default=False,
+    ),
+]
 
 
 def fail(message: str, code: int = 2) -> typer.Exit:
@@ -25,6 +49,8 @@ def progress_bar(label: str, *, quiet: bool = False) -> Iterator[Callable[[int, 
     if quiet:
         yield lambda done, total: None
         return
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
     with Progress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
-from pydantic import ValidationError
 
 from camcal.cli.common import console, fail
-from camcal.core.settings import Settings, load_settings
+
+if TYPE_CHECKING:
+    from camcal.core.settings import Settings
 
 app = typer.Typer(
     help="The configuration: CAMCAL_ environment variables and an optional TOML file.", no_args_is_help=True
@@ -23,6 +24,10 @@ def register(parent: typer.Typer) -> None:
 
 def settings_or_fail(config: Path | None = None, **overrides: object) -> Settings:
     """Load the settings; a bad value is one line naming the setting and what is wrong."""
+    from pydantic import ValidationError
+
+    from camcal.core.settings import load_settings
+
     try:
         return load_settings(config, **overrides)
     except ValidationError as exc:

@@ -11,9 +11,12 @@ from __future__ import annotations
 import os
 import secrets
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from camcal.cli.common import err_console, fail
-from camcal.core.settings import Settings
+
+if TYPE_CHECKING:
+    from camcal.core.settings import Settings
 
 #: Environment variables the children of ``camcal up`` never get.
 SECRET_VARIABLES = ("CAMCAL_OPERATOR_TOKENS", "CAMCAL_OPERATOR_TOKENS_FILE")

@@ -8,9 +8,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from camcal.cli.common import console, fail, progress_bar
-from camcal.core.frameset import FrameSetError
-from storage import queries
+from camcal.cli.common import DataOption, DbUrlOption, console, fail, progress_bar
 
 
 def register(app: typer.Typer) -> None:
@@ -18,18 +16,36 @@ def register(app: typer.Typer) -> None:
     app.command("export")(export_cmd)
 
 
-def open_store(data: Path, db_url: str | None, *, create: bool = False):
+def store_location(data: Path | None, db_url: str | None) -> tuple[Path, str | None]:
+    """The data folder and database URL a command uses: its options, else the typed settings
+    (``CAMCAL_DATA_DIR``, ``CAMCAL_DATABASE_URL``, the config file), else the defaults."""
+    from camcal.cli.config import settings_or_fail
+
+    settings = settings_or_fail(data_dir=data, database_url=db_url)
+    return settings.data_dir, settings.database_url
+
+
+def open_store(data: Path | None, db_url: str | None, *, create: bool = False):
+    """The store ``--data``/``--db-url`` (or the settings) name; a missing one is one line, not a new one."""
+    data, db_url = store_location(data, db_url)
     from storage.store import Store
 
     if not create and db_url is None and not (data / "camcal.db").exists():
-        raise fail(f"{data}: no camcal store here (run `camcal ingest --data {data}` or pass --db-url)")
+        raise fail(
+            f"{data}: no camcal store here (run `camcal ingest --data {data}`, "
+            "or name it with --data/--db-url or CAMCAL_DATA_DIR/CAMCAL_DATABASE_URL)"
+        )
     try:
         return Store.open(data, db_url)
+    except ImportError:
+        raise  # a driver of an extra not installed (psycopg): `camcal.cli.main` names the extra
     except Exception as exc:
         raise fail(f"cannot open the store: {exc}") from None
 
 
 def pick_dive(store, name: str | None, *, create_as: str | None = None):
+    from storage import queries
+
     if name:
         dive = store.call(queries.dive_by_name, name)
         if dive is None:
@@ -54,16 +70,15 @@ def pick_dive(store, name: str | None, *, create_as: str | None = None):
 
 def import_cmd(
     folder: Annotated[Path, typer.Argument(help="An SD-card outbox or any frame set.")],
-    data: Annotated[Path, typer.Option(help="Data folder of the store.")] = Path("camcal-data"),
-    db_url: Annotated[
-        str | None, typer.Option(help="SQLAlchemy URL (default: SQLite in the data folder).")
-    ] = None,
+    data: DataOption = None,
+    db_url: DbUrlOption = None,
     dive: Annotated[str | None, typer.Option(help="Dive to import into (default: the latest).")] = None,
     workers: Annotated[int, typer.Option(help="Analysis processes.")] = 2,
     analyse: Annotated[bool, typer.Option(help="Analyse the imported frames.")] = True,
 ) -> None:
     """Load an SD-card frame set into a dive: frames already stored are skipped, gaps are filled."""
     from camcal.core import __version__
+    from camcal.core.frameset import FrameSetError
     from ingest.importer import import_frame_set
 
     store = open_store(data, db_url, create=True)
@@ -95,10 +110,8 @@ def import_cmd(
 
 def export_cmd(
     out: Annotated[Path, typer.Option(help="Folder to write the tables into.")] = Path("export"),
-    data: Annotated[Path, typer.Option(help="Data folder of the store.")] = Path("camcal-data"),
-    db_url: Annotated[
-        str | None, typer.Option(help="SQLAlchemy URL (default: SQLite in the data folder).")
-    ] = None,
+    data: DataOption = None,
+    db_url: DbUrlOption = None,
     dive: Annotated[str | None, typer.Option(help="Dive to export (default: the latest).")] = None,
     fmt: Annotated[str, typer.Option("--format", help="csv, parquet, or csv,parquet.")] = "csv,parquet",
 ) -> None:

@@ -5,19 +5,18 @@ from __future__ import annotations
 import json
 import shutil
 import socket
-import urllib.error
-import urllib.request
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-import zmq
 from rich.table import Table
 
 from camcal.cli.common import console
 from camcal.cli.config import settings_or_fail
 from camcal.core.events import Event
-from camcal.core.settings import Settings, endpoint_list
+
+if TYPE_CHECKING:
+    from camcal.core.settings import Settings
 
 OK, WARN, FAIL = "ok", "warn", "FAIL"
 
@@ -93,6 +92,10 @@ def check_database(s: Settings) -> list[tuple[str, str, str]]:
 
 
 def check_ingest(s: Settings, wait_s: float) -> tuple[list[tuple[str, str, str]], dict[str, Any] | None]:
+    import zmq
+
+    from camcal.core.settings import endpoint_list
+
     out = []
     port = _port_of(s.ingest_bind)
     if port and _listening(*port):
@@ -204,6 +207,9 @@ def check_modules(s: Settings, health: dict[str, Any] | None) -> list[tuple[str,
 
 
 def check_http(s: Settings) -> list[tuple[str, str, str]]:
+    import urllib.error
+    import urllib.request
+
     host = "127.0.0.1" if s.http_host in ("0.0.0.0", "::") else s.http_host
     url = f"http://{host}:{s.http_port}/api/health"
     try:

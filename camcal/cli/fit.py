@@ -13,18 +13,15 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from camcal.cli.common import console, err_console, fail, parse_floats
+from camcal.cli.common import DataOption, DbUrlOption, console, err_console, fail, parse_floats
+from camcal.cli.defaults import TREX_FOCAL_PX
 from camcal.cli.overrides import DistanceErrOption, DistanceOption, RatioOption, overrides_from
 from camcal.core.files import write_atomic
-from camcal.core.frameset import FrameSetError
-from lrm.sim.camera import CameraModel
 
 if TYPE_CHECKING:
     from analysis.chisq import ChiSquareFit, Estimate
     from camcal.fitset import FitOptions, FolderFit
     from camcal.pipeline import Overrides
-
-TREX_FOCAL_PX = CameraModel().focal_px
 
 
 def register(app: typer.Typer) -> None:
@@ -61,10 +58,8 @@ def fit(
     dive: Annotated[
         str | None, typer.Option(help="Fit a stored dive instead of a folder (its frames in --data).")
     ] = None,
-    data: Annotated[Path, typer.Option(help="Data folder of the store (with --dive).")] = Path("camcal-data"),
-    db_url: Annotated[
-        str | None, typer.Option(help="SQLAlchemy URL (default: SQLite in the data folder).")
-    ] = None,
+    data: DataOption = None,
+    db_url: DbUrlOption = None,
     run: Annotated[
         int | None, typer.Option(help="Analysis run whose calibration inputs to use (default: the live one).")
     ] = None,
@@ -138,8 +133,8 @@ def fit(
     nodes = parse_floats(sca_nodes, "--sca-nodes")
     from analysis.chisq import FitConfig, FitInputError
     from analysis.chisq.systematics import SystematicsConfig
+    from camcal.core.frameset import FrameSetError
     from camcal.fitdoc import to_json
-    from camcal.fitplots import write_fit_plots
     from camcal.fitset import FitOptions, fit_folder
 
     try:
@@ -189,6 +184,8 @@ def fit(
         write_atomic(json_out, text.encode(), fsync=False)
         console.print(f"wrote {json_out}")
     if plots:
+        from camcal.fitplots import write_fit_plots
+
         for p in write_fit_plots(result, plots):
             console.print(f"wrote {p}")
     if not result.has_result:
@@ -197,7 +194,7 @@ def fit(
 
 def fit_stored_dive(
     dive: str,
-    data: Path,
+    data: Path | None,
     db_url: str | None,
     run: int | None,
     calibration: str | None,

@@ -9,16 +9,18 @@ import re
 import signal
 import threading
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from camcal.cli.common import console, fail
+from camcal.cli.common import DataOption, DbUrlOption, console, fail
 from camcal.cli.config import settings_or_fail
 from camcal.core import supervise
-from camcal.core.frameset import FrameSetError, Setup, parse_setup, read_setup
 from camcal.core.logs import configure_logging
-from camcal.core.settings import Settings
+
+if TYPE_CHECKING:
+    from camcal.core.frameset import Setup
+    from camcal.core.settings import Settings
 
 
 def register(app: typer.Typer) -> None:
@@ -27,6 +29,8 @@ def register(app: typer.Typer) -> None:
 
 def load_setup(setup: Path | None, settings: Settings) -> Setup:
     """A setup.json file (or a frame-set folder holding one), else the configured modules and ratios."""
+    from camcal.core.frameset import FrameSetError, parse_setup, read_setup
+
     if setup is None:
         return settings.setup()
     if setup.is_dir():
@@ -84,14 +88,14 @@ def start_service(cfg: Any) -> Any:
 
 
 def ingest(
-    data: Annotated[Path | None, typer.Option(help="Data folder [CAMCAL_DATA_DIR].")] = None,
+    data: DataOption = None,
     bind: Annotated[
         str | None, typer.Option(help="Where modules connect, tcp://*:PORT [CAMCAL_INGEST_BIND].")
     ] = None,
     events: Annotated[
         str | None, typer.Option(help="Event publisher for the dashboard [CAMCAL_EVENTS_BIND].")
     ] = None,
-    db_url: Annotated[str | None, typer.Option(help="SQLAlchemy URL [CAMCAL_DATABASE_URL].")] = None,
+    db_url: DbUrlOption = None,
     setup: Annotated[
         Path | None, typer.Option(help="setup.json with distances, I0'/I0, linear range.")
     ] = None,

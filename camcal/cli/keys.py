@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from camcal.cli.common import console, fail
+from camcal.cli.common import DataOption, console, fail
 from camcal.cli.config import settings_or_fail
 
 app = typer.Typer(
@@ -18,7 +18,6 @@ app = typer.Typer(
 KeysDirOption = Annotated[
     Path | None, typer.Option("--keys", help="Keys folder [CAMCAL_KEYS_DIR; default <data>/keys].")
 ]
-DataOption = Annotated[Path | None, typer.Option(help="Data folder [CAMCAL_DATA_DIR].")]
 
 
 def register(parent: typer.Typer) -> None:
@@ -74,7 +73,7 @@ def list_(keys: KeysDirOption = None, data: DataOption = None) -> None:
     found = list_keys(folder)
     if not found:
         raise fail(f"no keys in {folder}: create them with `camcal keys create A B --keys {folder}`")
-    console.print(f"keys in {folder}:", highlight=False)
+    console.print(f"keys in {folder}:", highlight=False, soft_wrap=True)  # a path is not cut
     width = max(len(k.owner) for k in found)
     for k in found:
         secret = "secret here" if k.has_secret else "public only"

@@ -10,13 +10,15 @@ import time
 from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from camcal.cli.common import console, fail
-from camcal.core.frameset import FrameSetError
-from camcal.core.schedule import CameraLimits, Schedule
+from camcal.cli.defaults import DATA_DIR
+
+if TYPE_CHECKING:
+    from camcal.core.schedule import Schedule
 
 app = typer.Typer(
     help="Run a light receiver module: a real camera, simulated, or replaying a frame set.",
@@ -77,7 +79,7 @@ def register(parent: typer.Typer) -> None:
 
 def load_schedule(name: str) -> Schedule:
     """A preset name or a JSON file with a schedule."""
-    from camcal.core.schedule import presets
+    from camcal.core.schedule import Schedule, presets
 
     table = presets()
     if name in table:
@@ -186,7 +188,7 @@ def simulate(
         bool, typer.Option(help="Exit once the dive is over and all is sent.")
     ] = True,
     dive: DiveOption = None,
-    keys: KeysOption = Path("camcal-data/keys"),
+    keys: KeysOption = Path(DATA_DIR) / "keys",
     plaintext: PlaintextOption = False,
     log_level: Annotated[str, typer.Option(help="debug, info, warning.")] = "info",
 ) -> None:
@@ -278,13 +280,14 @@ def replay(
         float, typer.Option(help="1 = recorded pace, 10 = ten times faster, 0 = as fast as possible.")
     ] = 1.0,
     dive: DiveOption = None,
-    keys: KeysOption = Path("camcal-data/keys"),
+    keys: KeysOption = Path(DATA_DIR) / "keys",
     plaintext: PlaintextOption = False,
     log_level: Annotated[str, typer.Option(help="debug, info, warning.")] = "info",
 ) -> None:
     """Stream a recorded frame set over the module protocol, then exit when the ship has it all.
 
     Exits with status 3 if the ship at --connect is not the right one."""
+    from camcal.core.frameset import FrameSetError
     from lrm.agent import Agent, AgentConfig
     from lrm.clock import SystemClock
     from lrm.replay import ReplaySource
@@ -370,6 +373,7 @@ def camera_module(
     card, says why in its log, and keeps looking for the right ship.
     """
     from camcal.cli.common import parse_floats
+    from camcal.core.schedule import CameraLimits
     from lrm.agent import Agent, AgentConfig
     from lrm.camera import CameraError, V4L2Camera
     from lrm.clock import SystemClock

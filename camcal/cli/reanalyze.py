@@ -6,12 +6,12 @@ import json
 import time
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.table import Table
 
-from camcal.cli.common import console, fail
+from camcal.cli.common import DataOption, DbUrlOption, console, fail
 from camcal.cli.overrides import (
     DistanceErrOption,
     DistanceOption,
@@ -19,10 +19,10 @@ from camcal.cli.overrides import (
     RatioOption,
     overrides_from,
 )
-from camcal.core.calibrations import setup_of
 from camcal.core.files import write_atomic
-from camcal.core.frameset import FrameSetError, Setup, parse_setup
-from storage import queries
+
+if TYPE_CHECKING:
+    from camcal.core.frameset import Setup
 
 
 def register(app: typer.Typer) -> None:
@@ -57,6 +57,8 @@ def parse_storage_options(items: list[str] | None) -> dict[str, Any]:
 
 
 def load_setup_file(path: Path) -> Setup:
+    from camcal.core.frameset import FrameSetError, parse_setup
+
     try:
         return parse_setup(json.loads(path.read_text(encoding="utf-8")), str(path))
     except OSError as exc:
@@ -104,10 +106,8 @@ def reanalyze(
     distance_err: DistanceErrOption = None,
     ratio: RatioOption = None,
     linear_range: LinearRangeOption = None,
-    data: Annotated[Path, typer.Option(help="Data folder of the store.")] = Path("camcal-data"),
-    db_url: Annotated[
-        str | None, typer.Option(help="SQLAlchemy URL (default: SQLite in the data folder).")
-    ] = None,
+    data: DataOption = None,
+    db_url: DbUrlOption = None,
     frames_url: Annotated[
         str | None,
         typer.Option(
@@ -201,6 +201,8 @@ def reanalyze(
 
 def _stored(store: Any, name: str | None, frm: float | None, to: float | None) -> list[dict[str, Any]]:
     """A job per dive: the named one, or every dive with frames in the span."""
+    from storage import queries
+
     if name is not None:
         d = store.call(queries.dive_by_name, name)
         if d is None:
@@ -215,7 +217,9 @@ def _import_folders(
     store: Any, folders: list[str], name: str | None, storage_options: dict[str, Any]
 ) -> list[dict[str, Any]]:
     """Import each folder (frames already stored are matched, not copied again); a job per dive."""
+    from camcal.core.frameset import FrameSetError
     from ingest.importer import import_frame_set, read_frame_set
+    from storage import queries
     from storage.files import RemoteFolder
 
     jobs: list[dict[str, Any]] = []
@@ -267,6 +271,8 @@ def _start_runner(workers: int, scheduler: str | None) -> Any:
 
 def _check_calibration(store: Any, ref: str) -> None:
     """Fail before any work if the named calibration is not stored or holds no valid setup."""
+    from camcal.core.calibrations import setup_of
+    from camcal.core.frameset import FrameSetError
     from ingest.reanalysis import UnknownCalibration, find_calibration
 
     try:
@@ -311,6 +317,7 @@ def _start(
 def _run(store: Any, job: dict[str, Any], started: Any, options: Any, runner: Any) -> dict[str, Any]:
     from ingest.derived import attenuation_dict, result_row, span_attenuation
     from ingest.reanalysis import reanalyse
+    from storage import queries
 
     d = job["dive"]
     run_id, setup, record = started.run_id, started.setup, started.record

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from camcal.cli.common import console, fail
+from camcal.cli.common import DataOption, DbUrlOption, console, fail
 
 
 def register(app: typer.Typer) -> None:
@@ -18,10 +18,8 @@ def report(
     dive: Annotated[
         str, typer.Argument(help="Name of the dive (`camcal export` and the dashboard list them).")
     ],
-    data: Annotated[Path, typer.Option(help="Data folder of the store.")] = Path("camcal-data"),
-    db_url: Annotated[
-        str | None, typer.Option(help="SQLAlchemy URL (default: SQLite in the data folder).")
-    ] = None,
+    data: DataOption = None,
+    db_url: DbUrlOption = None,
     out: Annotated[
         Path | None, typer.Option(help="The HTML file to write (default: report-DIVE.html).")
     ] = None,

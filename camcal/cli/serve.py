@@ -5,21 +5,21 @@ from __future__ import annotations
 
 import signal
 import socket
-import ssl
 import threading
 import time
-import urllib.request
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from camcal.cli.common import console, fail
+from camcal.cli.common import DataOption, DbUrlOption, console, fail
 from camcal.cli.config import settings_or_fail
 from camcal.cli.credentials import operator_tokens
 from camcal.core import supervise
 from camcal.core.logs import configure_logging
-from camcal.core.settings import Settings
+
+if TYPE_CHECKING:
+    from camcal.core.settings import Settings
 
 
 def register(app: typer.Typer) -> None:
@@ -35,6 +35,8 @@ class HttpServer:
     """
 
     def __init__(self, settings: Settings, tokens: dict[str, str], events: str | None) -> None:
+        import ssl
+
         import uvicorn
 
         from server.app import create_app
@@ -93,6 +95,8 @@ class HttpServer:
 
     def wait_healthy(self, timeout_s: float, stop: threading.Event | None = None) -> None:
         """Wait until ``/healthz`` answers 200; `RuntimeError` if the server ends or stays silent."""
+        import urllib.request
+
         end = time.monotonic() + timeout_s
         while not (stop is not None and stop.is_set()):
             if not self.alive():
@@ -152,7 +156,7 @@ def stop_signals() -> threading.Event:
 
 
 def serve(
-    data: Annotated[Path | None, typer.Option(help="Data folder [CAMCAL_DATA_DIR].")] = None,
+    data: DataOption = None,
     host: Annotated[
         str | None, typer.Option(help="Address; 0.0.0.0 for the ship's network [CAMCAL_HTTP_HOST].")
     ] = None,
@@ -160,7 +164,7 @@ def serve(
     events: Annotated[
         str | None, typer.Option(help="The ingest's events; 'none' for review only [CAMCAL_EVENTS_CONNECT].")
     ] = None,
-    db_url: Annotated[str | None, typer.Option(help="SQLAlchemy URL [CAMCAL_DATABASE_URL].")] = None,
+    db_url: DbUrlOption = None,
     operator_token: Annotated[
         list[str] | None,
         typer.Option(help="NAME=TOKEN of an operator (repeat); shown by ps: use CAMCAL_OPERATOR_TOKENS."),

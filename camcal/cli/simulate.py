@@ -3,17 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from analysis.scattering import WaterOptics
 from camcal.cli.common import console, fail, parse_floats, parse_mapping, progress_bar
-from camcal.core.schedule import Schedule, trex_schedule, trex_subsampled
-from lrm.sim.camera import CameraModel
-from lrm.sim.render import TransportHalo
-from lrm.sim.scene import TREX_PLACEMENTS, Placement, Water, water_preset
-from lrm.simset import SimulationSpec, simulate_frame_set
+
+if TYPE_CHECKING:
+    from lrm.sim.scene import Water
 
 
 def register(app: typer.Typer) -> None:
@@ -24,6 +21,9 @@ def build_water(
     preset: str, absorption: str | None, scattering: str | None, mie_g: float, rayleigh_fraction: float
 ) -> Water:
     """A preset water, with per-wavelength lengths overridden by ``405=39,...`` strings."""
+    from analysis.scattering import WaterOptics
+    from lrm.sim.scene import Water, water_preset
+
     try:
         base = water_preset(preset)
     except ValueError as exc:
@@ -106,6 +106,12 @@ def simulate_set(
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
 ) -> None:
     """Simulate a dive's frame set (manifest, setup.json, PNGs) and its ground truth (truth.json)."""
+    from camcal.core.schedule import Schedule, trex_schedule, trex_subsampled
+    from lrm.sim.camera import CameraModel
+    from lrm.sim.render import TransportHalo
+    from lrm.sim.scene import TREX_PLACEMENTS, Placement
+    from lrm.simset import SimulationSpec, simulate_frame_set
+
     if halo not in ("single", "transport"):
         raise fail(f"--halo: unknown halo model {halo!r} (single, transport)")
     if not 2 <= halo_orders <= 30 or halo_photons < 10_000:
@@ -127,7 +133,7 @@ def simulate_set(
     base = {"trex": trex_schedule, "trex-subsampled": trex_subsampled}.get(schedule)
     if base is None:
         raise fail(f"--schedule: unknown schedule {schedule!r} (trex, trex-subsampled)")
-    sched: Schedule = base()
+    sched = base()
     try:
         sched = Schedule(
             name=sched.name if not (exposures or gains or repeats or wavelengths) else "custom",

@@ -4,16 +4,15 @@ from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from analysis.scattering import WaterOptics
 from camcal.cli.common import console, fail, parse_floats, parse_mapping, progress_bar
-from lrm.labset import LAB_KINDS, SPEC_CLASSES, lab_spec, write_lab_set
-from lrm.sim.camera import CameraModel
-from lrm.sim.lab import tap_water
-from lrm.sim.scene import Water
+from camcal.cli.defaults import LAB_KINDS
+
+if TYPE_CHECKING:
+    from lrm.sim.scene import Water
 
 
 def register(app: typer.Typer) -> None:
@@ -22,6 +21,10 @@ def register(app: typer.Typer) -> None:
 
 def _tank_water(absorption: str | None, scattering: str | None) -> Water:
     """The tank's tap water with per-wavelength lengths replaced by ``405=8,...`` strings."""
+    from analysis.scattering import WaterOptics
+    from lrm.sim.lab import tap_water
+    from lrm.sim.scene import Water
+
     base = tap_water()
     abs_map = {int(k): v for k, v in parse_mapping(absorption, "--abs").items()}
     sca_map = {int(k): v for k, v in parse_mapping(scattering, "--sca").items()}
@@ -62,6 +65,9 @@ def simulate_lab(
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
 ) -> None:
     """Simulate a lab calibration: linearity, emission-ratio, air-scan, tank-scan or psf (+ truth.json)."""
+    from lrm.labset import SPEC_CLASSES, lab_spec, write_lab_set
+    from lrm.sim.camera import CameraModel
+
     if kind not in SPEC_CLASSES:
         raise fail(f"KIND: unknown experiment {kind!r}; choose from {', '.join(LAB_KINDS)}")
     fields = set(SPEC_CLASSES[kind].__dataclass_fields__)

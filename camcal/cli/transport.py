@@ -6,14 +6,11 @@ import os
 from pathlib import Path
 from typing import Annotated
 
-import numpy as np
 import typer
 from rich.table import Table
 
 from camcal.cli.common import console, fail, parse_floats, progress_bar
-from lrm.sim.camera import CameraModel
-
-TREX_FOCAL_PX = CameraModel().focal_px
+from camcal.cli.defaults import TREX_FOCAL_PX
 
 transport_app = typer.Typer(
     help="Photon transport: the refined model's c1/c2 coefficients, the template cache.",
@@ -39,6 +36,8 @@ def c_coefficients(
     seed: Annotated[int, typer.Option(help="Monte Carlo seed.")] = 0,
 ) -> None:
     """c₁ = L̄₁/R and c₂ = L̄₂/R (paper, appendix B) by integration, checked by Monte Carlo."""
+    import numpy as np
+
     from analysis.transport.coefficients import ScatteringMix, c1_coefficient, c2_coefficient, sphere_paths_mc
     from camcal.fitplots import plot_c_coefficients
 

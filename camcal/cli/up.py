@@ -18,7 +18,7 @@ import os
 import threading
 import time
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
@@ -28,7 +28,9 @@ from camcal.cli.credentials import child_environment, ship_key, simulated_link, 
 from camcal.cli.serve import HttpServer, bind_http, stop_signals
 from camcal.core import supervise
 from camcal.core.logs import configure_logging
-from camcal.core.settings import Settings
+
+if TYPE_CHECKING:
+    from camcal.core.settings import Settings
 
 MODULES = ("A", "B")
 #: Where the simulated dive begins: on deck (the real-time descent first), at the first test stop, on station.

@@ -28,7 +28,9 @@ from camcal.core.supervise import exit_when_gone
 T = TypeVar("T")
 R = TypeVar("R")
 
-_PRELOAD = ["numpy", "cv2", "scipy.optimize", "analysis", "camcal.core.frameset"]
+#: What every worker needs: the frame decoder and the analysis (no SciPy: a worker that needs it,
+#: a simulator's, imports it itself). The fork server imports these once; each worker is a fork of it.
+_PRELOAD = ["numpy", "cv2", "analysis", "camcal.core.frameset"]
 _context: Any = None
 
 
@@ -39,6 +41,20 @@ def _get_context() -> Any:
         ctx.set_forkserver_preload(_PRELOAD)
         _context = ctx
     return _context
+
+
+def start_fork_server() -> None:
+    """Start the fork server now, so that its imports run beside this process's own work.
+
+    A pool made later forks its workers from it at once instead of waiting
+    for numpy, OpenCV and the analysis to load (the better part of a second).
+    Cheap to call twice; a process that never makes a pool only paid one idle
+    process.
+    """
+    from multiprocessing import forkserver
+
+    _get_context()  # sets the preload list
+    forkserver.ensure_running()
 
 
 def _init_worker(owner_pid: int, initializer: Callable[..., None] | None, initargs: tuple[Any, ...]) -> None:

@@ -206,3 +206,22 @@ def test_simulate_set_is_deterministic_and_refuses_a_used_folder(tmp_path: Path)
     assert again.returncode == 2 and "already holds a frame set" in again.stderr
     bad = run_cli(*args[:-3], "--exposures", "-1", str(tmp_path / "c"))
     assert bad.returncode == 2 and "exposure" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_one_frame_file_is_measured_alone_as_in_its_set(trex_small_set: Path, tmp_path: Path) -> None:
+    """``camcal analyze FILE``: the frame's manifest row and the set's setup, the same I_center as in the
+    whole set; a file that is no frame of the manifest is one line."""
+    whole = tmp_path / "whole.json"
+    res = runner.invoke(app, ["analyze", str(trex_small_set), "--json", str(whole), "--quiet"])
+    assert res.exit_code == 0, res.output
+    frames = json.loads(whole.read_text())["frames"]
+    picked = next(f for f in frames if f["status"] == "ok")
+    one = tmp_path / "one.json"
+    res = runner.invoke(app, ["analyze", str(trex_small_set / picked["file"]), "--json", str(one)])
+    assert res.exit_code == 0, res.output
+    assert "I_center" in res.output and picked["file"] in res.output
+    (got,) = json.loads(one.read_text())["frames"]
+    assert got == picked
+    res = run_cli("analyze", str(trex_small_set / "setup.json"))
+    assert res.returncode == 2 and "not a frame of the manifest" in res.stderr
+    assert "Traceback" not in res.stderr

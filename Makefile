@@ -30,7 +30,10 @@ test: $(STAMP)
 	$(BIN)/lint-imports
 	$(BIN)/deptry .
 	$(BIN)/mypy
-	$(BIN)/python -m pytest -n 2 --dist loadgroup
+	# Both cores for the tests that do not run in real time, then the live and browser tests alone
+	# (their simulated modules keep wall-clock time and must not share the cores with a fit).
+	$(BIN)/python -m pytest -n 2 --dist loadfile --ignore=tests/live --ignore=tests/browser
+	$(BIN)/python -m pytest tests/live tests/browser
 
 # A module's install: the core alone (no extra), built and installed as `pip install camcal` would,
 # in a fresh venv; then `camcal lrm --help` and the module side's tests (their sources from here).
@@ -39,7 +42,7 @@ test-core:
 	$(PYTHON) -m venv $(CORE)
 	$(CORE)/bin/python -m pip install --quiet . pytest pytest-xdist hypothesis
 	$(CORE)/bin/camcal lrm --help >/dev/null
-	$(CORE)/bin/python -m pytest -n 2 --dist loadgroup -p no:cacheprovider tests/lrm tests/sim tests/camcal \
+	$(CORE)/bin/python -m pytest -n 2 --dist loadfile -p no:cacheprovider tests/lrm tests/sim tests/camcal \
 		tests/test_wire.py tests/test_frameset.py tests/cli/test_startup.py
 
 # The protocol fuzzer's slow lane: 10 000 generated messages against a real ingest (make test sends 800).

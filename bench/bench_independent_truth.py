@@ -50,6 +50,7 @@ from analysis.chisq.systematics import SystematicsConfig, systematic_budget, var
 from analysis.scattering import WaterOptics
 from analysis.transport.cache import TemplateCache
 from analysis.transport.templates import TemplateGrid, TemplateSettings, build_template_grid
+from camcal.core.parallel import process_pool
 from lrm.sim import CameraModel, FrameRenderer
 from lrm.sim.render import TransportHalo
 from lrm.sim.scene import TREX_PLACEMENTS, LEMModel, Water
@@ -67,6 +68,12 @@ GAINS_DB = tuple(float(g) for g in range(2, 21, 2))
 REPEATS = 4
 TRUTH_ORDERS = 12
 TRUTH_SEED = 101
+
+
+def _grid(settings: TemplateSettings, cache: TemplateCache, workers: int) -> TemplateGrid:
+    """The template grid, its missing pieces computed on a pool of ``workers`` processes."""
+    with process_pool(max(1, workers)) as pool:
+        return build_template_grid(settings, cache, executor=pool)
 
 
 def small_camera() -> CameraModel:
@@ -240,9 +247,7 @@ def main() -> None:
     grids: dict[str, TemplateGrid] = {}
     var_grids: dict[str, dict[str, TemplateGrid]] = {}
     for water in waters:
-        grids[water] = build_template_grid(
-            fit_settings(water, args.photons, args.template_orders), tc, workers=args.workers
-        )
+        grids[water] = _grid(fit_settings(water, args.photons, args.template_orders), tc, args.workers)
     t_fit_templates = time.perf_counter() - t_build
     t0 = time.perf_counter()
     for water in waters:
@@ -252,7 +257,7 @@ def main() -> None:
         done = 0
         var_grids[water] = {}
         for name, v in vs.items():
-            var_grids[water][name] = build_template_grid(v, tc, workers=args.workers)
+            var_grids[water][name] = _grid(v, tc, args.workers)
             done += len(v.mie_g_nodes) * (1 + len(v.lambda_sca_nodes_m))
             print(
                 f"  budget templates {water}: {done}/{n} pieces ({time.perf_counter() - t0:.0f} s)",

@@ -43,7 +43,8 @@ from analysis.transport.scene import (
     TransportScene,
     band_edges_px,
 )
-from analysis.transport.templates import TemplateSettings, build_template_grid
+from analysis.transport.templates import TemplateGrid, TemplateSettings, build_template_grid
+from camcal.core.parallel import process_pool
 from lrm.sim import CameraModel, FrameRenderer
 from lrm.sim.render import TransportHalo
 from lrm.sim.scene import TREX_PLACEMENTS, Water
@@ -52,6 +53,12 @@ FOCAL_PX = 1224.0 / math.tan(math.radians(8.0))
 
 
 # -- the same algorithm, one photon at a time ------------------------------------------------
+
+
+def _grid(settings: TemplateSettings, cache: TemplateCache, workers: int) -> TemplateGrid:
+    """The template grid, its missing pieces computed on a pool of ``workers`` processes."""
+    with process_pool(max(1, workers)) as pool:
+        return build_template_grid(settings, cache, executor=pool)
 
 
 def _hg_sr(c: float, g: float) -> float:
@@ -265,10 +272,10 @@ def bench_templates(n_photons: int, workers: int) -> TemplateSettings:
     with tempfile.TemporaryDirectory() as tmp:
         cache = TemplateCache(tmp)
         t = time.perf_counter()
-        build_template_grid(settings, cache, workers=workers)
+        _grid(settings, cache, workers)
         build_s = time.perf_counter() - t
         t = time.perf_counter()
-        grid = build_template_grid(settings, cache, workers=workers)
+        grid = _grid(settings, cache, workers)
         load_s = time.perf_counter() - t
         t = time.perf_counter()
         for _ in range(100):
@@ -286,7 +293,7 @@ def bench_fit(settings: TemplateSettings, workers: int) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         cache = TemplateCache(tmp)
         grid_settings = replace(settings, outer_px=1130.0, n_outer=16)
-        grid = build_template_grid(grid_settings, cache, workers=workers)
+        grid = _grid(grid_settings, cache, workers)
         renderers = {
             p.camera: FrameRenderer(cam, p, water, halo_model="transport", transport=TransportHalo(grid=grid))
             for p in TREX_PLACEMENTS

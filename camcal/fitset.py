@@ -38,6 +38,7 @@ from analysis.transport.templates import (
     build_template_grid,
 )
 from camcal.core.frameset import FrameSetError
+from camcal.core.parallel import process_pool
 from camcal.pipeline import FrameSetAnalysis, Overrides, analyze_folder
 
 #: Focal length in pixels of the T-REX camera (2448 px across a 16° field of view in water).
@@ -324,13 +325,13 @@ def fit_analysis(
     n_bands = min(len(p.mean_gray) for s in todo.values() for sp in s for p in (sp.near, sp.far))
     n_bands -= n_bands % 8
     tsettings = options.template_settings(geometry, n_bands)
-    grid = build_template_grid(
-        tsettings, TemplateCache(options.cache_dir), workers=workers, progress=stage("templates")
-    )
-    jobs = [(wl, s, grid, geometry, ratios[wl], options.fit) for wl, s in sorted(todo.items())]
     notes: dict[int, str] = {}
-    pool = ProcessPoolExecutor(max_workers=min(workers, len(jobs))) if workers > 1 and len(jobs) > 1 else None
+    pool = process_pool(workers) if workers > 1 else None  # one pool: templates, fits and budgets
     try:
+        grid = build_template_grid(
+            tsettings, TemplateCache(options.cache_dir), executor=pool, progress=stage("templates")
+        )
+        jobs = [(wl, s, grid, geometry, ratios[wl], options.fit) for wl, s in sorted(todo.items())]
         fits: dict[int, ChiSquareFit] = {}
         for job, res in zip(jobs, _map(_fit_job, jobs, pool, stage("fitting")), strict=True):
             if isinstance(res, str):
@@ -374,7 +375,7 @@ def _with_budgets(
             if report:
                 report(base + d, n_pieces)
 
-        vgrids[name] = build_template_grid(vs, cache, workers=workers, progress=piece)
+        vgrids[name] = build_template_grid(vs, cache, executor=pool, progress=piece)
         done += len(vs.mie_g_nodes) * (1 + len(vs.lambda_sca_nodes_m))
     jobs = [(f, todo[wl], grid, vgrids, options.systematics) for wl, f in sorted(fits.items())]
     out = dict(fits)

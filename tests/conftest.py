@@ -108,21 +108,3 @@ def dask_runner() -> Iterator[object]:
     runner = DaskRunner(workers=2)
     yield runner
     runner.close()
-
-
-@pytest.hookimpl(tryfirst=True)
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Groups for ``pytest -n 2 --dist loadgroup`` (``make test``): one worker runs a whole group.
-
-    A test module's tests stay together (its module-scoped fixtures are built
-    once), the browser tests share one running system, and the tests on the
-    session's simulated dive (`dive_data`, ~45 s to build) share one build.
-    """
-    for item in items:
-        if item.get_closest_marker("browser") is not None:
-            group = "browser"
-        elif "dive_data" in getattr(item, "fixturenames", ()):
-            group = "dive_data"
-        else:
-            group = item.nodeid.split("::", 1)[0]
-        item.add_marker(pytest.mark.xdist_group(group))

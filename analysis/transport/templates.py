@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import Executor
 from dataclasses import asdict, dataclass, field
 from functools import partial
 
@@ -417,10 +417,14 @@ def build_template_grid(
     settings: TemplateSettings,
     cache: TemplateCache | None = None,
     *,
-    workers: int = 1,
+    executor: Executor | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> TemplateGrid:
-    """Load the grid's pieces from the cache, computing the missing ones (in parallel with ``workers``).
+    """Load the grid's pieces from the cache, computing the missing ones (on ``executor`` if given).
+
+    The caller owns the executor (the command line passes its one worker
+    pool, `camcal.core.parallel.process_pool`); without one the pieces are
+    computed here, one after the other.
 
     Each Monte Carlo node has its own seed derived from ``settings.seed`` and
     the node, so the grid is the same whatever the number of workers and
@@ -464,11 +468,10 @@ def build_template_grid(
             if progress:
                 progress(done, total)
     jobs = [(settings, lam, g) for (g, lam) in wanted]
-    if workers > 1 and len(jobs) > 1:
-        with ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as pool:
-            results = pool.map(_mc_piece, jobs)
-            for job, arrays in zip(jobs, results, strict=True):
-                done = _store(cache, wanted, nodes, job, arrays, done, total, progress)
+    if executor is not None and len(jobs) > 1:
+        results = executor.map(_mc_piece, jobs)
+        for job, arrays in zip(jobs, results, strict=True):
+            done = _store(cache, wanted, nodes, job, arrays, done, total, progress)
     else:
         for job in jobs:
             done = _store(cache, wanted, nodes, job, _mc_piece(job), done, total, progress)

@@ -121,8 +121,10 @@ def templates(
     except ValueError as exc:
         raise fail(str(exc)) from None
     cache = TemplateCache(cache_dir)
-    with progress_bar("templates") as update:
-        grid = build_template_grid(settings, cache, workers=workers or os.cpu_count() or 1, progress=update)
+    from camcal.core.parallel import process_pool
+
+    with process_pool(workers or os.cpu_count() or 1) as pool, progress_bar("templates") as update:
+        grid = build_template_grid(settings, cache, executor=pool, progress=update)
     lo, hi = grid.lambda_sca_range_m
     console.print(
         f"templates in {cache.directory}: λ_sca {lo:.1f}-{hi:.1f} m, ⟨cos θ⟩ {settings.mie_g_nodes}"

@@ -5,6 +5,8 @@ Templates are built once per session into a temporary cache directory.
 
 from __future__ import annotations
 
+from concurrent.futures import ProcessPoolExecutor
+
 import pytest
 
 from analysis.chisq import SettingProfiles
@@ -20,9 +22,11 @@ def template_cache(tmp_path_factory: pytest.TempPathFactory) -> TemplateCache:
 
 @pytest.fixture(scope="session")
 def grids(template_cache: TemplateCache) -> dict[str, TemplateGrid]:
-    return {
-        name: build_template_grid(grid_settings(c), template_cache, workers=2) for name, c in CASES.items()
-    }
+    with ProcessPoolExecutor(2) as pool:  # the analysis takes an executor; it starts no pool of its own
+        return {
+            name: build_template_grid(grid_settings(c), template_cache, executor=pool)
+            for name, c in CASES.items()
+        }
 
 
 @pytest.fixture(scope="session")

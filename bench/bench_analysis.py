@@ -4,7 +4,7 @@
    frame, crop, profile, fit) against one read pass over it (``frame.max()``);
 2. ``camcal analyze`` on a whole 5 MP frame set (all cores, decoding
    included) against decoding the same PNGs and nothing else on one core,
-   with camcal's decoder (``camcal.core.frameset.read_frame``: libdeflate for
+   with camcal's decoder (``camcal.core.images.read_frame``: libdeflate for
    the unfiltered PNGs modules write); OpenCV's decoder is timed beside it.
    The same on 24 of the frames separates what each frame costs from what
    does not depend on the set's size (starting Python, imports, the pool);
@@ -27,7 +27,8 @@ from pathlib import Path
 import cv2
 
 from analysis import analyze_frame
-from camcal.core.frameset import read_frame, read_manifest
+from camcal.core.frameset import read_manifest
+from camcal.core.images import read_frame
 from camcal.core.schedule import Schedule
 from lrm.simset import SimulationSpec, simulate_frame_set
 

@@ -26,7 +26,8 @@ import numpy as np
 import pyarrow as pa
 from bench_ingest import frame_set  # bench/ is on the path when this file runs
 
-from camcal.core.frameset import PNG_PARAMS, decode_frame, read_manifest
+from camcal.core.frameset import read_manifest
+from camcal.core.images import PNG_PARAMS, decode_frame
 
 
 def write_fsync(path: Path, data: bytes) -> None:

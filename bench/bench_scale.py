@@ -56,7 +56,7 @@ def free_port() -> int:
 # ---------------------------------------------------------------- frames
 def render_pool(out: Path, per_camera: int = 8) -> dict[str, list[str]]:
     """PNG files of near-camera-like (A) and far-camera-like (B) frames on a 320 x 256 cut."""
-    from camcal.core.frameset import encode_png
+    from camcal.core.images import encode_png
     from lrm.dive.simulation import scaled_camera
     from lrm.sim import CameraModel, FrameRenderer, Placement
     from lrm.sim.scene import water_preset
@@ -85,7 +85,7 @@ def render_pool(out: Path, per_camera: int = 8) -> dict[str, list[str]]:
 def png_size_5mp() -> dict[str, float]:
     """Mean PNG size of full 5 MP simulated T-REX frames (both cameras, three wavelengths)."""
     from analysis import analyze_frame
-    from camcal.core.frameset import encode_png
+    from camcal.core.images import encode_png
     from lrm.sim import CameraModel, FrameRenderer, Placement
     from lrm.sim.scene import water_preset
 

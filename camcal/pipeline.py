@@ -24,15 +24,8 @@ from analysis import (
     rejected,
 )
 from camcal.core import __version__
-from camcal.core.frameset import (
-    FrameReadError,
-    FrameSetError,
-    ManifestRow,
-    Setup,
-    read_frame,
-    read_manifest,
-    read_setup,
-)
+from camcal.core.frameset import FrameSetError, ManifestRow, Setup, read_manifest, read_setup
+from camcal.core.images import FrameReadError, read_frame
 from camcal.core.parallel import map_in_order
 
 

@@ -16,7 +16,8 @@ from functools import partial
 from pathlib import Path
 
 from analysis import FrameConfig
-from camcal.core.frameset import FrameReadError, ManifestRow, Setup, decode_frame, parse_manifest, parse_setup
+from camcal.core.frameset import ManifestRow, Setup, parse_manifest, parse_setup
+from camcal.core.images import FrameReadError, decode_frame
 from camcal.core.parallel import process_pool
 from camcal.core.wire.models import is_id
 from camcal.core.wire.sensors import check_columns, check_rows

@@ -17,7 +17,7 @@ import numpy as np
 
 from analysis import FrameAnalysis, FrameConfig, analyze_frame, rejected
 from camcal.core.files import write_atomic
-from camcal.core.frameset import FrameReadError, decode_frame, read_frame
+from camcal.core.images import FrameReadError, decode_frame, read_frame
 
 THUMB_WIDTH_PX = 512
 

@@ -30,7 +30,7 @@ import zmq
 from pydantic import ValidationError
 
 from camcal.core import __version__, wire
-from camcal.core.frameset import encode_png
+from camcal.core.images import encode_png
 from camcal.core.schedule import CameraLimits, Schedule
 from lrm.commands import CommandHandling
 from lrm.outbox import Outbox

@@ -9,7 +9,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from camcal.core.frameset import FrameReadError, ManifestRow, decode_frame, encode_png, read_manifest
+from camcal.core.frameset import ManifestRow, read_manifest
+from camcal.core.images import FrameReadError, decode_frame, encode_png
 from camcal.core.schedule import Shot
 from lrm.runner import Capture
 

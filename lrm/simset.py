@@ -24,9 +24,9 @@ from camcal.core.frameset import (
     ManifestRow,
     RatioSetup,
     Setup,
-    encode_png,
     write_atomic,
 )
+from camcal.core.images import encode_png
 from camcal.core.parallel import process_pool
 from camcal.core.schedule import Schedule, trex_subsampled
 from lrm.sim.camera import CameraModel

@@ -11,18 +11,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from camcal.core.frameset import (
-    FrameReadError,
     FrameSetError,
     FrameSetWriter,
     ManifestRow,
     Setup,
-    _decode_unfiltered_png,
-    decode_frame,
-    encode_png,
-    read_frame,
     read_manifest,
     read_setup,
 )
+from camcal.core.images import FrameReadError, _decode_unfiltered_png, decode_frame, encode_png, read_frame
 
 
 def write_manifest(folder: Path, text: str) -> None:

@@ -24,16 +24,8 @@ import numpy as np
 from analysis import REASON_HELP
 from analysis.linearity import gain_factor
 from camcal.core import __version__
-from camcal.core.frameset import (
-    MANIFEST,
-    SETUP,
-    FrameReadError,
-    ManifestRow,
-    Setup,
-    read_frame,
-    read_manifest,
-    read_setup,
-)
+from camcal.core.frameset import MANIFEST, SETUP, ManifestRow, Setup, read_manifest, read_setup
+from camcal.core.images import FrameReadError, read_frame
 
 #: Version of the JSON result document; bump it when a field changes meaning.
 SCHEMA = "camcal.calibration/1"

@@ -17,7 +17,7 @@ from camcal.calibrate.emission import EmissionRatioCalibration
 from camcal.calibrate.linearity import LinearityCalibration
 from camcal.calibrate.psf import PSFCalibration
 from camcal.calibrate.scans import AirScanCalibration, TankScanCalibration
-from camcal.core.frameset import FrameReadError, read_frame
+from camcal.core.images import FrameReadError, read_frame
 from camcal.plots import WAVELENGTH_COLORS
 
 DPI = 110

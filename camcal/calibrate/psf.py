@@ -24,7 +24,8 @@ from camcal.calibrate.common import (
     select_rows,
     value,
 )
-from camcal.core.frameset import ManifestRow, read_frame
+from camcal.core.frameset import ManifestRow
+from camcal.core.images import read_frame
 
 NAME = "psf"
 

@@ -5,7 +5,8 @@ Nothing here imports anything of ours above it (``analysis``, ``lrm``,
 in ``pyproject.toml`` checks it. What lives here:
 
 * `camcal.core.wire` — the module ↔ ship protocol (one home for the format);
-* `camcal.core.frameset` — the on-disk frame set (setup, frames, sensor CSV);
+* `camcal.core.frameset` — the on-disk frame set (setup, manifest, writer);
+* `camcal.core.images` — frame images: decode (PNG/TIFF) and encode;
 * `camcal.core.files` — writes that survive a power cut (`write_atomic`, `fsync_dir`);
 * `camcal.core.schedule` — exposure schedules;
 * `camcal.core.settings` — typed settings from the environment and a config file;

@@ -9,7 +9,7 @@ from fastapi.responses import Response
 from sqlalchemy.orm import Session
 
 from camcal.core.files import write_atomic
-from camcal.core.frameset import FrameReadError, decode_frame
+from camcal.core.images import FrameReadError, decode_frame
 from camcal.core.wire.image import ImageHeaderError, check_frame
 from ingest.worker import thumbnail_jpeg
 from server.deps import FloatQuery, IdPath, IdQuery, StoreDep, WavelengthQuery

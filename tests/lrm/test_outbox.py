@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from camcal.core import wire
-from camcal.core.frameset import encode_png, read_manifest
+from camcal.core.frameset import read_manifest
+from camcal.core.images import encode_png
 from lrm.outbox import Outbox
 
 T0 = datetime(2021, 9, 10, 4, 0, 0, tzinfo=UTC)

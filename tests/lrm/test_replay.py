@@ -8,7 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from camcal.core.frameset import decode_frame, encode_png
+from camcal.core.images import decode_frame, encode_png
 from lrm.replay import ReplaySource
 from tests.utils.live import RealClock
 

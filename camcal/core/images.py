@@ -1,0 +1,124 @@
+"""Frame images: decoding PNG/TIFF bytes into 8-bit frames (a fast path for the unfiltered PNGs
+camcal writes, OpenCV for the rest) and encoding them.
+
+`FrameReadError` says why one image cannot be used, with its frame-set reason word.
+"""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import cv2
+import deflate
+import numpy as np
+
+
+class FrameReadError(Exception):
+    """One image cannot be used; ``reason`` is the frame-set reason word."""
+
+    def __init__(self, reason: str, detail: str) -> None:
+        super().__init__(f"{reason}: {detail}")
+        self.reason = reason
+        self.detail = detail
+
+
+def decode_frame(data: bytes | np.ndarray, name: str = "frame") -> np.ndarray:
+    """Decode PNG/TIFF bytes into a 2-D ``uint8`` frame or raise `FrameReadError`."""
+    buf = np.frombuffer(data, dtype=np.uint8) if isinstance(data, bytes | bytearray) else data
+    if buf.size == 0:
+        raise FrameReadError("unreadable", f"{name}: empty file")
+    image = _decode_unfiltered_png(buf)
+    if image is None:  # any other PNG, a TIFF, or a damaged file: OpenCV decides
+        image = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise FrameReadError("unreadable", f"{name}: not a decodable PNG/TIFF (truncated or corrupt?)")
+    if image.ndim != 2:
+        raise FrameReadError(
+            "bad_format", f"{name}: {image.shape[2]}-channel image, expected 8-bit grayscale"
+        )
+    if image.dtype != np.uint8:
+        raise FrameReadError("bad_format", f"{name}: {image.dtype} pixels, expected 8-bit grayscale (uint8)")
+    return image
+
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _decode_unfiltered_png(buf: np.ndarray) -> np.ndarray | None:
+    """The pixels of the PNGs modules write (8-bit grey, no interlace, every row
+    unfiltered), or None for anything else: then OpenCV decodes it.
+
+    Inflating is most of a PNG's decoding; libdeflate does it in less than
+    half zlib's time (``bench/bench_analysis.py`` prints both). Every chunk's
+    CRC and the zlib stream's Adler-32 are checked, and the inflated size
+    must be exact, so a damaged file never comes back as pixels from here.
+    """
+    data = buf.data
+    if bytes(data[:8]) != _PNG_SIGNATURE:
+        return None
+    width = height = 0
+    idat: list[memoryview] = []
+    pos, end, seen_end = 8, len(data), False
+    while pos + 12 <= end:
+        length, kind = struct.unpack_from(">I4s", data, pos)
+        body_end = pos + 8 + length
+        if body_end + 4 > end:
+            return None
+        (crc,) = struct.unpack_from(">I", data, body_end)
+        if deflate.crc32(data[pos + 4 : body_end]) != crc:
+            return None
+        body = data[pos + 8 : body_end]
+        if kind == b"IHDR":
+            if length != 13 or pos != 8:
+                return None
+            width, height, depth, colour, method, filtering, interlace = struct.unpack(">IIBBBBB", body)
+            if (depth, colour, method, filtering, interlace) != (8, 0, 0, 0, 0) or not width or not height:
+                return None
+        elif kind == b"IDAT":
+            idat.append(body)
+        elif kind == b"IEND":
+            seen_end = True
+            break
+        elif kind[0] & 0x20 == 0 or kind == b"tRNS":  # another critical chunk, or transparency
+            return None
+        pos = body_end + 4
+    if not (seen_end and width and idat):
+        return None
+    size = height * (width + 1)  # each row: a filter-type byte, then the pixels
+    try:
+        raw = deflate.zlib_decompress(b"".join(idat), size)
+    except deflate.DeflateError:
+        return None
+    if len(raw) != size:
+        return None
+    rows = np.frombuffer(raw, dtype=np.uint8).reshape(height, width + 1)
+    if rows[:, 0].any():  # some rows filtered: leave the undoing to OpenCV
+        return None
+    return rows[:, 1:].copy()
+
+
+def read_frame(path: Path) -> np.ndarray:
+    """Read one frame file; missing, undecodable or non-8-bit files raise `FrameReadError`."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise FrameReadError("unreadable", f"{path.name}: file not found") from None
+    except OSError as exc:
+        raise FrameReadError("unreadable", f"{path.name}: {exc.strerror or exc}") from None
+    return decode_frame(data, path.name)
+
+
+#: PNG without row filters at zlib level 1: as small as OpenCV's default on
+#: camera frames (dark, noisy) and as fast to write, but a third faster to
+#: read, because the reader has no filter to undo (bench/bench_frame_storage.py).
+PNG_PARAMS = (cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_NONE, cv2.IMWRITE_PNG_COMPRESSION, 1)
+
+
+def encode_png(frame: np.ndarray) -> bytes:
+    """Lossless PNG bytes of an 8-bit frame (no row filters, zlib level 1: see `PNG_PARAMS`)."""
+    ok, buf = cv2.imencode(".png", frame, list(PNG_PARAMS))
+    if not ok:
+        raise ValueError("PNG encoding failed")
+    return buf.tobytes()

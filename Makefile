@@ -30,10 +30,13 @@ test: $(STAMP)
 	$(BIN)/lint-imports
 	$(BIN)/deptry .
 	$(BIN)/mypy
-	# Both cores for the tests that do not run in real time, then the live and browser tests alone
-	# (their simulated modules keep wall-clock time and must not share the cores with a fit).
-	$(BIN)/python -m pytest -n 2 --dist loadfile --ignore=tests/live --ignore=tests/browser
-	$(BIN)/python -m pytest tests/live tests/browser
+	# Both cores for every test but the simulated dives that keep wall-clock time and load both
+	# cores (marked solo: the browser tests, the station and the dive), which then run alone.
+	# One shared dive (tests/utils/dive_store.py) is streamed once for all of them.
+	cache=$$(mktemp -d) && export CAMCAL_TEST_CACHE=$$cache \
+	  && $(BIN)/python -m pytest -n 2 --dist loadfile -m "not solo" \
+	  && $(BIN)/python -m pytest -m solo tests/live tests/browser; \
+	  rc=$$?; rm -rf $$cache; exit $$rc
 
 # A module's install: the core alone (no extra), built and installed as `pip install camcal` would,
 # in a fresh venv; then `camcal lrm --help` and the module side's tests (their sources from here).

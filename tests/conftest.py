@@ -23,13 +23,13 @@ def trex_small_set(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def dive_data(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, object]]:
     """A data folder filled by a real simulated dive (~45 s), shared by read-only tests.
 
-    Tests that write to a store copy it first (`tests.utils.dive_store.copy_data`).
+    Streamed once per run, however many pytest-xdist workers ask for it
+    (`tests.utils.dive_store.shared_simulated_dive`). Tests that write to a store copy it
+    first (`tests.utils.dive_store.copy_data`).
     """
-    from tests.utils.dive_store import run_simulated_dive  # the live stack, imported only when needed
+    from tests.utils.dive_store import shared_simulated_dive  # the live stack, imported only when needed
 
-    root = tmp_path_factory.mktemp("dive")
-    info = run_simulated_dive(root / "data")
-    return root / "data", info
+    return shared_simulated_dive(tmp_path_factory.getbasetemp())
 
 
 @pytest.fixture(scope="session")

@@ -328,8 +328,10 @@ class DiveSimulation:
         qf = round((column.drift_factor(t_s) - 1.0) / self.drift_step)
         return module, qw, qf
 
-    def _renderer(self, module: str, t_s: float) -> FrameRenderer:
-        """The renderer for a module's quantised water state at ``t_s``; built on first use."""
+    def _renderer(self, module: str, t_s: float, wavelength_nm: int) -> FrameRenderer:
+        """The renderer for a module's quantised water state at ``t_s``, built on first use, with
+        its halo at ``wavelength_nm`` ready (built here under the lock, never concurrently in render;
+        only the colours a state is shot in: most states last less than one colour's block)."""
         column = self.water_column
         key = self.water_state(module, t_s)
         _, qw, qf = key
@@ -337,22 +339,21 @@ class DiveSimulation:
             renderer = self._renderers.get(key)
             if renderer is not None:
                 self._renderers.move_to_end(key)
-                return renderer
-            water = column.water_for(min(qw * self.water_weight_step, 1.0), 1.0 + qf * self.drift_step)
-            renderer = FrameRenderer(
-                self.camera,
-                self.placement(module),
-                water,
-                self.lem,
-                seed=self.seed,
-                double_image=module in self.double_image_cameras,
-            )
-            for wl in self.timetable.wavelengths_nm:
-                renderer.halo_table(wl)  # build the halo now, not concurrently inside render
-            self._renderers[key] = renderer
-            self.renderers_built += 1
-            while len(self._renderers) > self._cache_size:
-                self._renderers.popitem(last=False)
+            else:
+                water = column.water_for(min(qw * self.water_weight_step, 1.0), 1.0 + qf * self.drift_step)
+                renderer = FrameRenderer(
+                    self.camera,
+                    self.placement(module),
+                    water,
+                    self.lem,
+                    seed=self.seed,
+                    double_image=module in self.double_image_cameras,
+                )
+                self._renderers[key] = renderer
+                self.renderers_built += 1
+                while len(self._renderers) > self._cache_size:
+                    self._renderers.popitem(last=False)
+            renderer.halo_table(wavelength_nm)
             return renderer
 
     def render(
@@ -396,7 +397,7 @@ class DiveSimulation:
         placement = self.placement(module)
         motion = self.motions[module]
         wavelength = self.timetable.wavelength_at(t_s)
-        renderer = self._renderer(module, t_s)
+        renderer = self._renderer(module, t_s, wavelength)
         focal = self.camera.focal_px
         mid = t_s + exposure_s / 2.0
         offset = motion.pointing_offset_px(mid, focal, placement.distance_m)

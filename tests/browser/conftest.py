@@ -89,3 +89,11 @@ def dive_with_data(system: System) -> dict[str, Any]:
         return None
 
     return wait_until(ready, 120, "analysed frames, a λ_att point and linearity fits of both modules")
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Every browser test runs alone in ``make test``: the shared system's simulated dive loads both cores."""
+    here = Path(__file__).parent
+    for item in items:
+        if here in item.path.parents:
+            item.add_marker(pytest.mark.solo)

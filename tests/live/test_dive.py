@@ -18,6 +18,8 @@ from storage.models import AttenuationPoint, AttitudeSample, Frame, FrameResult
 from tests.live.conftest import ingest_config
 from tests.live.test_ingest import wait_for
 
+pytestmark = pytest.mark.solo  # a whole dive in real time: runs alone in make test
+
 SPEED = 15.0
 
 

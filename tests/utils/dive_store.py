@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import fcntl
+import os
+import pickle
 import shutil
 import time
 from datetime import UTC, datetime
@@ -18,14 +21,12 @@ from lrm.simmodule import simulated_module
 SPEED = 10.0
 
 
-def run_simulated_dive(data: Path, *, station_s: float = 240.0, seed: int = 5) -> dict[str, object]:
-    """Stream a short simulated dive into ``data`` and wait until everything is stored and analysed."""
+def dive_simulation(start: datetime, *, station_s: float = 240.0, seed: int = 5) -> DiveSimulation:
+    """The short dive `run_simulated_dive` streams: the same for the same arguments."""
     profile = DiveProfile(
         deck_s=5.0, descent_m_per_s=80.0, test_stop_s=40.0, station_s=station_s, ascent_m_per_s=80.0
     )
-    start_real = time.time() + 1.0
-    start = datetime.fromtimestamp(start_real, UTC)
-    sim = DiveSimulation(
+    return DiveSimulation(
         profile,
         LEMTimetable(dwell_s=20.0),
         WaterColumn.with_station_drift(profile, 0.04),
@@ -33,6 +34,14 @@ def run_simulated_dive(data: Path, *, station_s: float = 240.0, seed: int = 5) -
         frame_scale=0.25,
         start=start,
     )
+
+
+def run_simulated_dive(data: Path, *, station_s: float = 240.0, seed: int = 5) -> dict[str, object]:
+    """Stream a short simulated dive into ``data`` and wait until everything is stored and analysed."""
+    start_real = time.time() + 1.0
+    start = datetime.fromtimestamp(start_real, UTC)
+    sim = dive_simulation(start, station_s=station_s, seed=seed)
+    profile = sim.profile
     svc = IngestService(
         IngestConfig(
             data_dir=data,
@@ -84,7 +93,37 @@ def run_simulated_dive(data: Path, *, station_s: float = 240.0, seed: int = 5) -
         for a in agents:
             a.stop()
         svc.stop()
-    return {"sim": sim, "frames": {a.config.module: a.counters["frames_captured"] for a in agents}}
+    frames = {a.config.module: a.counters["frames_captured"] for a in agents}
+    return {"sim": sim, "frames": frames, "start": start, "station_s": station_s, "seed": seed}
+
+
+def shared_simulated_dive(session_tmp: Path) -> tuple[Path, dict[str, object]]:
+    """The dive of `run_simulated_dive`, streamed once and shared read-only by everyone who asks.
+
+    Shared by the pytest-xdist workers of one run (their temp folders' parent) and, when
+    ``CAMCAL_TEST_CACHE`` names a folder (``make test`` sets a fresh one), by every pytest run
+    that sees the same folder. A file lock makes the others wait while the first one streams it;
+    ``info.pickle`` is written last, so a dive cut short by a crash is streamed again.
+    """
+    cache = os.environ.get("CAMCAL_TEST_CACHE")
+    if cache:
+        root = Path(cache)
+    elif os.environ.get("PYTEST_XDIST_WORKER"):
+        root = session_tmp.parent  # the run's folder, above each worker's own
+    else:
+        root = session_tmp
+    folder = root / "shared-dive"
+    root.mkdir(parents=True, exist_ok=True)
+    with (root / "shared-dive.lock").open("w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        done = folder / "info.pickle"
+        if not done.exists():
+            shutil.rmtree(folder, ignore_errors=True)
+            info = run_simulated_dive(folder / "data")
+            done.write_bytes(pickle.dumps({k: v for k, v in info.items() if k != "sim"}))
+        info = pickle.loads(done.read_bytes())
+    info["sim"] = dive_simulation(info["start"], station_s=info["station_s"], seed=info["seed"])
+    return folder / "data", info
 
 
 def copy_data(src: Path, dst: Path) -> Path:

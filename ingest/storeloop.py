@@ -42,6 +42,13 @@ RESULT_BATCH = 16
 RESULT_HOLD_S = 0.25
 
 
+def results_due(pending: int, waited_s: float, busy: bool) -> bool:
+    """Whether ``pending`` results, the oldest ``waited_s`` old, are to be stored now: when no
+    other analysis is running or waiting (``busy`` false), else once they are `RESULT_BATCH` or
+    the oldest has waited `RESULT_HOLD_S`."""
+    return pending > 0 and (not busy or pending >= RESULT_BATCH or waited_s >= RESULT_HOLD_S)
+
+
 class StoreState:
     """What the store thread's workers share: the service, the store, alarms, sensor buffers."""
 
@@ -108,9 +115,9 @@ class StoreState:
         pending = self.pending_results
         if not pending:
             return
-        busy = self.svc.analysis_busy()
-        young = time.monotonic() - self.pending_since < RESULT_HOLD_S
-        if not now and busy and len(pending) < RESULT_BATCH and young:
+        if not now and not results_due(
+            len(pending), time.monotonic() - self.pending_since, self.svc.analysis_busy()
+        ):
             return
         self.pending_results = []
         if not self.guarded("results", self.results.handle, pending) and len(pending) > 1:

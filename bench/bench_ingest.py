@@ -32,6 +32,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from datetime import datetime, timedelta
 from pathlib import Path
@@ -94,6 +95,30 @@ def pct(values: list[float], q: float) -> float:
 def cpu_s(who: int) -> float:
     r = resource.getrusage(who)
     return r.ru_utime + r.ru_stime
+
+
+_TICK_S = 1.0 / os.sysconf("SC_CLK_TCK")
+
+
+def proc_cpu_s(path: str) -> float:
+    """User + system CPU seconds of a process or thread from its /proc ``stat`` (0 once it is gone)."""
+    try:
+        text = Path(path).read_text()
+    except OSError:
+        return 0.0
+    fields = text[text.rindex(")") + 2 :].split()
+    return (int(fields[11]) + int(fields[12])) * _TICK_S
+
+
+def thread_cpu_s() -> dict[str, float]:
+    """CPU seconds of each thread of this process by name (ZeroMQ's own threads: ``zmq I/O``)."""
+    names = {t.native_id: t.name for t in threading.enumerate()}
+    out: dict[str, float] = {}
+    for tid in os.listdir("/proc/self/task"):
+        name = names.get(int(tid), "zmq I/O and other native threads")
+        name = name.rstrip("_0123456789") if name.startswith("frame-write") else name
+        out[name] = out.get(name, 0.0) + proc_cpu_s(f"/proc/self/task/{tid}/stat")
+    return out
 
 
 # ------------------------------------------------------------------ the floor
@@ -217,6 +242,14 @@ def ingest_run(folder: Path, work: Path, speed: float) -> dict[str, Any]:
     keys = cfg.keys_dir
     assert keys is not None
     procs = [replay(folder, cam, svc.endpoint, work / f"outbox-{cam}", speed, keys) for cam in ("A", "B")]
+    # The modules' start (Python, imports, keys, outbox) is not part of streaming: their CPU is read
+    # again once the first frame is stored, and the ingest's threads are counted from there too.
+    while not svc.counters.snapshot()["counters"].get("frames_stored") and all(
+        p.poll() is None for p in procs
+    ):
+        time.sleep(0.01)
+    modules_start = sum(proc_cpu_s(f"/proc/{p.pid}/stat") for p in procs)
+    threads0 = thread_cpu_s()
     for p in procs:
         if p.wait(1800) != 0:
             raise SystemExit(f"a replay failed with status {p.returncode}")
@@ -230,6 +263,7 @@ def ingest_run(folder: Path, work: Path, speed: float) -> dict[str, Any]:
     while count(FrameResult) < n_rows and time.monotonic() < deadline:
         time.sleep(0.25)
     ingest_cpu = cpu_s(resource.RUSAGE_SELF) - self0
+    threads = {k: v - threads0.get(k, 0.0) for k, v in thread_cpu_s().items()}
     with svc.store.read() as s:
         received = list(s.scalars(select(Frame.received_unix_s)))
         analysed = list(s.scalars(select(FrameResult.analysed_unix_s)))
@@ -250,7 +284,13 @@ def ingest_run(folder: Path, work: Path, speed: float) -> dict[str, Any]:
         "stored_p95": pct([p["stored_latency_s"] for _, p in stored_events], 95),
         "result_p50": pct(to_result, 50),
         "result_p95": pct(to_result, 95),
-        "cpu_ms_per_frame": {"modules": 1e3 * modules_cpu / n, "ingest": 1e3 * ingest_cpu / n},
+        "cpu_ms_per_frame": {
+            "modules": 1e3 * modules_cpu / n,
+            "modules_streaming": 1e3 * (modules_cpu - modules_start) / n,
+            "ingest": 1e3 * ingest_cpu / n,
+            **{f"thread {k}": 1e3 * v / n for k, v in sorted(threads.items()) if v > 0.001 * n},
+        },
+        "modules_start_s": modules_start / 2,
         "analysis_wall_ms": 1e3 * statistics.median(a for a in analysis_s if a),
         # how busy the analysis processes were between the first frame and the last result
         "pool_busy": sum(a for a in analysis_s if a) / ((os.cpu_count() or 1) * (max(analysed) - t0)),
@@ -368,10 +408,15 @@ def main() -> None:
     for row in rows:
         print("| " + " | ".join(row) + " |")
     print()
+    cpu = full["cpu_ms_per_frame"]
     print(
-        f"The two replaying modules took {full['cpu_ms_per_frame']['modules']:.0f} ms of CPU per frame "
-        "on the same cores (on a dive they run on the modules); the analysis processes were busy "
-        f"{full['pool_busy']:.0%} of the time at full speed."
+        f"The two replaying modules took {cpu['modules']:.0f} ms of CPU per frame on the same cores "
+        f"(on a dive they run on the modules): {cpu['modules_streaming']:.1f} ms a frame while streaming, "
+        f"the rest their start ({full['modules_start_s']:.2f} s each); the analysis processes were busy "
+        f"{full['pool_busy']:.0%} of the time at full speed. The ingest's threads, ms of CPU a frame "
+        "from the first frame stored to the last result: "
+        + ", ".join(f"{k[7:]} {v:.1f}" for k, v in cpu.items() if k.startswith("thread "))
+        + "."
     )
 
 

@@ -258,14 +258,10 @@ def derive_run(store: Store, dive_id: int, run_id: int, setup: Setup, options: R
     store.save_visit_points(run_id, [{**p, "run_id": run_id, "dive_id": dive_id} for p in points])
     result_rows = [result_row(r) for r in rows]
     lr = tuple(setup.linear_range)
-    for (module, wl), pts in mean_gray_by_setting(result_rows).items():
-        for row in linearity_rows(pts, lr):  # type: ignore[arg-type]
-            store.upsert_linearity(
-                {
-                    **row,
-                    "run_id": run_id,
-                    "module_id": module,
-                    "wavelength_nm": wl,
-                    "updated_unix_s": time.time(),
-                }
-            )
+    store.upsert_linearity(
+        [
+            {**row, "run_id": run_id, "module_id": module, "wavelength_nm": wl, "updated_unix_s": time.time()}
+            for (module, wl), pts in mean_gray_by_setting(result_rows).items()
+            for row in linearity_rows(pts, lr)  # type: ignore[arg-type]
+        ]
+    )

@@ -165,16 +165,18 @@ class Results:
     def update_linearity(self) -> None:
         svc = self.svc
         lr = tuple(svc.config.setup.linear_range)
+        rows = []
         for module, wl in list(self.linearity_dirty):
             points = {k: float(np.mean(v)) for k, v in self.linearity[(module, wl)].items()}
-            for row in linearity_rows(points, lr):  # type: ignore[arg-type]
-                self.store.upsert_linearity(
-                    {
-                        **row,
-                        "run_id": svc.run.id,
-                        "module_id": module,
-                        "wavelength_nm": wl,
-                        "updated_unix_s": time.time(),
-                    }
-                )
+            rows += [
+                {
+                    **row,
+                    "run_id": svc.run.id,
+                    "module_id": module,
+                    "wavelength_nm": wl,
+                    "updated_unix_s": time.time(),
+                }
+                for row in linearity_rows(points, lr)  # type: ignore[arg-type]
+            ]
+        self.store.upsert_linearity(rows)  # one transaction (one fsync) for all of them
         self.linearity_dirty.clear()

@@ -293,6 +293,10 @@ class IngestService:
     def analysis_done(self, n: int) -> None:
         self._analysis_inflight -= n
 
+    def analysis_busy(self) -> bool:
+        """Whether analyses are running or waiting (more results are on their way)."""
+        return self._analysis_inflight > 0 or bool(self._analysis_backlog)
+
     def feed_pool(self) -> None:
         limit = 2 * self.config.n_workers
         while self._analysis_backlog and self._analysis_inflight < limit:

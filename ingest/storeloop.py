@@ -37,6 +37,16 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("camcal.ingest")
 Attitude = tuple[float, float, float, float, float, float, float]  # t, acc xyz, gyro xyz
+#: Results stored in one transaction at most, and how long one may wait for others (`store_results`).
+RESULT_BATCH = 16
+RESULT_HOLD_S = 0.25
+
+
+def results_due(pending: int, waited_s: float, busy: bool) -> bool:
+    """Whether ``pending`` results, the oldest ``waited_s`` old, are to be stored now: when no
+    other analysis is running or waiting (``busy`` false), else once they are `RESULT_BATCH` or
+    the oldest has waited `RESULT_HOLD_S`."""
+    return pending > 0 and (not busy or pending >= RESULT_BATCH or waited_s >= RESULT_HOLD_S)
 
 
 class StoreState:
@@ -53,6 +63,8 @@ class StoreState:
         self.results = Results(self)
         self.housekeeping = Housekeeping(self)
         self.committer = Committer(self)
+        self.pending_results: list[Incoming] = []  # back from the analysis, not stored yet
+        self.pending_since = 0.0
 
     def guarded(self, what: str, fn: Callable[..., Any], *args: Any) -> bool:
         """Run ``fn(*args)``; a failure is counted and logged, never raised. Returns whether it ran."""
@@ -78,9 +90,10 @@ class StoreState:
         results = [i for i in items if i.kind == "result"]
         if results:
             self.svc.analysis_done(len(results))
-            if not self.guarded("results", self.results.handle, results) and len(results) > 1:
-                for r in results:  # the batch failed: each result alone, so one bad result costs one
-                    self.guarded("result", self.results.handle, [r])
+            if not self.pending_results:
+                self.pending_since = time.monotonic()
+            self.pending_results += results
+            self.store_results()
         hk = self.housekeeping
         for i in items:
             if i.kind == "link":
@@ -89,6 +102,27 @@ class StoreState:
                 self.guarded("module state", hk.module_info, i)
             elif i.kind == "command_status":
                 self.guarded("command status", hk.command_status, i)
+
+    def store_results(self, *, now: bool = False) -> None:
+        """Store the results that came back, in one transaction, unless more are about to come.
+
+        A result waits while other analyses are still running, up to `RESULT_BATCH`
+        results or `RESULT_HOLD_S`: at full speed a transaction carries a dozen
+        results instead of one or two (each costs ~10 ms of this thread's CPU
+        beside its fsync); at a module's pace, nothing else is running and a
+        result is stored as soon as it comes.
+        """
+        pending = self.pending_results
+        if not pending:
+            return
+        if not now and not results_due(
+            len(pending), time.monotonic() - self.pending_since, self.svc.analysis_busy()
+        ):
+            return
+        self.pending_results = []
+        if not self.guarded("results", self.results.handle, pending) and len(pending) > 1:
+            for r in pending:  # the batch failed: each result alone, so one bad result costs one
+                self.guarded("result", self.results.handle, [r])
 
     # -- sensor samples --------------------------------------------------
     def sensor_samples(self, b: SensorBatchRow) -> None:
@@ -150,12 +184,14 @@ def run_store_loop(svc: IngestService, q: queue.Queue[Incoming], stop: Any) -> N
             if items:
                 st.handle(items)
             st.guarded("analysis queue", svc.feed_pool)
+            st.store_results()
             now = time.monotonic()
             if now - last_tick >= 1.0:
                 last_tick = now
                 st.housekeeping.tick()
             st.guarded("events", svc.events.flush)
             if stop.is_set() and q.empty():
+                st.store_results(now=True)
                 break
         st.guarded("counters", st.housekeeping.save_counters)
     finally:

@@ -29,9 +29,18 @@ def _num(x: float | None, digits: int = 4) -> float | None:
 
 
 def thumbnail_jpeg(frame: np.ndarray, width_px: int = THUMB_WIDTH_PX, quality: int = 85) -> bytes:
-    """A small JPEG of a frame: a quarter first by striding, then an area resize."""
+    """A small JPEG of a frame: a quarter first by striding, then area resizes.
+
+    An area resize by a whole factor (2 x 2 pixels into one) is OpenCV's fast
+    path; by a fraction (1224 -> 512 px) it takes ~3x longer. So the strided
+    frame is halved while it is at least twice the thumbnail's width, and only
+    the last, small step is fractional (~2.4 instead of ~6 ms for 5 MP).
+    """
     step = max(1, frame.shape[1] // (width_px * 2))
     small = frame[::step, ::step]
+    while small.shape[1] >= 2 * width_px and small.shape[0] >= 2:
+        even = small[: small.shape[0] // 2 * 2, : small.shape[1] // 2 * 2]
+        small = cv2.resize(even, (even.shape[1] // 2, even.shape[0] // 2), interpolation=cv2.INTER_AREA)
     height_px = max(1, round(small.shape[0] * width_px / small.shape[1]))
     small = cv2.resize(small, (width_px, height_px), interpolation=cv2.INTER_AREA)
     ok, buf = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, quality])

@@ -176,15 +176,20 @@ class AnalysisWrites(StoreBase):
             with self.session() as s:
                 s.execute(insert(AttitudeSample), list(samples))
 
-    def upsert_linearity(self, row: dict[str, Any]) -> None:
-        """Insert or replace the linearity fit of (run, module, wavelength, sweep)."""
+    def upsert_linearity(self, rows: dict[str, Any] | Sequence[dict[str, Any]]) -> None:
+        """Insert or replace linearity fits of (run, module, wavelength, sweep): one row, or
+        several in one transaction (one commit: the ingest updates every fit of a tick at once)."""
+        rows = [rows] if isinstance(rows, dict) else list(rows)
+        if not rows:
+            return
         keys = ("run_id", "module_id", "wavelength_nm", "sweep")
-        stmt = self._insert(LinearityCheck.__table__).values(**row)
-        stmt = stmt.on_conflict_do_update(
-            index_elements=list(keys), set_={k: stmt.excluded[k] for k in row if k not in keys}
-        )
         with self.session() as s:
-            s.execute(stmt)
+            for row in rows:
+                stmt = self._insert(LinearityCheck.__table__).values(**row)
+                stmt = stmt.on_conflict_do_update(
+                    index_elements=list(keys), set_={k: stmt.excluded[k] for k in row if k not in keys}
+                )
+                s.execute(stmt)
 
     def add_chisq_fit(
         self,

@@ -16,11 +16,14 @@ from __future__ import annotations
 
 import importlib
 import importlib.machinery
+import os
 import sys
+import types
 from typing import Any
 
 import typer
 from typer.core import TyperCommand, TyperGroup
+from typer.models import DefaultPlaceholder
 
 HELP = "Camera-based optical calibration for deep-sea neutrino telescopes."
 
@@ -97,6 +100,8 @@ COMMANDS: tuple[tuple[str, str, str], ...] = (
     ("calibration", "calibration", "Versioned calibration records: add, list, show."),
     ("config", "config", "The configuration: CAMCAL_ environment variables and an optional TOML file."),
 )
+#: `camcal.core.supervise.CHANNEL_ENV`: set when a supervisor (``camcal up``) started this command.
+SUPERVISOR_ENV = "CAMCAL_SUPERVISOR_FD"
 _MODULE_OF = {name: module for name, module, _ in COMMANDS}
 _HELP_OF = {name: text for name, _, text in COMMANDS}
 
@@ -107,17 +112,48 @@ def _typer(**kwargs: Any) -> typer.Typer:
 
 def _register(target: typer.Typer, module: str) -> None:
     importlib.import_module(f"camcal.cli.{module}").register(target)
+    for group in target.registered_groups:  # ``lrm``, ``calibrate`` ...: groups of subcommands
+        if isinstance(group.cls, DefaultPlaceholder):
+            group.cls = _Group
 
 
 def build_app() -> typer.Typer:
     """The whole application, every command registered (their modules imported)."""
-    full = _typer(name="camcal", help=HELP, no_args_is_help=True)
+    full = _typer(name="camcal", help=HELP, no_args_is_help=True, cls=_Group)
     for module in dict.fromkeys(_MODULE_OF.values()):  # each module once, in the listed order
         _register(full, module)
     return full
 
 
-class _LazyGroup(TyperGroup):
+def _plain_help_flag(option: Any) -> Any:
+    """``option`` (a ``--help`` flag) taking "not given" as it is, without typer's pydantic adapter.
+
+    A group parses its own options before its subcommand's: its ``--help``,
+    not given, goes through typer's coercion, whose first use imports pydantic
+    and looks up pydantic's plugins (~0.1 s of ``camcal lrm --help``) to turn
+    "absent" into None. A flag is True, False or absent; nothing to coerce.
+    With a typer whose internals differ, the option is left as it is (slower, same result).
+    """
+    try:
+        from typer._coercion import PassThroughRuntimeParam
+
+        if option is not None and option._runtime_param is None:
+            option._runtime_param = PassThroughRuntimeParam(
+                parameter_info=option.type_descriptor.parameter_info, annotation=bool
+            )
+    except (ImportError, AttributeError, TypeError):
+        pass
+    return option
+
+
+class _Group(TyperGroup):
+    """A group of commands (``camcal``, ``camcal lrm`` ...) whose ``--help`` flag costs no pydantic."""
+
+    def get_help_option(self, ctx: Any) -> Any:
+        return _plain_help_flag(super().get_help_option(ctx))
+
+
+class _LazyGroup(_Group):
     """The root group of ``camcal``: lists every command, builds only the one it runs."""
 
     def list_commands(self, ctx: Any) -> list[str]:
@@ -154,10 +190,56 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-def main() -> None:
-    from camcal.core import supervise
+class _Deferred(type):
+    """A stand-in for a class of a module not imported yet: using it imports the module."""
 
-    supervise.attach()  # started by `camcal up`: end with it, however it ends
+    def _real(cls) -> Any:
+        return getattr(importlib.import_module(cls.__module__), cls.__name__)
+
+    def __call__(cls, *args: Any, **kwargs: Any) -> Any:
+        return cls._real()(*args, **kwargs)
+
+    def __getattr__(cls, name: str) -> Any:
+        return getattr(cls._real(), name)
+
+
+#: What typer's help renderer imports but uses only for Markdown help text and pretty
+#: tracebacks (neither of which camcal uses): ~0.1 s of every ``--help``.
+_RENDERER_EXTRAS = (("rich.markdown", "Markdown"), ("rich.traceback", "Traceback"))
+
+
+def _import_help_renderer() -> None:
+    """Import ``typer.rich_utils`` with stand-ins for rich's Markdown and Traceback.
+
+    The stand-ins leave `sys.modules` once the renderer is imported: any later
+    ``import rich.markdown`` gets the real module, and the renderer's names
+    import it if they are ever used.
+    """
+    if "typer.rich_utils" in sys.modules:
+        return
+    placed = {}
+    for module, name in _RENDERER_EXTRAS:
+        if module not in sys.modules:
+            stand_in = types.ModuleType(module)
+            setattr(stand_in, name, _Deferred(name, (), {"__module__": module}))
+            placed[module] = sys.modules[module] = stand_in
+    try:
+        import typer.rich_utils  # noqa: F401
+    except ImportError:  # no rich: typer prints plain help
+        pass
+    finally:
+        for module, stand_in in placed.items():
+            if sys.modules.get(module) is stand_in:
+                del sys.modules[module]
+
+
+def main() -> None:
+    if SUPERVISOR_ENV in os.environ:  # (importing `supervise` costs ~20 ms: only when it has work)
+        from camcal.core import supervise
+
+        supervise.attach()  # started by `camcal up`: end with it, however it ends
+    if "--help" in sys.argv[1:]:
+        _import_help_renderer()
     _workers_skip_the_entry_script()
     try:
         _root()

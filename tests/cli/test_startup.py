@@ -40,7 +40,12 @@ HEAVY = (
     "server",
     "camcal.core.frameset",
     "camcal.core.settings",
+    "pydantic",  # typer coerces an absent --help flag with it unless told not to (`camcal.cli._Group`)
 )
+#: What ``camcal --help`` and ``camcal lrm --help`` (through the entry point) do without, beyond HEAVY:
+#: rich's Markdown and tracebacks (imported by typer's help renderer, never used by camcal's help) and
+#: the supervisor's channel (only when ``camcal up`` started the command).
+RENDERER_EXTRAS = ("rich.markdown", "markdown_it", "rich.traceback", "rich.pretty", "camcal.core.supervise")
 
 _PROBE = """
 import contextlib, io, json, sys
@@ -57,10 +62,10 @@ print(json.dumps({"code": code, "loaded": [m for m in heavy if m in sys.modules]
 """
 
 
-def loaded_by(*args: str) -> dict[str, object]:
+def loaded_by(*args: str, heavy: tuple[str, ...] = HEAVY) -> dict[str, object]:
     """Run the CLI with ``args`` in a fresh interpreter: its exit status and the heavy modules it loaded."""
     out = subprocess.run(
-        [sys.executable, "-c", _PROBE, json.dumps(HEAVY), *args],
+        [sys.executable, "-c", _PROBE, json.dumps(heavy), *args],
         cwd=ROOT,
         capture_output=True,
         text=True,
@@ -81,8 +86,34 @@ def test_importing_the_cli_loads_no_heavy_module() -> None:
 
 @pytest.mark.parametrize("args", [["--help"], ["lrm", "--help"]])
 def test_help_loads_no_heavy_module(args: list[str]) -> None:
-    got = loaded_by(*args)
+    got = loaded_by(*args, heavy=(*HEAVY, *RENDERER_EXTRAS))
     assert got == {"code": 0, "loaded": []}
+
+
+def test_the_help_renderer_stand_ins_leave_no_trace() -> None:
+    """After ``--help`` the real rich.markdown and rich.traceback import, and typer's renderer uses them."""
+    probe = (
+        "import contextlib, io, sys\n"
+        "from camcal.cli import main\n"
+        "sys.argv = ['camcal', 'lrm', '--help']\n"
+        "with contextlib.redirect_stdout(io.StringIO()) as out, contextlib.suppress(SystemExit):\n"
+        "    main()\n"
+        "assert 'replay' in out.getvalue()\n"
+        "import rich.markdown, rich.traceback, typer.rich_utils as r\n"
+        "assert isinstance(r.Markdown('*x*'), rich.markdown.Markdown)\n"
+        "assert r.Traceback.from_exception is not None\n"
+        "assert rich.markdown.Markdown.__init__ is not type.__init__\n"
+        "print('ok')\n"
+    )
+    out = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, capture_output=True, text=True, check=False)
+    assert out.stdout.strip() == "ok", out.stderr
+
+
+def test_the_supervisor_variable_is_the_supervisors() -> None:
+    from camcal.cli import SUPERVISOR_ENV
+    from camcal.core.supervise import CHANNEL_ENV
+
+    assert SUPERVISOR_ENV == CHANNEL_ENV
 
 
 def test_every_commands_help_stays_light() -> None:

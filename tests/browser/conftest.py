@@ -91,9 +91,21 @@ def dive_with_data(system: System) -> dict[str, Any]:
     return wait_until(ready, 120, "analysed frames, a λ_att point and linearity fits of both modules")
 
 
+#: The order of the browser files: those with a system of their own first, then the shared
+#: system's tests that need no data (its dive meanwhile reaches the test stop), then the rest.
+FILE_ORDER = ("test_cold_start", "test_control", "test_security", "test_file_routes")
+
+
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Every browser test runs alone in ``make test``: the shared system's simulated dive loads both cores."""
+    """Every browser test runs alone in ``make test`` (marked solo: the shared system's simulated
+    dive loads both cores), in `FILE_ORDER`, then the other files in their own order."""
     here = Path(__file__).parent
-    for item in items:
-        if here in item.path.parents:
-            item.add_marker(pytest.mark.solo)
+    slots = [i for i, item in enumerate(items) if here in item.path.parents]
+    ours = [items[i] for i in slots]
+
+    def rank(item: pytest.Item) -> int:
+        return FILE_ORDER.index(item.path.stem) if item.path.stem in FILE_ORDER else len(FILE_ORDER)
+
+    for i, item in zip(slots, sorted(ours, key=rank), strict=True):
+        item.add_marker(pytest.mark.solo)
+        items[i] = item

@@ -170,8 +170,9 @@ def _budgets(fits: list[dict[str, Any]]) -> str:
     if out:
         out = (
             "<p>What the fit holds fixed, varied one at a time: each line's error on the lengths "
-            "(⟨cos θ⟩ and the Rayleigh share: a prior uniform over the range, narrowed by the data's own "
-            "Δχ²; the emission shape: the full shift). The sum in quadrature is the systematic error "
+            "(⟨cos θ⟩ and the Rayleigh share: the RMS shift over the data's posterior, a prior uniform "
+            "over the range times exp(-Δχ²/2s²); the emission shape: the full shift). The sum in "
+            "quadrature is the systematic error "
             "quoted above.</p>" + out
         )
     return out

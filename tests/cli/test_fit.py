@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 from analysis.scattering import WaterOptics
 from camcal.cli import app
 from camcal.core.schedule import Schedule
+from camcal.fitdoc import estimate_text
 from lrm.sim.camera import CameraModel
 from lrm.sim.render import TransportHalo
 from lrm.sim.scene import Water
@@ -127,6 +128,12 @@ def test_fit_reports_lengths_within_their_errors(fitted: tuple[int, str, Path]) 
     assert doc["inputs"]["geometry"]["distance_far_m"] == 41.62
     assert doc["software"]["name"] == "camcal"
     assert "460" in output and "agrees" in output
+    # Made with --no-systematics: no "± 0.00 (sys)" anywhere, the entry and the table say so.
+    for key in ("lambda_abs", "lambda_sca"):
+        assert res[key]["systematics"] == "no budget" and res[key]["sys_err_m"] is None
+        assert estimate_text(res, key).endswith(" (no budget) m")
+    assert "budget)" in output  # "(no budget)", perhaps wrapped by the 80-column table
+    assert "± 0.00" not in output
 
 
 def test_fit_writes_readable_plots(fitted: tuple[int, str, Path]) -> None:

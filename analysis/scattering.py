@@ -93,7 +93,8 @@ def single_scatter_halo(
     of half-angle α = asin(a/r), so p is evaluated at an angle widened by α
     (a cone average of its forward peak). Lines of sight that hit the sphere
     stop there. Returns the halo radiance over B, attenuation included; the
-    direct radiance of the disk over B is ``exp(-distance_m / λ_att)``.
+    direct radiance of the disk over B is ``exp(-s / λ_att)``, s the path to
+    the sphere's surface (`analysis.transport.disk.surface_path_m`).
     Multiple scattering is left out.
     """
     psi = np.atleast_1d(np.asarray(psi_rad, dtype=np.float64))[:, None]

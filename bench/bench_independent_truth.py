@@ -13,7 +13,8 @@ the templates' 6). Two waters, three wavelengths each: deep-sea (λ_abs /
 For each water and wavelength, ``--seeds`` frame sets (independent sensor
 noise and pointing jitter) are fitted; the systematic budget is computed
 once per water and wavelength (on the first seed: it describes the set-up,
-not the noise) and added in quadrature to every seed's fit error. Printed
+not the noise; per seed with ``--sample-systematics``) and added in
+quadrature to every seed's fit error. Printed
 per water and wavelength: the mean relative bias of λ_abs and λ_sca, the
 pulls (value - truth) / total error (mean, RMS), the median χ²/ndof and how
 many fits gave a limit instead of a value; then each of the issue's targets
@@ -93,10 +94,18 @@ def fit_settings(water: str, photons: int, orders: int = 6) -> TemplateSettings:
     )
 
 
-def renderers(water: str, wl: int, truth_photons: int, cache: str, seed: int) -> dict[str, FrameRenderer]:
+def renderers(
+    water: str,
+    wl: int,
+    truth_photons: int,
+    cache: str,
+    seed: int,
+    phase: tuple[float, float] = (0.93, 0.17),
+    truth_seed: int = TRUTH_SEED,
+) -> dict[str, FrameRenderer]:
     a, s = WATERS[water][wl]
-    w = Water({wl: WaterOptics(a, s)}, name=water)
-    halo = TransportHalo(cache_dir=cache, n_photons=truth_photons, max_order=TRUTH_ORDERS, seed=TRUTH_SEED)
+    w = Water({wl: WaterOptics(a, s, mie_g=phase[0], rayleigh_fraction=phase[1])}, name=water)
+    halo = TransportHalo(cache_dir=cache, n_photons=truth_photons, max_order=TRUTH_ORDERS, seed=truth_seed)
     cam = small_camera()
     return {
         p.camera: FrameRenderer(cam, p, w, LEMModel(), seed=seed, halo_model="transport", transport=halo)
@@ -126,6 +135,25 @@ class Job:
     variations: dict[str, TemplateGrid]
     truth_photons: int
     cache: str
+    sample_systematics: bool = False
+
+
+def truth_phase(job: Job, seed: int) -> tuple[tuple[float, float], int]:
+    """The truth's (⟨cos θ⟩, Rayleigh share) and transport seed for one frame set.
+
+    Fixed at the fit's nominal values and one transport seed by default; with
+    ``sample_systematics`` drawn per frame set from the budget's priors
+    (uniform over 0.88-0.96 and 0.10-0.25) with a transport seed of its own,
+    so that the pulls test the total error's coverage, systematic part
+    included.
+    """
+    if not job.sample_systematics:
+        return (0.93, 0.17), TRUTH_SEED
+    rng = np.random.default_rng([seed, job.wl, 0x5157])
+    cfg = SystematicsConfig()
+    g = float(rng.uniform(*cfg.mie_g_range))
+    share = float(rng.uniform(*cfg.rayleigh_range))
+    return (round(g, 4), round(share, 4)), TRUTH_SEED + 1 + seed
 
 
 def run_job(job: Job) -> dict[str, object]:
@@ -136,7 +164,8 @@ def run_job(job: Job) -> dict[str, object]:
     budget = None
     settings_used = None
     for seed in range(job.seeds):
-        rend = renderers(job.water, job.wl, job.truth_photons, job.cache, seed)
+        phase, truth_seed = truth_phase(job, seed)
+        rend = renderers(job.water, job.wl, job.truth_photons, job.cache, seed, phase, truth_seed)
         if settings_used is None:
             settings_used = choose_settings(rend, job.wl)
             out["settings"] = settings_used
@@ -155,8 +184,11 @@ def run_job(job: Job) -> dict[str, object]:
         except (FitInputError, ValueError) as exc:
             rows.append({"seed": seed, "error": str(exc)})
             continue
-        if budget is None:
+        # The budget describes the set-up, so one per water and wavelength, except when the truth's
+        # phase function changes from set to set: the data's posterior of ⟨cos θ⟩ does too.
+        if budget is None or job.sample_systematics:
             budget = systematic_budget(fit, prof, job.grid, job.variations, SystematicsConfig())
+        if "budget" not in out:
             out["budget_seconds"] = budget.seconds
             out["fit_seconds"] = t_fit
             out["budget"] = {i.name: [i.lambda_abs_m, i.lambda_sca_m, i.profiled] for i in budget.items}
@@ -178,6 +210,7 @@ def run_job(job: Job) -> dict[str, object]:
                 "sys": [budget.lambda_abs_sys_m, budget.lambda_sca_sys_m],
                 "chi2_ndof": fit.chi2_ndof,
                 "error_scale": fit.error_scale,
+                "truth_phase": list(phase),
             }
         )
     out["fits"] = rows
@@ -237,6 +270,11 @@ def main() -> None:
     ap.add_argument("--template-orders", type=int, default=6, help="scattering orders of the fit's templates")
     ap.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
     ap.add_argument("--cache", default=None, help="template cache (default: a temporary directory)")
+    ap.add_argument(
+        "--sample-systematics",
+        action="store_true",
+        help="draw the truth's ⟨cos θ⟩ and Rayleigh share per frame set from the budget's priors",
+    )
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     cache = args.cache or tempfile.mkdtemp(prefix="camcal-truth-")
@@ -270,7 +308,18 @@ def main() -> None:
     )
     for water in waters:
         for wl in sorted(WATERS[water]):
-            jobs.append(Job(water, wl, args.seeds, grids[water], var_grids[water], args.truth_photons, cache))
+            jobs.append(
+                Job(
+                    water,
+                    wl,
+                    args.seeds,
+                    grids[water],
+                    var_grids[water],
+                    args.truth_photons,
+                    cache,
+                    args.sample_systematics,
+                )
+            )
     t0 = time.perf_counter()
     results = []
     with ProcessPoolExecutor(max_workers=args.workers) as pool:
@@ -303,7 +352,12 @@ def report(results: list[dict[str, object]], t_fit: float, t_var: float, args: a
     print()
     print(
         f"{args.seeds} seeds per water and wavelength; templates {args.photons} photons/node, truth "
-        f"{args.truth_photons} photons/camera, {TRUTH_ORDERS} orders, seed {TRUTH_SEED}"
+        f"{args.truth_photons} photons/camera, {TRUTH_ORDERS} orders; the truth's ⟨cos θ⟩ and Rayleigh "
+        + (
+            "share drawn per frame set from the budget's priors, its own transport seed each"
+            if args.sample_systematics
+            else f"share fixed at 0.93 and 0.17, transport seed {TRUTH_SEED}"
+        )
     )
     head = (
         "water",

@@ -16,8 +16,11 @@ with a uniform Lambertian LEM (0.43 m sphere, radiance 1):
 * the direct light (no scattering, an exact limit): Mitsuba with the same
   σ_t but albedo 0, at the disk's central pixels, against the exact
   transmittance exp(-σ_t s) along each pixel's ray (s from the camera to the
-  sphere's surface) and against the model the fit and the simulator use,
-  exp(-L/λ_att) with L the distance to the LEM's centre.
+  sphere's surface) and against the model the fit uses
+  (`BandPixels.disk_path_moments` + `disk_transmittance`: the path to the
+  surface per pixel, averaged by its cumulants); until issue 13's fix the
+  model was exp(-L/λ_att) with L the distance to the LEM's centre, low by
+  exp(-a/λ_att).
 
 Prints a table (markdown) and writes a figure of the ratios.
 """
@@ -37,7 +40,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from analysis.transport.cache import TemplateCache
-from analysis.transport.disk import disk_radius_px
+from analysis.transport.disk import BandPixels, disk_radius_px, disk_transmittance
 from analysis.transport.scene import LEM_RADIUS_M
 from analysis.transport.templates import (
     EmissionProfile,
@@ -120,12 +123,19 @@ def compare_direct(
     vals = strip.radiance[inner]
     mi_mean = float(vals.mean())
     mi_err = float(vals.std(ddof=1) / math.sqrt(vals.size))
-    model = math.exp(-big_l * sigma_t)
+    one_band = BandPixels(
+        distance_px=strip.rho_px[inner].astype(np.float64),
+        band=np.zeros(int(inner.sum()), dtype=np.int32),
+        count=np.array([int(inner.sum())]),
+        flat_index=np.flatnonzero(inner.ravel()),
+    )
+    moments = one_band.disk_path_moments(r_disk, 0.0, big_l, a, FOCAL_PX)
+    model = float(disk_transmittance(moments, big_l, a, 1.0 / sigma_t)[0])
     return {
         "mitsuba": mi_mean,
         "mitsuba_err": mi_err,
         "exact": exact,
-        "model_exp_L": model,
+        "model": model,
         "mitsuba_over_exact": mi_mean / exact,
         "model_over_exact": model / exact,
     }
@@ -217,7 +227,7 @@ def main() -> None:
     )
     print(
         "| water | L [m] | halo bins | χ²/ndof | max abs(dev) | max abs(pull) | direct: Mitsuba/exact | "
-        "model exp(-L/λ_att)/exact |"
+        "fit's disk model/exact |"
     )
     print("|---|---|---|---|---|---|---|---|")
     for r in results:

@@ -51,13 +51,22 @@ def fit_detail(fit: ChiSquareFit) -> dict[str, Any]:
     }
 
 
-def estimate_entry(e: Estimate, sys_err_m: float) -> dict[str, Any]:
-    """One length: a value with its errors, or a one-sided limit (then ``value_m`` is null)."""
+#: What a length's entry says in ``systematics`` when the fit was made without its budget.
+NO_BUDGET = "no budget"
+
+
+def estimate_entry(e: Estimate, sys_err_m: float, *, budget: bool = True) -> dict[str, Any]:
+    """One length: a value with its errors, or a one-sided limit (then ``value_m`` is null).
+
+    ``budget=False`` (a fit made with ``--no-systematics``): ``sys_err_m`` is
+    null and ``systematics`` says "no budget", so no reader prints ± 0.00.
+    """
     return {
         "status": e.status,
         "value_m": _r(e.value_m, 3),
         "err_m": _r(e.err_m, 3),
-        "sys_err_m": _r(sys_err_m, 3) if e.measured else None,
+        "sys_err_m": _r(sys_err_m, 3) if e.measured and budget else None,
+        "systematics": "budget" if budget else NO_BUDGET,
         "interval_m": [_r(v, 3) for v in e.interval_m] if e.interval_m else None,
         "limit_m": _r(e.limit_m, 3),
         "cl": e.cl,
@@ -75,7 +84,12 @@ def estimate_text(entry: dict[str, Any], key: str, digits: int = 2) -> str:
         value, err = entry.get(f"{key}_m"), entry.get(f"{key}_err_m")
         e = {"status": "measured", "value_m": value, "err_m": err, "sys_err_m": entry.get(f"{key}_sys_err_m")}
     if e["status"] == "measured" and e.get("value_m") is not None:
-        sys_txt = f" ± {e['sys_err_m']:.{digits}f} (sys)" if e.get("sys_err_m") is not None else ""
+        if e.get("systematics") == NO_BUDGET:
+            sys_txt = f" ({NO_BUDGET})"
+        elif e.get("sys_err_m") is not None:
+            sys_txt = f" ± {e['sys_err_m']:.{digits}f} (sys)"
+        else:
+            sys_txt = ""
         err = e.get("err_m")
         err_txt = f" ± {err:.{digits}f}" if err is not None else ""
         return f"{e['value_m']:.{digits}f}{err_txt}{sys_txt} m"
@@ -125,8 +139,8 @@ def fit_entry(f: ChiSquareFit, chk: AttenuationCheck) -> dict[str, Any]:
     ab, sc = f.lambda_abs, f.lambda_sca
     return {
         "wavelength_nm": f.wavelength_nm,
-        "lambda_abs": estimate_entry(ab, f.lambda_abs_sys_err_m),
-        "lambda_sca": estimate_entry(sc, f.lambda_sca_sys_err_m),
+        "lambda_abs": estimate_entry(ab, f.lambda_abs_sys_err_m, budget=f.systematics is not None),
+        "lambda_sca": estimate_entry(sc, f.lambda_sca_sys_err_m, budget=f.systematics is not None),
         "lambda_abs_m": _r(ab.value_m, 3),
         "lambda_abs_err_m": _r(ab.err_m, 3),
         "lambda_abs_sys_err_m": _r(f.lambda_abs_sys_err_m, 3) if ab.measured else None,

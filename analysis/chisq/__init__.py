@@ -11,8 +11,9 @@ far/near brightness ratio survives the normalisation.
 Model
 -----
 T = direct disk + scattered-light halo for each camera. The disk
-(`analysis.transport.disk`) has radiance exp(-L/λ_att) toward the near
-camera and (I0'/I0)·exp(-L/λ_att) toward the far one and is blurred by a
+(`analysis.transport.disk`) has radiance exp(-s/λ_att) toward the near
+camera and (I0'/I0)·exp(-s/λ_att) toward the far one (s the path along each
+pixel's ray to the sphere's surface, L - a at the centre) and is blurred by a
 Gaussian PSF; the halo comes from the transport templates
 (`analysis.transport.templates`), weighted by the same emission profile.
 T is normalised like the data, by its own near-camera sum.

@@ -10,7 +10,7 @@ import numpy as np
 from analysis.attenuation import EmissionRatio, Geometry
 from analysis.chisq.data import FitInputError, SettingProfiles, quantisation_bias_gray
 from analysis.chisq.results import FitConfig
-from analysis.transport.disk import BandPixels, disk_radius_px
+from analysis.transport.disk import BandPixels, disk_radius_px, disk_transmittance
 from analysis.transport.templates import EmissionProfile, TemplateGrid
 
 
@@ -24,7 +24,7 @@ class Problem:
         geometry: Geometry,
         ratio: EmissionRatio,
         config: FitConfig,
-        disk_cache: dict[tuple[int, int, float, float], tuple[np.ndarray, ...]] | None = None,
+        disk_cache: dict[tuple[int, int, float, float, float], tuple[np.ndarray, ...]] | None = None,
     ) -> None:
         # Disk profiles per (setting, camera, radius, PSF width): refits of the same settings with
         # another input (the systematic budget) share them; they cost most of a refit otherwise.
@@ -109,24 +109,36 @@ class Problem:
         dists = np.array([self.geometry.distance_near_m + work[0], self.geometry.distance_far_m + work[1]])
         self.distances = dists
         self.disk_r = np.array([disk_radius_px(d, self.lem_radius_m, self.focal_px * scale) for d in dists])
-        disk, d_r, d_s = [], [], []
+        disk, d_r, d_s, pieces = [], [], [], []
         for i, s in enumerate(self.settings):
             per_cam = []
             for c, prof in enumerate((s.near, s.far)):
-                key = (i, c, round(float(self.disk_r[c]), 9), round(float(psf), 9))
+                key = (i, c, round(float(self.disk_r[c]), 9), round(float(psf), 9), round(float(dists[c]), 9))
                 if key not in self._disk_cache:
-                    self._disk_cache[key] = self._disk_pieces(prof.pixels, float(self.disk_r[c]), psf)
+                    self._disk_cache[key] = self._disk_pieces(
+                        prof.pixels, float(self.disk_r[c]), psf, float(dists[c]), self.focal_px * scale
+                    )
                 per_cam.append(self._disk_cache[key])
+            pieces.append(per_cam)
             disk.append([p[0] for p in per_cam])
             d_r.append([p[1] for p in per_cam])
             d_s.append([p[2] for p in per_cam])
+        self.disk_m1 = np.nan_to_num(np.array([[p[3] for p in cams] for cams in pieces]))
+        self.disk_m2 = np.nan_to_num(np.array([[p[4] for p in cams] for cams in pieces]))
         self.disk = np.nan_to_num(np.array(disk))
         self.disk_dr = np.nan_to_num(np.array(d_r))
         self.disk_ds = np.nan_to_num(np.array(d_s))
 
-    def _disk_pieces(self, pixels: BandPixels, r: float, psf: float) -> tuple[np.ndarray, ...]:
-        """The blurred disk's band profile and its derivatives in radius and PSF width."""
-        base = pixels.disk_profile(r, psf)[: self.n]
+    def _disk_pieces(
+        self, pixels: BandPixels, r: float, psf: float, distance_m: float, focal_px: float
+    ) -> tuple[np.ndarray, ...]:
+        """The blurred disk's band profile, its derivatives in radius and PSF width, its path moments.
+
+        The moments (`BandPixels.disk_path_moments`) give the disk's
+        transmittance along each pixel's ray to the sphere's surface.
+        """
+        moments = pixels.disk_path_moments(r, psf, distance_m, self.lem_radius_m, focal_px)
+        base, m1, m2 = (m[: self.n] for m in moments)
         dr = (
             pixels.disk_profile(r + 0.05, psf)[: self.n] - pixels.disk_profile(r - 0.05, psf)[: self.n]
         ) / 0.1
@@ -134,7 +146,7 @@ class Problem:
         ds = (pixels.disk_profile(r, psf + 0.05)[: self.n] - pixels.disk_profile(r, lo)[: self.n]) / (
             psf + 0.05 - lo
         )
-        return base, dr, ds
+        return base, dr, ds, m1, m2
 
     # -- the model --------------------------------------------------------
     def model(self, lambda_abs_m: float, lambda_sca_m: float) -> dict[str, np.ndarray]:
@@ -160,10 +172,21 @@ class Problem:
         att_shift = np.exp(-(self.distances - nominal) / lam_att)
         halo = halo * att_shift[:, None]
         halo_err = halo_err * att_shift[:, None]
-        amp = np.array(
-            [math.exp(-self.distances[0] / lam_att), ratio * math.exp(-self.distances[1] / lam_att)]
-        )
-        direct = amp[None, :, None] * self.disk  # (set, cam, band)
+        # The disk's transmittance along each pixel's ray to the sphere's surface (not its centre).
+        a = self.lem_radius_m
+        # The edge's derivatives take the limb's transmittance (path sqrt(L² - a²)).
+        limb = np.sqrt(self.distances**2 - a * a)
+        amp = np.array([math.exp(-limb[0] / lam_att), ratio * math.exp(-limb[1] / lam_att)])
+        direct = np.stack(
+            [
+                (1.0 if c == 0 else ratio)
+                * disk_transmittance(
+                    (self.disk[:, c], self.disk_m1[:, c], self.disk_m2[:, c]), self.distances[c], a, lam_att
+                )
+                for c in range(2)
+            ],
+            axis=1,
+        )  # (set, cam, band)
         total = direct + halo[None]
         # Derivatives with respect to each nuisance (per unit of its shift).
         deriv = np.zeros((6, *total.shape))

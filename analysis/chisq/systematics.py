@@ -3,9 +3,14 @@
 The fit holds the phase function (⟨cos θ⟩ and the Rayleigh share) and the
 LEM's angular emission shape (linear in the cosine of the emission angle)
 fixed; neither the real water nor the real LEM promises them. Each is
-varied over a plausible range, λ_abs and λ_sca are fitted again, and the
-largest shift of each is its systematic error; their sum in quadrature,
-with the templates' own accuracy on λ_sca, is the systematic error quoted.
+varied over a plausible range and λ_abs and λ_sca are fitted again. The
+phase function's two parameters are uniform priors over their ranges that
+the data narrow: each length's error is the RMS of its shift over the
+parameter's posterior exp(-Δχ²/2s²) (`marginal_error`), so the data's
+preferred value and its width count, and a refit that runs away where the
+data exclude the parameter does not. An alternative emission shape counts
+with its full shift. Their sum in quadrature, with the templates' own
+accuracy on λ_sca, is the systematic error quoted.
 
 The nuisances the fit already floats with a prior (I0'/I0, the PSF width,
 the two distances) are listed too, as *impacts*: the shift when the
@@ -43,11 +48,16 @@ class SystematicsConfig:
     around its 0.92-0.93); ``rayleigh_range``: the share of scattering that
     is Rayleigh (~17 % in the deep-sea model); ``emission_shapes``: the
     alternative angular emission shapes of the LEM
-    (`analysis.transport.scene.EMISSION_SHAPES`). The ends of each range are
-    treated as ±1σ variations: the largest |shift| is the item's error.
+    (`analysis.transport.scene.EMISSION_SHAPES`). ⟨cos θ⟩ and the Rayleigh
+    share are uniform priors over their ranges, narrowed by the data
+    (`marginal_error`): ⟨cos θ⟩ is refitted at ``mie_g_points`` values
+    evenly over its range (and the nominal), the Rayleigh share at the ends
+    and the nominal. Each alternative emission shape's full shift is its
+    error.
     """
 
     mie_g_range: tuple[float, float] = (0.88, 0.96)
+    mie_g_points: int = 5
     rayleigh_range: tuple[float, float] = (0.10, 0.25)
     emission_shapes: tuple[str, ...] = ("hemispheres",)
 
@@ -55,6 +65,8 @@ class SystematicsConfig:
         lo, hi = self.mie_g_range
         if not -1 < lo < hi < 1:
             raise ValueError(f"mie_g_range must be increasing inside (-1, 1), got {self.mie_g_range}")
+        if self.mie_g_points < 2:
+            raise ValueError(f"mie_g_points must be >= 2, got {self.mie_g_points}")
         lo, hi = self.rayleigh_range
         if not 0 <= lo < hi <= 1:
             raise ValueError(f"rayleigh_range must be increasing inside [0, 1], got {self.rayleigh_range}")
@@ -146,7 +158,8 @@ class _Refitter:
     ) -> np.ndarray:
         """(case, [Δλ_abs, Δλ_sca, Δλ_att, Δχ²]) against the reference refit (NaN for a bounded length)."""
         ref = self.reference(**(reference or {}))
-        return np.array([(self(**kw) - ref) * self.mask for _, kw in cases])
+        # Every case goes through the same memo: a case equal to the reference is not refitted.
+        return np.array([(self.reference(**kw) - ref) * self.mask for _, kw in cases])
 
 
 def _shift_item(
@@ -181,17 +194,17 @@ def _largest(d: np.ndarray) -> np.ndarray:
 def constrained_error(
     nominal: float, ends: tuple[float, float], d: np.ndarray, error_scale: float
 ) -> tuple[np.ndarray, float]:
-    """Errors on the three lengths from a held parameter x, narrowed by the data's own Δχ².
+    """Errors on the three lengths from a held parameter x, narrowed by the data's own Δχ² (linearised).
 
     The range ``ends`` is the prior: x uniform between them (σ = width/√12).
     The data's information on x is the curvature a of the parabola
     a·δ² + b·δ (δ = x - nominal) through the nominal (Δχ² = 0) and the two
     ends' Δχ² (divided by the error scale²). The posterior width is
-    1/√(a + 1/σ_prior²), a linearised profile of x with its prior, and each
-    length's error is the secant slope between the ends times that width.
-    A χ² that rises faster than a parabola near the nominal (a sharp
-    minimum) makes this width too wide, never too narrow. Returns the
-    errors and the width.
+    1/√(a + 1/σ_prior²), and each length's error the secant slope between
+    the ends times that width. Kept as the linear limit of
+    `marginal_error`, which the budget uses: a refit that runs away at one
+    end (λ_abs to the grid's edge) makes the secant, hence this error, huge
+    even where the data exclude that end.
     """
     lo, hi = ends
     dx = np.array([lo - nominal, hi - nominal])
@@ -201,6 +214,50 @@ def constrained_error(
     width = 1.0 / math.sqrt(max(float(a), 0.0) + 1.0 / prior**2)
     slope = (d[1, :3] - d[0, :3]) / (hi - lo)
     return np.abs(slope) * width, width
+
+
+#: Points of the fine grid over a held parameter's range on which `marginal_error` integrates.
+_MARGINAL_POINTS = 401
+
+
+def marginal_error(
+    x: Sequence[float], d: np.ndarray, error_scale: float
+) -> tuple[np.ndarray, tuple[float, float]]:
+    """Errors on the three lengths from a held parameter, marginalised over the data's posterior of it.
+
+    ``x`` are the parameter's values at which the lengths were refitted
+    (their ends span the prior's range, uniform; one of them the reference,
+    with zero shifts) and ``d`` the rows (Δλ_abs, Δλ_sca, Δλ_att, Δχ²)
+    against that reference. Between the points the shifts and Δχ² are
+    interpolated linearly; the posterior of the parameter is
+    exp(-Δχ²/(2 s²)) over the range (s the fit's error scale), and each
+    length's error is the root mean square of its shift under it,
+    √(E[Δλ²]) = √(var + (mean shift)²): the spread the parameter's
+    uncertainty gives the length, plus how far the data's preferred value
+    moves it from the reported one. Where the data pin the parameter this
+    is the shift over the posterior's width; where they do not, it is the
+    spread over the prior's range; a refit that runs away where the data
+    exclude the parameter gets that exclusion's weight, not the secant's.
+    Returns the errors and the parameter's posterior mean and standard
+    deviation (what the data say of it).
+    """
+    order = np.argsort(np.asarray(x, dtype=float))
+    xs = np.asarray(x, dtype=float)[order]
+    rows = np.asarray(d, dtype=float)[order]
+    fine = np.linspace(xs[0], xs[-1], _MARGINAL_POINTS)
+    dchi2 = np.interp(fine, xs, rows[:, 3]) / error_scale**2
+    w = np.exp(-0.5 * (dchi2 - dchi2.min()))
+    w[[0, -1]] *= 0.5  # the trapezoid rule
+    w /= w.sum()
+    errors = np.empty(3)
+    for k in range(3):
+        if not np.all(np.isfinite(rows[:, k])):
+            errors[k] = np.nan
+            continue
+        shift = np.interp(fine, xs, rows[:, k])
+        errors[k] = math.sqrt(float(np.sum(w * shift * shift)))
+    mean = float(np.sum(w * fine))
+    return errors, (mean, math.sqrt(max(float(np.sum(w * (fine - mean) ** 2)), 0.0)))
 
 
 def systematic_budget(
@@ -234,15 +291,25 @@ def systematic_budget(
         if name == "mie_g":
             if "mie_g" not in variations:
                 continue
-            cases = [(f"{g:g}", {"grid": variations["mie_g"], "config": replace(cfg, mie_g=g)}) for g in ends]
+            var = variations["mie_g"]
+            points = sorted({*np.linspace(ends[0], ends[1], config.mie_g_points).round(4), nominal})
+            cases = [(f"{g:g}", {"grid": var, "config": replace(cfg, mie_g=float(g))}) for g in points]
+            reference: dict[str, object] | None = {"grid": var, "config": replace(cfg, mie_g=nominal)}
         else:
             if not all(f"rayleigh={x:g}" in variations for x in ends):
                 continue
-            cases = [(f"{x:g}", {"grid": variations[f"rayleigh={x:g}"]}) for x in ends]
+            points = [ends[0], nominal, ends[1]]
+            cases = [(f"{ends[0]:g}", {"grid": variations[f"rayleigh={ends[0]:g}"]})]
+            cases += [(f"{nominal:g}", {})]
+            cases += [(f"{ends[1]:g}", {"grid": variations[f"rayleigh={ends[1]:g}"]})]
+            reference = None
         hits = refit.edge_hits
-        d = refit.shifts(cases)
-        errors, width = constrained_error(nominal, ends, d, fit.error_scale)
-        note = f"{nominal:g} ± {width:.2g} (prior: uniform over {ends[0]:g}-{ends[1]:g}; the data's Δχ²)"
+        d = refit.shifts(cases, reference)
+        errors, (mean, width) = marginal_error(points, d, fit.error_scale)
+        note = (
+            f"the data: {mean:.3g} ± {width:.2g} (prior uniform over {ends[0]:g}-{ends[1]:g}, nominal "
+            f"{nominal:g}); error: RMS shift over that posterior"
+        )
         if refit.edge_hits > hits:
             note += EDGE_NOTE
         items.append(_shift_item(name, label, cases, d, errors, note=note))

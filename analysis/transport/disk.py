@@ -1,10 +1,16 @@
 """The direct light of the LEM: its disk in the image, blurred and averaged like the data.
 
-The simulator (and the I_center method) draw the disk with the radiance
-``B exp(-L/λ_att)`` over a radius ``f a / sqrt(L² - a²)`` pixels, antialiased
-by a one-pixel linear ramp at the edge, then blurred by a Gaussian PSF. A
-profile band is the mean over the pixels whose centres lie in it, so the
-model is evaluated at exactly those pixel centres (`BandPixels`).
+The simulator and the fit draw the disk over a radius ``f a / sqrt(L² - a²)``
+pixels, antialiased by a one-pixel linear ramp at the edge, then blurred by a
+Gaussian PSF. Its radiance is ``B exp(-s/λ_att)`` with ``s`` the path in water
+from the camera to the sphere's surface along each pixel's ray
+(`surface_path_m`): ``L - a`` at the centre, ``sqrt(L² - a²)`` at the limb.
+Writing ``exp(-L/λ_att)`` instead (the distance to the LEM's centre) makes the
+disk too faint by ``a/λ_att`` against the halo, whose paths start at the
+surface. The I_center method takes the near/far ratio of the centre pixels,
+in which the ``a`` cancels. A profile band is the mean over the pixels whose
+centres lie in it, so the model is evaluated at exactly those pixel centres
+(`BandPixels`).
 """
 
 from __future__ import annotations
@@ -25,6 +31,33 @@ def disk_radius_px(distance_m: float, lem_radius_m: float, focal_px: float) -> f
     if not distance_m > lem_radius_m:
         raise ValueError(f"distance_m {distance_m} must exceed lem_radius_m {lem_radius_m}")
     return focal_px * lem_radius_m / math.sqrt(distance_m * distance_m - lem_radius_m * lem_radius_m)
+
+
+def surface_path_excess_m(
+    rho_px: np.ndarray | float, distance_m: float, lem_radius_m: float, focal_px: float
+) -> np.ndarray:
+    """How much longer the ray through a pixel ``rho_px`` from the disk's centre travels to the sphere.
+
+    The ray at angle ψ (tan ψ = ρ/f) from the line to the centre meets the
+    sphere of radius a at distance L after ``s = L cos ψ - sqrt(a² - L² sin² ψ)``;
+    this returns ``δ = s - (L - a)`` (0 at the centre, about a at the limb),
+    written without cancellation as ``a - 2 L sin²(ψ/2) - sqrt(a² - L² sin² ψ)``.
+    Rays that miss the sphere (the antialiasing ramp's outer half) take the
+    limb's value.
+    """
+    psi = np.arctan(np.asarray(rho_px, dtype=np.float64) / focal_px)
+    big_l, a = float(distance_m), float(lem_radius_m)
+    root = np.sqrt(np.clip(a * a - (big_l * np.sin(psi)) ** 2, 0.0, None))
+    limb = math.sqrt(big_l * big_l - a * a) - (big_l - a)
+    inside = big_l * np.sin(psi) < a
+    return np.where(inside, a - 2.0 * big_l * np.sin(0.5 * psi) ** 2 - root, limb)
+
+
+def surface_path_m(
+    rho_px: np.ndarray | float, distance_m: float, lem_radius_m: float, focal_px: float
+) -> np.ndarray:
+    """Path in water from the camera to the LEM's surface along the ray through ``rho_px``."""
+    return (distance_m - lem_radius_m) + surface_path_excess_m(rho_px, distance_m, lem_radius_m, focal_px)
 
 
 def blurred_disk(rho_px: np.ndarray, radius_px: float, sigma_px: float) -> np.ndarray:
@@ -121,9 +154,44 @@ class BandPixels:
 
     def disk_profile(self, radius_px: float, sigma_px: float) -> np.ndarray:
         """Band means of `blurred_disk` (fraction of the disk's radiance per band)."""
+        return self.band_mean(self._blurred_values(radius_px, sigma_px))
+
+    def _blurred_values(self, radius_px: float, sigma_px: float) -> np.ndarray:
         lo = max(radius_px - 0.5 - 7.0 * sigma_px - 1.0, 0.0)
         hi = radius_px + 0.5 + 7.0 * sigma_px + 1.0
         grid = np.arange(lo, hi + 0.02, 0.02)
         table = blurred_disk(grid, radius_px, sigma_px)
-        values = np.interp(self.distance_px, grid, table, left=1.0, right=0.0)
-        return self.band_mean(values)
+        return np.interp(self.distance_px, grid, table, left=1.0, right=0.0)
+
+    def disk_path_moments(
+        self, radius_px: float, sigma_px: float, distance_m: float, lem_radius_m: float, focal_px: float
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Band means of the blurred disk D times 1, δ and δ² (δ: `surface_path_excess_m`).
+
+        The disk's band mean at any λ_att is then
+        ``exp(-(L - a)/λ) · D0 · exp(-m/λ + v/(2λ²))`` with m = D1/D0 and
+        v = D2/D0 - m² (cumulants to second order; δ/λ < 0.05 for any
+        λ_att above 5 m, so the next term is below 10⁻⁵). The transmittance
+        varies over the disk's radius, far more slowly than the PSF, so it
+        multiplies the blurred disk at each pixel's own distance.
+        """
+        values = self._blurred_values(radius_px, sigma_px)
+        delta = surface_path_excess_m(
+            np.minimum(self.distance_px, radius_px), distance_m, lem_radius_m, focal_px
+        )
+        return self.band_mean(values), self.band_mean(values * delta), self.band_mean(values * delta * delta)
+
+
+def disk_transmittance(
+    moments: tuple[np.ndarray, np.ndarray, np.ndarray],
+    distance_m: float,
+    lem_radius_m: float,
+    lambda_att_m: float,
+) -> np.ndarray:
+    """Band means of the blurred disk times exp(-s/λ_att), from `BandPixels.disk_path_moments`."""
+    d0, d1, d2 = moments
+    with np.errstate(invalid="ignore", divide="ignore"):
+        m = np.where(d0 > 0, d1 / d0, 0.0)
+        v = np.where(d0 > 0, np.maximum(d2 / d0 - m * m, 0.0), 0.0)
+    lam = float(lambda_att_m)
+    return math.exp(-(distance_m - lem_radius_m) / lam) * d0 * np.exp(-m / lam + v / (2.0 * lam * lam))

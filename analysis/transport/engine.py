@@ -28,6 +28,15 @@ analogue photon ends in it. Two estimators make the images cheap:
   ``p_natural / Σ_s q_s p_s`` (balance heuristic over all strategies), which
   keeps the estimate unbiased and cancels the 1/d² of the point detector for
   vertices close to a camera: its variance stays finite.
+* **flights guided toward a camera** (the same balance heuristic): from the
+  second flight on, a share ``guided_fraction`` flies the natural free path
+  in a direction drawn from the Mie forward peak around the direction to a
+  camera. Light scattered twice or more at small angles on its way to a
+  camera needs consecutive vertices nearly in line with it; cone vertices,
+  drawn without regard to where the photon came from, line up only rarely,
+  and the few that do carried the higher orders' heavy tail (a turbid halo's
+  second order at 10-30 % per 8-px bin with 10⁶ photons, and a seed's
+  realisation 2-5 % off Mitsuba's with errors that did not cover it).
 
 The direct (unscattered) light is tallied separately as order 0 from
 uniformly drawn surface points.
@@ -425,7 +434,12 @@ def _scattered_batch(
     a = scene.lem_radius_m
     lam = medium.lambda_sca_m
     q_nat = config.natural_fraction
-    q_cone = (1.0 - q_nat) / len(proposals)
+    n_cones = len(proposals)
+    q_cone = (1.0 - q_nat) / n_cones  # the first flight: natural or forced
+    q_guided = config.guided_fraction  # later flights: natural, forced or guided
+    q_next = (1.0 - q_nat - q_guided) / n_cones
+    q_guide = q_guided / n_cones
+    guide_g = max(medium.mie_g, 0.0)
     packet = 4.0 * math.pi**2 * a * a / config.n_photons  # power of one photon, LEM radiance 1
 
     # --- first vertex: emission point y and first scattering point x, drawn jointly.
@@ -496,9 +510,9 @@ def _scattered_batch(
             acc.add(c, emission_mu[near], order, r_px[near], path[near] + d, value)
         if order >= config.max_order:
             break
-        # --- next flight: natural, or forced into one camera's cone.
+        # --- next flight: natural, forced into one camera's cone, or guided toward a camera.
         n_live = len(weight)
-        strategy = _strategies(rng, n_live, q_nat, len(proposals))
+        strategy = _strategies(rng, n_live, q_nat, n_cones, q_guided)
         new_x = np.empty_like(x)
         nat = strategy == 0
         m = int(nat.sum())
@@ -511,6 +525,12 @@ def _scattered_batch(
             m = int(sel.sum())
             if m:
                 new_x[sel] = prop.sample(rng, m)
+            sel = strategy == n_cones + c + 1
+            m = int(sel.sum())
+            if m:
+                aim = _unit_toward(prop.camera, x[sel])
+                d_new = rotate(aim, sample_hg_cos(rng.random(m), guide_g), 2.0 * np.pi * rng.random(m))
+                new_x[sel] = x[sel] + rng.exponential(lam, m)[:, None] * d_new
         step = new_x - x
         s = np.linalg.norm(step, axis=1)
         s_safe = np.maximum(s, 1e-12)
@@ -523,8 +543,13 @@ def _scattered_batch(
             / (lam * s_safe * s_safe)
         )
         mix = q_nat * natural
+        free_path = np.exp(-s_safe / lam) / (lam * s_safe * s_safe)
         for prop in proposals:
-            mix = mix + q_cone * prop.pdf(new_x)
+            mix = mix + q_next * prop.pdf(new_x)
+            if q_guide > 0:
+                aim = _unit_toward(prop.camera, x)
+                guided = henyey_greenstein_sr(np.einsum("ij,ij->i", new_dir, aim), guide_g)
+                mix = mix + q_guide * guided * free_path
         weight = np.where(blocked, 0.0, weight * natural / np.maximum(mix, 1e-300))
         path = path + s
         order += 1
@@ -585,13 +610,28 @@ def _emission_point_for(
     return y, toward, hit
 
 
-def _strategies(rng: np.random.Generator, n: int, q_nat: float, n_cones: int) -> np.ndarray:
-    """0 for a natural flight, ``c + 1`` for one forced into camera ``c``'s cone."""
+def _strategies(
+    rng: np.random.Generator, n: int, q_nat: float, n_cones: int, q_guided: float = 0.0
+) -> np.ndarray:
+    """0 for a natural flight, ``c + 1`` for one forced into camera ``c``'s cone, ``n_cones + c + 1``
+    for one guided toward camera ``c`` (a share ``q_guided`` of all flights)."""
     xi = rng.random(n)
     out = np.zeros(n, dtype=np.int64)
-    if q_nat < 1.0:
-        cone = xi >= q_nat
-        out[cone] = 1 + np.minimum(
-            ((xi[cone] - q_nat) / (1.0 - q_nat) * n_cones).astype(np.int64), n_cones - 1
+    q_forced = 1.0 - q_nat - q_guided
+    if q_forced > 0:
+        cone = (xi >= q_nat) & (xi < q_nat + q_forced)
+        out[cone] = 1 + np.minimum(((xi[cone] - q_nat) / q_forced * n_cones).astype(np.int64), n_cones - 1)
+    if q_guided > 0:
+        guided = xi >= q_nat + q_forced
+        out[guided] = (
+            1
+            + n_cones
+            + np.minimum(((xi[guided] - q_nat - q_forced) / q_guided * n_cones).astype(np.int64), n_cones - 1)
         )
     return out
+
+
+def _unit_toward(camera: CameraSite, x: np.ndarray) -> np.ndarray:
+    """Unit vectors from the points ``x`` toward the camera."""
+    v = np.array([0.0, 0.0, camera.z_m]) - x
+    return v / np.maximum(np.linalg.norm(v, axis=1), 1e-300)[:, None]

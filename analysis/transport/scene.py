@@ -171,7 +171,12 @@ class TransportConfig:
 
     ``natural_fraction`` is the share of flights drawn the natural way (phase
     function and exponential free path); the rest are drawn into the narrow
-    cone each camera sees (see `analysis.transport.engine`). Photons stop after
+    cone each camera sees (see `analysis.transport.engine`), except that from
+    the second flight on ``guided_fraction`` of them fly the natural free
+    path in a direction drawn from the Mie forward peak around the direction
+    to a camera (double and triple forward scattering toward a camera, which
+    the cone's vertices, drawn without regard to where the photon came from,
+    find only rarely: the higher orders' heavy tail). Photons stop after
     ``max_order`` scatterings or ``path_max_m`` of path: what they would still
     add to the images is a faint, nearly flat veil.
     """
@@ -181,6 +186,7 @@ class TransportConfig:
     path_max_m: float = 400.0
     batch_size: int = 25_000
     natural_fraction: float = 0.4
+    guided_fraction: float = 0.3
     direct_samples: int = 50_000
     n_path_bins: int = 64
     path_bins_min_m: float = 0.01
@@ -194,6 +200,10 @@ class TransportConfig:
             raise ValueError(f"max_order must lie in [1, 64], got {self.max_order}")
         if not 0 < self.natural_fraction <= 1:
             raise ValueError(f"natural_fraction must lie in (0, 1], got {self.natural_fraction}")
+        if not 0 <= self.guided_fraction <= 1 - self.natural_fraction:
+            raise ValueError(
+                f"guided_fraction must lie in [0, 1 - natural_fraction], got {self.guided_fraction}"
+            )
         if not self.path_max_m > 0:
             raise ValueError(f"path_max_m must be > 0, got {self.path_max_m}")
         if self.n_path_bins < 4:

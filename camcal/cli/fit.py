@@ -261,8 +261,8 @@ def print_fits(result: FolderFit) -> None:
         scaled = f" [yellow](errors ×{f.error_scale:.2f})[/]" if f.error_scale > 1 else ""
         table.add_row(
             str(wl),
-            _length(f.lambda_abs, f.lambda_abs_sys_err_m),
-            _length(f.lambda_sca, f.lambda_sca_sys_err_m),
+            _length(f.lambda_abs, f.lambda_abs_sys_err_m, budget=f.systematics is not None),
+            _length(f.lambda_sca, f.lambda_sca_sys_err_m, budget=f.systematics is not None),
             f"{f.lambda_att_m:.2f} ± {chk.lambda_att_fit_err_m:.2f}",
             ic,
             verdict,
@@ -286,8 +286,10 @@ def print_fits(result: FolderFit) -> None:
         console.print(f"[yellow]{wl} nm skipped:[/] {why}")
 
 
-def _length(e: Estimate, sys_err_m: float) -> str:
+def _length(e: Estimate, sys_err_m: float, *, budget: bool) -> str:
     if e.measured:
+        if not budget:
+            return f"{e.value_m:.2f} ± {e.err_m:.2f} (no budget)"
         return f"{e.value_m:.2f} ± {e.err_m:.2f} ± {sys_err_m:.2f}"
     return e.text("").strip()
 

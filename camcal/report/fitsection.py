@@ -41,12 +41,15 @@ def fit_section(d: ReportData) -> str:
         rows.append(
             (
                 f"{f['wavelength_nm']} nm",
-                estimate_text(f, "lambda_abs"),
-                estimate_text(f, "lambda_sca"),
+                _two_lines(estimate_text(f, "lambda_abs")),
+                _two_lines(estimate_text(f, "lambda_sca")),
                 f"{num(f['lambda_att_fit_m'])} ± {num(f['lambda_att_fit_err_m'])}",
                 f"{num(f['lambda_att_icenter_m'])} ± {num(f['lambda_att_icenter_err_m'])}",
                 Raw(verdict),
-                f"{f['chi2']:.0f}/{f['ndof']}" + (f" (errors ×{scale:.2f})" if scale > 1 else ""),
+                Raw(
+                    f"{f['chi2']:.0f}/{f['ndof']}"
+                    + (f'<br><span class="muted">errors ×{scale:.2f}</span>' if scale > 1 else "")
+                ),
             )
         )
     span = d.fit["span"] or {}
@@ -134,7 +137,19 @@ def fit_section(d: ReportData) -> str:
 _FLOATED = "floated in the fit: inside the fit error, not added. "
 
 
-_FLOATED = "floated in the fit: inside the fit error, not added. "
+def _two_lines(text: str) -> Raw:
+    """A length's text with its systematic part (or "no budget") on a second line.
+
+    "39.20 ± 1.10 ± 0.30 (sys) m" in one unbreakable cell made the fit table
+    wider than the page (its χ²/ndof column cut off at ~1000 px).
+    """
+    if " (no budget)" in text:
+        head, tail = text.split(" (no budget)", 1)
+        return Raw(f'{esc(head)}{esc(tail)}<br><span class="muted">no budget</span>')
+    parts = text.split(" ± ")
+    if len(parts) == 3:
+        return Raw(f'{esc(parts[0])} ± {esc(parts[1])}<br><span class="muted">± {esc(parts[2])}</span>')
+    return Raw(esc(text))
 
 
 def _budgets(fits: list[dict[str, Any]]) -> str:
@@ -170,8 +185,9 @@ def _budgets(fits: list[dict[str, Any]]) -> str:
     if out:
         out = (
             "<p>What the fit holds fixed, varied one at a time: each line's error on the lengths "
-            "(⟨cos θ⟩ and the Rayleigh share: a prior uniform over the range, narrowed by the data's own "
-            "Δχ²; the emission shape: the full shift). The sum in quadrature is the systematic error "
+            "(⟨cos θ⟩ and the Rayleigh share: the RMS shift over the data's posterior, a prior uniform "
+            "over the range times exp(-Δχ²/2s²); the emission shape: the full shift). The sum in "
+            "quadrature is the systematic error "
             "quoted above.</p>" + out
         )
     return out

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any, ClassVar
@@ -96,8 +95,7 @@ class LabBase:
 def centre_rate_e_per_s(renderer: FrameRenderer, wavelength_nm: int) -> float:
     """Electrons per second in a pixel at the disk's centre: direct light, halo and dark current."""
     surface = renderer.surface_radiance_e_per_s(wavelength_nm)
-    att = renderer.water.at(wavelength_nm).lambda_att_m
-    direct = surface * math.exp(-renderer.placement.distance_m / att)
+    direct = renderer.direct_center_e_per_s(wavelength_nm)
     halo = surface * float(renderer.halo_table(wavelength_nm)[0])
     return direct + halo + renderer.camera.dark_current_e_per_s
 

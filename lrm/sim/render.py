@@ -3,8 +3,10 @@
 What a frame holds, in electrons per pixel, before the sensor turns it into
 gray values:
 
-* the LEM disk: radius ``f * a / sqrt(L² - a²)`` pixels, surface radiance
-  ``B * exp(-L / λ_att)`` (B of the side the camera faces), antialiased;
+* the LEM disk: radius ``f * a / sqrt(L² - a²)`` pixels, radiance
+  ``B * exp(-s / λ_att)`` (B of the side the camera faces, s the path in water
+  along each pixel's ray to the sphere's surface: ``L - a`` at the centre,
+  `analysis.transport.disk.surface_path_m`), antialiased;
 * the scattered-light halo around it: by default the once-scattered halo of
   `analysis.scattering.single_scatter_halo`; with ``halo_model="transport"``
   the photon transport's (`analysis.transport`: exact single scattering plus
@@ -29,6 +31,7 @@ import numpy as np
 
 from analysis.scattering import WaterOptics, single_scatter_halo
 from analysis.transport.cache import TemplateCache
+from analysis.transport.disk import surface_path_m
 from analysis.transport.templates import EmissionProfile, TemplateGrid, camera_halo
 from lrm.sim.camera import CameraModel
 from lrm.sim.scene import LEMModel, Placement, Water
@@ -219,6 +222,26 @@ class FrameRenderer:
             return float(self.lem.emission_ratio[wavelength_nm])
         return 1.0
 
+    def direct_e_per_s(self, wavelength_nm: int, rho_px: np.ndarray | float) -> np.ndarray:
+        """The disk's radiance at ``rho_px`` from its centre: B·exp(-s/λ_att) along each pixel's ray.
+
+        ``s`` is the path to the sphere's surface (`surface_path_m`), not the
+        distance to its centre: the halo's light starts at the surface too.
+        Beyond the limb it takes the limb's value (the antialiasing ramp).
+        """
+        att = self.water.at(wavelength_nm).lambda_att_m
+        s = surface_path_m(
+            np.minimum(rho_px, self.disk_radius_px),
+            self.placement.distance_m,
+            self.lem.radius_m,
+            self.camera.focal_px,
+        )
+        return self.surface_radiance_e_per_s(wavelength_nm) * np.exp(-s / att)
+
+    def direct_center_e_per_s(self, wavelength_nm: int) -> float:
+        """The disk's radiance at its centre: B·exp(-(L - a)/λ_att)."""
+        return float(self.direct_e_per_s(wavelength_nm, 0.0))
+
     def _halo_e_per_s(self, wavelength_nm: int, rho_px: np.ndarray) -> np.ndarray:
         psi = np.arctan(rho_px / self.camera.focal_px)
         h = np.interp(psi, self._psi_grid, self.halo_table(wavelength_nm))
@@ -232,9 +255,8 @@ class FrameRenderer:
         """
         cam = self.camera
         gain_total = cam.gray_per_electron * cam.gain_factor(gain_db)
-        water = self.water.at(wavelength_nm)
         b = self.surface_radiance_e_per_s(wavelength_nm)
-        direct = b * math.exp(-self.placement.distance_m / water.lambda_att_m)
+        direct = self.direct_center_e_per_s(wavelength_nm)
         halo = b * float(self.halo_table(wavelength_nm)[0])
         dark = cam.black_level_gray + cam.dark_current_e_per_s * exposure_s * gain_total
         return float(cam.respond(np.array([dark + (direct + halo) * exposure_s * gain_total]))[0])
@@ -265,12 +287,7 @@ class FrameRenderer:
         cx = cam.center_xy[0] + float(offset_px[0])
         cy = cam.center_xy[1] + float(offset_px[1])
         r_disk = self.disk_radius_px
-        b_direct = (
-            self.surface_radiance_e_per_s(wavelength_nm)
-            * math.exp(-self.placement.distance_m / water.lambda_att_m)
-            if lem_on
-            else 0.0
-        )
+        b_direct = self.direct_center_e_per_s(wavelength_nm) if lem_on else 0.0
         gain_total = cam.gray_per_electron * cam.gain_factor(gain_db)
 
         # Electrons per second, full frame: first the wide halo on a coarse grid.
@@ -302,13 +319,13 @@ class FrameRenderer:
             ys = np.arange(y0, y1, dtype=np.float32)[:, None]
             xs = np.arange(x0, x1, dtype=np.float32)[None, :]
             rho = np.sqrt((ys - cy) ** 2 + (xs - cx) ** 2)
-            disk = np.clip(r_disk - rho + 0.5, 0.0, 1.0)
+            disk = np.clip(r_disk - rho + 0.5, 0.0, 1.0) * self.direct_e_per_s(wavelength_nm, rho)
             if ghost:
                 rho2 = np.sqrt((ys - cy - ghost_dy) ** 2 + (xs - cx - ghost_dx) ** 2)
-                disk2 = np.clip(r_disk - rho2 + 0.5, 0.0, 1.0)
+                disk2 = np.clip(r_disk - rho2 + 0.5, 0.0, 1.0) * self.direct_e_per_s(wavelength_nm, rho2)
                 f = self.double_image_fraction
                 disk = (1 - f) * disk + f * disk2
-            disk *= np.float32(b_direct)
+            disk = disk.astype(np.float32)
             disk = _blur(disk, blur_px, cam.psf_sigma_px)
             rate[y0:y1, x0:x1] = disk + self._halo_e_per_s(wavelength_nm, rho)
 

@@ -10,7 +10,13 @@ import pytest
 
 from analysis.chisq import LOWER_LIMIT, MEASURED, FitConfig, SettingProfiles, fit_wavelength
 from analysis.chisq.limits import error_scale, estimate
-from analysis.chisq.systematics import SystematicsConfig, constrained_error, nodes_around, variation_settings
+from analysis.chisq.systematics import (
+    SystematicsConfig,
+    constrained_error,
+    marginal_error,
+    nodes_around,
+    variation_settings,
+)
 from analysis.chisq.wavelength import make_objective
 from analysis.transport.scene import emission_shares
 from analysis.transport.templates import TemplateGrid
@@ -95,6 +101,42 @@ def test_constrained_error_follows_the_data_and_the_prior() -> None:
     # An error scale of 3 divides the data's Δχ² by 9: a wider width.
     _, scaled = constrained_error(nominal, ends, shifts(1e6), 3.0)
     assert scaled == pytest.approx(1 / math.sqrt(1e6 / 9 + 1 / prior**2))
+
+
+def test_marginal_error_weighs_each_shift_by_what_the_data_allow() -> None:
+    points = [0.88, 0.90, 0.92, 0.93, 0.94, 0.96]
+    dx = np.array(points) - 0.93
+
+    def rows(dchi2: np.ndarray, abs_shift: np.ndarray | None = None) -> np.ndarray:
+        a = 100 * dx if abs_shift is None else abs_shift
+        return np.stack([a, 50 * dx, 10 * dx, dchi2], axis=1)
+
+    # No information in the data: the RMS shift over the uniform prior, about the nominal.
+    err, (mean, width) = marginal_error(points, rows(np.zeros(6)), 1.0)
+    uniform_rms = math.sqrt(((0.96 - 0.93) ** 3 + (0.93 - 0.88) ** 3) / (3 * 0.08))
+    assert err == pytest.approx([100 * uniform_rms, 50 * uniform_rms, 10 * uniform_rms], rel=1e-3)
+    assert mean == pytest.approx(0.92, abs=1e-3) and width == pytest.approx(0.08 / math.sqrt(12), rel=1e-2)
+    # Data that pin the parameter at the nominal (Δχ² = δ²/0.01²): slope times the posterior width.
+    err, (mean, width) = marginal_error(points, rows(dx**2 / 0.01**2), 1.0)
+    assert mean == pytest.approx(0.93, abs=1e-3) and width == pytest.approx(0.01, rel=0.1)
+    assert err[0] == pytest.approx(100 * 0.01, rel=0.1)
+    # An error scale of 2 widens the posterior about twofold (the range's ends cut it a little).
+    _, (_, scaled) = marginal_error(points, rows(dx**2 / 0.01**2), 2.0)
+    assert 1.6 * width < scaled < 2.1 * width
+    # A refit that ran away at an end the data exclude (Δχ² 200) does not blow the error up,
+    # where the secant of the linearised budget does.
+    runaway = 100 * dx
+    runaway[-1] = 1900.0
+    dchi2 = dx**2 / 0.01**2
+    dchi2[-1] = 200.0
+    err, _ = marginal_error(points, rows(dchi2, runaway), 1.0)
+    assert err[0] < 5.0
+    lin, _ = constrained_error(0.93, (0.88, 0.96), rows(dchi2, runaway)[[0, -1]], 1.0)
+    assert lin[0] > 10 * err[0]
+    # Data that prefer another value: the error includes the shift to it.
+    err, (mean, _) = marginal_error(points, rows((dx - 0.02) ** 2 / 0.005**2 - 0.02**2 / 0.005**2), 1.0)
+    assert mean == pytest.approx(0.95, abs=2e-3)
+    assert err[1] == pytest.approx(50 * 0.02, rel=0.1)
 
 
 def test_variations_need_templates_only_near_the_fitted_scattering_lengths() -> None:

@@ -149,6 +149,42 @@ def test_mc_single_scattering_matches_the_quadrature(cap_table: CapTable) -> Non
     assert chi2 < ndof + 5 * math.sqrt(2 * ndof)
 
 
+def test_flights_guided_toward_a_camera_leave_the_higher_orders_unbiased() -> None:
+    """Orders 2-3 with and without the guided flights (other seeds): the same light within errors.
+
+    Turbid water, the near camera: where the guided flights matter most. The
+    comparison is over groups of bands, each run's error from the scatter of
+    its batch groups as the templates take it.
+    """
+    edges = band_edges_px(160)
+    scene = two_cameras(edges)
+    medium = ScatteringMedium(25.0)
+    runs = []
+    # Mostly guided flights in the second run, so that a wrong density of theirs would show.
+    for natural, guided, seed in ((0.4, 0.0, 11), (0.1, 0.8, 12)):
+        config = TransportConfig(
+            n_photons=200_000, max_order=3, direct_samples=0, natural_fraction=natural, guided_fraction=guided
+        )
+        runs.append(run_transport(scene, medium, config, seed=seed).radiance(25.0, orders=slice(2, 4)))
+    (plain, plain_err), (guided, guided_err) = runs
+    chi2, n = 0.0, 0
+    for c in range(2):
+        omega = scene.band_solid_angle_sr(c)
+        for g0 in range(0, 160, 40):
+            w = omega[g0 : g0 + 40]
+            a, b = (float((v[c, g0 : g0 + 40] * w).sum() / w.sum()) for v in (plain, guided))
+            ea, eb = (
+                math.sqrt(float(((e[c, g0 : g0 + 40] * w) ** 2).sum())) / w.sum()
+                for e in (plain_err, guided_err)
+            )
+            assert a > 0 and b > 0
+            chi2 += (a - b) ** 2 / (ea * ea + eb * eb)
+            n += 1
+    assert chi2 < n + 5 * math.sqrt(2 * n)
+    with pytest.raises(ValueError, match="guided_fraction"):
+        TransportConfig(natural_fraction=0.8, guided_fraction=0.3)
+
+
 def test_quadrature_matches_the_exact_reference(cap_table: CapTable) -> None:
     radii = (20.5, 60.5, 100.5, 140.5)
     edges = [0.0]
@@ -419,3 +455,23 @@ def test_engine_is_deterministic_for_a_seed() -> None:
 def test_geometry_constants_match_the_simulator() -> None:
     assert GEOMETRY.distance_near_m == TREX_PLACEMENTS[0].distance_m
     assert GEOMETRY.distance_far_m == TREX_PLACEMENTS[1].distance_m
+
+
+def test_variance_factor_widens_the_bins_whose_groups_scatter_more() -> None:
+    """A bin whose 16 batch groups scatter 3x more than its Σw² says gets its own, larger factor."""
+    from analysis.transport.templates import variance_factor
+
+    rng = np.random.default_rng(3)
+    n_groups, n_bin = 16, 12
+    sum_w2 = np.zeros((1, 1, 3, n_bin, 1))
+    sum_w2[:, :, 2] = 1.0  # Σw² of the higher orders: 1 in every bin
+    sigma = np.full(n_bin, 1.0 / math.sqrt(n_groups))  # group sums consistent with Σw²...
+    sigma[6] *= 3.0  # ...but one heavy-tailed bin
+    group_w = 5.0 + rng.standard_normal((n_groups, 1, 1, n_bin)) * sigma[None, None, None, :]
+    factor = variance_factor(sum_w2, group_w)
+    assert factor.shape == (1, n_bin)
+    assert np.all(factor >= 1.0)
+    assert factor[0, 6] > 2.0  # ≈ (9 + 1 + 1)/3 from the bin and its neighbours (16 groups: ±37 %)
+    assert factor[0, 0] < 0.8 * factor[0, 6]
+    # Too few groups to measure a scatter: no scaling.
+    assert np.all(variance_factor(sum_w2, group_w[:3]) == 1.0)

@@ -45,3 +45,5 @@ def test_turbid_halo_and_direct_light_agree_with_mitsuba(tmp_path) -> None:
     )
     d = compare_direct(direct, dist, la, ls, r_disk)
     assert abs(d["mitsuba_over_exact"] - 1.0) < 4 * d["mitsuba_err"] / d["exact"] + 1e-3, d
+    # ...and so is the fit's disk model (the path to the sphere's surface, per band): within 0.5 %.
+    assert abs(d["model_over_exact"] - 1.0) < 0.005, d

@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 from analysis.scattering import WaterOptics
 from camcal.cli import app
 from camcal.core.schedule import Schedule
+from camcal.fitdoc import estimate_text
 from lrm.sim.camera import CameraModel
 from lrm.sim.render import TransportHalo
 from lrm.sim.scene import Water
@@ -127,6 +128,12 @@ def test_fit_reports_lengths_within_their_errors(fitted: tuple[int, str, Path]) 
     assert doc["inputs"]["geometry"]["distance_far_m"] == 41.62
     assert doc["software"]["name"] == "camcal"
     assert "460" in output and "agrees" in output
+    # Made with --no-systematics: no "± 0.00 (sys)" anywhere, the entry and the table say so.
+    for key in ("lambda_abs", "lambda_sca"):
+        assert res[key]["systematics"] == "no budget" and res[key]["sys_err_m"] is None
+        assert estimate_text(res, key).endswith(" (no budget) m")
+    assert "budget)" in output  # "(no budget)", perhaps wrapped by the 80-column table
+    assert "± 0.00" not in output
 
 
 def test_fit_writes_readable_plots(fitted: tuple[int, str, Path]) -> None:
@@ -171,11 +178,13 @@ def test_fit_with_its_systematic_budget(
     # A larger ⟨cos θ⟩ puts the same halo at a longer scattering length (λ_sca(1 - g) holds the
     # halo's width): the two ends of the range shift λ_sca in opposite directions.
     g = next(i for i in b["items"] if i["name"] == "mie_g")
-    assert g["cases"] == ["0.88", "0.96"]
-    assert g["lambda_sca_shift_m"][0] < 0 < g["lambda_sca_shift_m"][1]
-    # The line's error: the secant slope times a width no wider than the prior's (0.08/√12).
-    s0, s1 = g["lambda_sca_shift_m"]
-    assert 0 < g["lambda_sca_err_m"] <= abs(s1 - s0) / 0.08 * (0.08 / math.sqrt(12)) * 1.001
+    assert g["cases"] == ["0.88", "0.9", "0.92", "0.93", "0.94", "0.96"]
+    assert g["lambda_sca_shift_m"][0] < 0 < g["lambda_sca_shift_m"][-1]
+    assert g["lambda_sca_shift_m"][3] == 0.0 and g["delta_chi2"][3] == 0.0  # the reference
+    # The line's error: the RMS shift over the data's posterior of ⟨cos θ⟩, never beyond the
+    # largest shift; the note says what the data make of ⟨cos θ⟩.
+    assert 0 < g["lambda_sca_err_m"] <= max(abs(x) for x in g["lambda_sca_shift_m"])
+    assert g["note"].startswith("the data: 0.9")
     # Sums finite, budget shown in the table, and the fit's λ_att error grew by its systematic part.
     assert "systematic budget" in output and "quadrature" in output  # the 80-column table wraps cells
     assert f["lambda_att_fit_err_m"] >= plain["lambda_att_fit_err_m"]

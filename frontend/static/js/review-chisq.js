@@ -9,7 +9,8 @@ import { el } from "./ui.js";
 export function lengthText(f, key) {
   const e = f[key] || { status: "measured", value_m: f[`${key}_m`], err_m: f[`${key}_err_m`], sys_err_m: f[`${key}_sys_err_m`] };
   if (e.status === "measured" && e.value_m !== null && e.value_m !== undefined) {
-    const sys = e.sys_err_m === null || e.sys_err_m === undefined ? "" : ` ± ${fmt(e.sys_err_m, 2)}`;
+    let sys = e.sys_err_m === null || e.sys_err_m === undefined ? "" : ` ± ${fmt(e.sys_err_m, 2)}`;
+    if (e.systematics === "no budget") sys = " (no budget)";
     return `${fmt(e.value_m, 2)} ± ${fmt(e.err_m, 2)}${sys}`;
   }
   if (e.status === "lower_limit" || e.status === "upper_limit") {

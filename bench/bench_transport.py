@@ -28,14 +28,8 @@ from analysis.attenuation import EmissionRatio, Geometry
 from analysis.chisq import FitConfig, collect_settings, fit_wavelength
 from analysis.scattering import WaterOptics
 from analysis.transport.cache import TemplateCache
-from analysis.transport.engine import (
-    _AXIS_SHARES,
-    _CAP_UNIFORM_SHARE,
-    _INNER_PSI_SHARE,
-    ConeProposal,
-    _proposals,
-    run_transport,
-)
+from analysis.transport.engine import _proposals, run_transport
+from analysis.transport.proposals import AXIS_SHARES, CAP_UNIFORM_SHARE, INNER_PSI_SHARE, ConeProposal
 from analysis.transport.scene import (
     CameraSite,
     ScatteringMedium,
@@ -107,7 +101,7 @@ def _cone_sample(prop: ConeProposal, rng: random.Random) -> tuple[float, float, 
     big_l, a = prop.camera.distance_m, prop.lem_radius_m
     xi = rng.random()
     if prop.psi_outer_rad > prop.psi_inner_rad * 1.0001:
-        if rng.random() < _INNER_PSI_SHARE:
+        if rng.random() < INNER_PSI_SHARE:
             psi = prop.psi_inner_rad * xi
         else:
             psi = prop.psi_inner_rad * (prop.psi_outer_rad / prop.psi_inner_rad) ** xi
@@ -115,9 +109,9 @@ def _cone_sample(prop: ConeProposal, rng: random.Random) -> tuple[float, float, 
         psi = prop.psi_outer_rad * xi
     t0 = min(max(psi * big_l / prop.forward_width_rad, a), 0.5 * big_l)
     xi, pick = rng.random(), rng.random()
-    if pick < _AXIS_SHARES[0]:
+    if pick < AXIS_SHARES[0]:
         t = 1 / (1 / t0 - xi * (1 / t0 - 1 / big_l))
-    elif pick < _AXIS_SHARES[0] + _AXIS_SHARES[1]:
+    elif pick < AXIS_SHARES[0] + AXIS_SHARES[1]:
         t = big_l * xi
     else:
         t = a * (big_l / a) ** xi
@@ -161,7 +155,7 @@ def python_loop_transport(
             r = math.sqrt(x[0] ** 2 + x[1] ** 2 + x[2] ** 2)
             if r <= a:
                 continue
-            if rng.random() < _CAP_UNIFORM_SHARE:
+            if rng.random() < CAP_UNIFORM_SHARE:
                 cos_a = math.sqrt(1 - (a / r) ** 2)
                 toward = _rotate(
                     (-x[0] / r, -x[1] / r, -x[2] / r),
@@ -193,7 +187,7 @@ def python_loop_transport(
             nc = math.sqrt(tc[0] ** 2 + tc[1] ** 2 + tc[2] ** 2)
             guided = _hg_sr((d[0] * tc[0] + d[1] * tc[1] + d[2] * tc[2]) / nc, g)
             mix += (
-                q_cone * _cone_pdf(prop, x) * (_CAP_UNIFORM_SHARE / omega + (1 - _CAP_UNIFORM_SHARE) * guided)
+                q_cone * _cone_pdf(prop, x) * (CAP_UNIFORM_SHARE / omega + (1 - CAP_UNIFORM_SHARE) * guided)
             )
         w = natural / mix
         path = step

@@ -31,12 +31,8 @@ from analysis.chisq.systematics import SystematicsConfig, systematic_budget, var
 from analysis.transport.cache import TemplateCache
 from analysis.transport.disk import disk_radius_px
 from analysis.transport.scene import LEM_RADIUS_M
-from analysis.transport.templates import (
-    DEFAULT_LAMBDA_SCA_NODES_M,
-    TemplateGrid,
-    TemplateSettings,
-    build_template_grid,
-)
+from analysis.transport.template_settings import DEFAULT_LAMBDA_SCA_NODES_M
+from analysis.transport.templates import TemplateGrid, TemplateSettings, build_template_grid
 from camcal.core.frameset import FrameSetError
 from camcal.core.parallel import process_pool
 from camcal.pipeline import FrameSetAnalysis, Overrides, analyze_folder

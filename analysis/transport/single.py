@@ -24,9 +24,10 @@ import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 from scipy.special import roots_legendre
 
-from analysis.transport.engine import PathMoments, cap_solid_angle_sr
+from analysis.transport.proposals import cap_solid_angle_sr
 from analysis.transport.sampling import mixed_phase_sr
 from analysis.transport.scene import TransportScene, emission_shares
+from analysis.transport.tally import PathMoments
 
 #: The array fields of a `CapTable` (what a cache stores).
 CAP_TABLE_ARRAYS = ("log_h", "gamma", "mean_phase", "excess", "spread", "dir_par", "dir_perp")

@@ -7,7 +7,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any, Concatenate, ParamSpec, TypeVar
 
-from sqlalchemy import Engine, literal, text, update
+from sqlalchemy import Engine, insert, literal, text, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -56,21 +56,25 @@ class StoreBase:
     @staticmethod
     def _insert_events(s: Session, events: Sequence[Event]) -> list[int]:
         """Add event rows in ``s`` (payloads made valid JSON: no NaN, no infinities); sets each ``id``."""
+        if not events:
+            return []
         rows = [
-            EventRow(
-                kind=str(e.kind),
-                payload=finite_json(e.payload),
-                module_id=e.module,
-                dive_id=e.dive_id,
-                t_unix_s=e.t,
-            )
+            {
+                "kind": str(e.kind),
+                "payload": finite_json(e.payload),
+                "module_id": e.module,
+                "dive_id": e.dive_id,
+                "t_unix_s": e.t,
+            }
             for e in events
         ]
-        s.add_all(rows)
-        s.flush()
-        for e, row in zip(events, rows, strict=True):
-            e.id = row.id
-        return [row.id for row in rows]
+        # One cached Core statement, executemany (no ORM objects, no flush); the ids come back in
+        # the order of the rows, which is the order of the event log.
+        stmt = insert(EventRow.__table__).returning(EventRow.id, sort_by_parameter_order=True)
+        ids = [int(i) for i in s.execute(stmt, rows).scalars()]
+        for e, i in zip(events, ids, strict=True):
+            e.id = i
+        return ids
 
     def _insert(self, table: Any) -> Any:
         name = self.engine.dialect.name

@@ -178,10 +178,9 @@ class Store(AnalysisWrites, OperationsWrites):
         """Module rows for ``module_ids`` (one statement; a row another process just added is kept)."""
         ids = sorted(set(module_ids))
         if ids:
-            s.execute(
-                self._insert(Module.__table__)
-                .values([{"id": m, "first_seen_unix_s": t, "last_seen_unix_s": t} for m in ids])
-                .on_conflict_do_nothing(index_elements=["id"])
+            s.execute(  # executemany of one cached statement (a multi-row VALUES is compiled each time)
+                self._insert(Module.__table__).on_conflict_do_nothing(index_elements=["id"]),
+                [{"id": m, "first_seen_unix_s": t, "last_seen_unix_s": t} for m in ids],
             )
 
     # ------------------------------------------------------------ ingest
@@ -212,13 +211,12 @@ class Store(AnalysisWrites, OperationsWrites):
                     d = f.as_dict()
                     d["dive_id"] = f.dive_id or dive_id
                     rows.append(d)
-                stmt = (
+                stmt = (  # executemany with RETURNING: a skipped duplicate returns no row
                     self._insert(Frame.__table__)
-                    .values(rows)
                     .on_conflict_do_nothing(index_elements=["module_id", "boot", "seq"])
                     .returning(Frame.id, Frame.module_id, Frame.boot, Frame.seq)
                 )
-                for fid, mid, boot, seq in s.execute(stmt):
+                for fid, mid, boot, seq in s.execute(stmt, rows):
                     new_frames[(mid, boot, int(seq))] = int(fid)
             for b in sensors:
                 stmt = (

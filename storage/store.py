@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import insert, select, update
+from sqlalchemy import case, insert, select, update
 from sqlalchemy.orm import Session
 
 from camcal.core.events import Event
@@ -166,13 +166,12 @@ class Store(AnalysisWrites, OperationsWrites):
     def touch_module(self, module_id: str, *, seen_unix_s: float | None = None, **values: Any) -> None:
         """Create or update a module row (last seen, boot, schedule, distance...)."""
         t = seen_unix_s or now_unix_s()
+        changes: dict[str, Any] = {k: v for k, v in values.items() if v is not None}
+        # last seen never goes back (a late heartbeat of another ingest); one UPDATE, no ORM object
+        changes["last_seen_unix_s"] = case((Module.last_seen_unix_s < t, t), else_=Module.last_seen_unix_s)
         with self.session() as s:
             self._ensure_modules(s, [module_id], t)
-            mod = s.get_one(Module, module_id)
-            mod.last_seen_unix_s = max(mod.last_seen_unix_s, t)
-            for k, v in values.items():
-                if v is not None:
-                    setattr(mod, k, v)
+            s.execute(update(Module.__table__).where(Module.id == module_id).values(**changes))
 
     def _ensure_modules(self, s: Session, module_ids: Iterable[str], t: float) -> None:
         """Module rows for ``module_ids`` (one statement; a row another process just added is kept)."""

@@ -167,14 +167,7 @@ class AnalysisWrites(StoreBase):
                     AttenuationPoint.run_id == run_id, AttenuationPoint.visit_key.in_(list(deletes))
                 )
             )
-        for row in upserts:
-            stmt = self._insert(table).values(**row)
-            s.execute(
-                stmt.on_conflict_do_update(
-                    index_elements=["run_id", "visit_key"],
-                    set_={k: stmt.excluded[k] for k in row if k not in ("run_id", "visit_key")},
-                )
-            )
+        self._upsert_many(s, table, upserts, ("run_id", "visit_key"))
         keys = [r["visit_key"] for r in upserts]
         ids = s.execute(
             select(AttenuationPoint.visit_key, AttenuationPoint.id).where(
@@ -196,12 +189,7 @@ class AnalysisWrites(StoreBase):
             return
         keys = ("run_id", "module_id", "wavelength_nm", "sweep")
         with self.session() as s:
-            for row in rows:
-                stmt = self._insert(LinearityCheck.__table__).values(**row)
-                stmt = stmt.on_conflict_do_update(
-                    index_elements=list(keys), set_={k: stmt.excluded[k] for k in row if k not in keys}
-                )
-                s.execute(stmt)
+            self._upsert_many(s, LinearityCheck.__table__, rows, keys)
 
     def add_chisq_fit(
         self,

@@ -76,6 +76,28 @@ class StoreBase:
             e.id = i
         return ids
 
+    def _upsert_many(
+        self, s: Session, table: Any, rows: Sequence[dict[str, Any]], keys: Sequence[str]
+    ) -> None:
+        """Insert ``rows``, or update the columns they carry where the unique ``keys`` exist: one
+        statement per set of columns, run over its rows (executemany), not one built per row.
+        Rows with the same keys are merged first, later values winning, as if run one by one
+        (PostgreSQL refuses one statement that updates a row twice)."""
+        merged: dict[tuple[Any, ...], dict[str, Any]] = {}
+        for row in rows:
+            key = tuple(row[k] for k in keys)
+            merged[key] = {**merged[key], **row} if key in merged else dict(row)
+        groups: dict[frozenset[str], list[dict[str, Any]]] = {}
+        for row in merged.values():
+            groups.setdefault(frozenset(row), []).append(row)
+        for cols, group in groups.items():
+            stmt = self._insert(table)
+            stmt = stmt.on_conflict_do_update(
+                index_elements=list(keys),
+                set_={k: stmt.excluded[k] for k in sorted(cols) if k not in keys},
+            )
+            s.execute(stmt, group)
+
     def _insert(self, table: Any) -> Any:
         name = self.engine.dialect.name
         if name == "sqlite":

@@ -7,7 +7,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any, Concatenate, ParamSpec, TypeVar
 
-from sqlalchemy import Engine, literal, text, update
+from sqlalchemy import Engine, insert, literal, text, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -56,21 +56,47 @@ class StoreBase:
     @staticmethod
     def _insert_events(s: Session, events: Sequence[Event]) -> list[int]:
         """Add event rows in ``s`` (payloads made valid JSON: no NaN, no infinities); sets each ``id``."""
+        if not events:
+            return []
         rows = [
-            EventRow(
-                kind=str(e.kind),
-                payload=finite_json(e.payload),
-                module_id=e.module,
-                dive_id=e.dive_id,
-                t_unix_s=e.t,
-            )
+            {
+                "kind": str(e.kind),
+                "payload": finite_json(e.payload),
+                "module_id": e.module,
+                "dive_id": e.dive_id,
+                "t_unix_s": e.t,
+            }
             for e in events
         ]
-        s.add_all(rows)
-        s.flush()
-        for e, row in zip(events, rows, strict=True):
-            e.id = row.id
-        return [row.id for row in rows]
+        # One cached Core statement, executemany (no ORM objects, no flush); the ids come back in
+        # the order of the rows, which is the order of the event log.
+        stmt = insert(EventRow.__table__).returning(EventRow.id, sort_by_parameter_order=True)
+        ids = [int(i) for i in s.execute(stmt, rows).scalars()]
+        for e, i in zip(events, ids, strict=True):
+            e.id = i
+        return ids
+
+    def _upsert_many(
+        self, s: Session, table: Any, rows: Sequence[dict[str, Any]], keys: Sequence[str]
+    ) -> None:
+        """Insert ``rows``, or update the columns they carry where the unique ``keys`` exist: one
+        statement per set of columns, run over its rows (executemany), not one built per row.
+        Rows with the same keys are merged first, later values winning, as if run one by one
+        (PostgreSQL refuses one statement that updates a row twice)."""
+        merged: dict[tuple[Any, ...], dict[str, Any]] = {}
+        for row in rows:
+            key = tuple(row[k] for k in keys)
+            merged[key] = {**merged[key], **row} if key in merged else dict(row)
+        groups: dict[frozenset[str], list[dict[str, Any]]] = {}
+        for row in merged.values():
+            groups.setdefault(frozenset(row), []).append(row)
+        for cols, group in groups.items():
+            stmt = self._insert(table)
+            stmt = stmt.on_conflict_do_update(
+                index_elements=list(keys),
+                set_={k: stmt.excluded[k] for k in sorted(cols) if k not in keys},
+            )
+            s.execute(stmt, group)
 
     def _insert(self, table: Any) -> Any:
         name = self.engine.dialect.name

@@ -35,6 +35,7 @@ class FrameFiles:
 
     def __init__(self, root: Path) -> None:
         self.root = Path(root)
+        self._root: Path | None = None
         self._pool: ThreadPoolExecutor | None = None
 
     def relative_path(self, dive_id: int, module: str, boot: str, seq: int, encoding: str = "png") -> str:
@@ -49,10 +50,16 @@ class FrameFiles:
         if not relative or relative.startswith(("/", "\\")) or "\x00" in relative:
             raise UnsafePath(f"not a relative path inside the data folder: {relative!r}")
         path = (self.root / relative).resolve()
-        root = self.root.resolve()
+        root = self._resolved_root()
         if root != path and root not in path.parents:
             raise UnsafePath(f"path leaves the data folder: {relative!r}")
         return path
+
+    def _resolved_root(self) -> Path:
+        """The data folder's real path, found once (a realpath walks every component)."""
+        if self._root is None:
+            self._root = self.root.resolve()
+        return self._root
 
     def read_regular(self, relative: str, under: str) -> bytes:
         """The bytes of a stored file in folder ``under`` (``frames``, ``thumbs``), for serving.

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import insert, select, update
+from sqlalchemy import case, insert, select, update
 from sqlalchemy.orm import Session
 
 from camcal.core.events import Event
@@ -166,22 +166,20 @@ class Store(AnalysisWrites, OperationsWrites):
     def touch_module(self, module_id: str, *, seen_unix_s: float | None = None, **values: Any) -> None:
         """Create or update a module row (last seen, boot, schedule, distance...)."""
         t = seen_unix_s or now_unix_s()
+        changes: dict[str, Any] = {k: v for k, v in values.items() if v is not None}
+        # last seen never goes back (a late heartbeat of another ingest); one UPDATE, no ORM object
+        changes["last_seen_unix_s"] = case((Module.last_seen_unix_s < t, t), else_=Module.last_seen_unix_s)
         with self.session() as s:
             self._ensure_modules(s, [module_id], t)
-            mod = s.get_one(Module, module_id)
-            mod.last_seen_unix_s = max(mod.last_seen_unix_s, t)
-            for k, v in values.items():
-                if v is not None:
-                    setattr(mod, k, v)
+            s.execute(update(Module.__table__).where(Module.id == module_id).values(**changes))
 
     def _ensure_modules(self, s: Session, module_ids: Iterable[str], t: float) -> None:
         """Module rows for ``module_ids`` (one statement; a row another process just added is kept)."""
         ids = sorted(set(module_ids))
         if ids:
-            s.execute(
-                self._insert(Module.__table__)
-                .values([{"id": m, "first_seen_unix_s": t, "last_seen_unix_s": t} for m in ids])
-                .on_conflict_do_nothing(index_elements=["id"])
+            s.execute(  # executemany of one cached statement (a multi-row VALUES is compiled each time)
+                self._insert(Module.__table__).on_conflict_do_nothing(index_elements=["id"]),
+                [{"id": m, "first_seen_unix_s": t, "last_seen_unix_s": t} for m in ids],
             )
 
     # ------------------------------------------------------------ ingest
@@ -212,13 +210,12 @@ class Store(AnalysisWrites, OperationsWrites):
                     d = f.as_dict()
                     d["dive_id"] = f.dive_id or dive_id
                     rows.append(d)
-                stmt = (
+                stmt = (  # executemany with RETURNING: a skipped duplicate returns no row
                     self._insert(Frame.__table__)
-                    .values(rows)
                     .on_conflict_do_nothing(index_elements=["module_id", "boot", "seq"])
                     .returning(Frame.id, Frame.module_id, Frame.boot, Frame.seq)
                 )
-                for fid, mid, boot, seq in s.execute(stmt):
+                for fid, mid, boot, seq in s.execute(stmt, rows):
                     new_frames[(mid, boot, int(seq))] = int(fid)
             for b in sensors:
                 stmt = (

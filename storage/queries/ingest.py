@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 from typing import Any
 
-from sqlalchemy import select, tuple_
+from sqlalchemy import bindparam, literal, select, tuple_, union_all
 from sqlalchemy.orm import Session
 
 from storage.models import (
@@ -16,24 +16,38 @@ from storage.models import (
 )
 
 
+def _checksums_statement() -> Any:
+    """One SELECT of both tables for a list of keys (built once: a Core statement, cached compiled)."""
+    keys = bindparam("keys", expanding=True)
+    parts = [
+        select(t.c.module_id, t.c.boot, t.c.seq, t.c.sha256, literal(is_frame).label("is_frame")).where(
+            tuple_(t.c.module_id, t.c.boot, t.c.seq).in_(keys)
+        )
+        for t, is_frame in ((Frame.__table__, True), (SensorBatch.__table__, False))
+    ]
+    return union_all(*parts)
+
+
+_CHECKSUMS = _checksums_statement()
+
+
 def stored_checksums(
     s: Session, frame_keys: Sequence[tuple[str, str, int]], sensor_keys: Sequence[tuple[str, str, int]]
 ) -> tuple[dict[tuple[str, str, int], str | None], dict[tuple[str, str, int], str | None]]:
-    """The sha256 of frames and sensor batches already stored under these keys (module, boot, seq)."""
+    """The sha256 of frames and sensor batches already stored under these keys (module, boot, seq).
+
+    One statement for both tables (a frame and a sensor message share a boot's sequence); keys
+    looked up in one table only are dropped from the other's answer."""
     frames: dict[tuple[str, str, int], str | None] = {}
     sensors: dict[tuple[str, str, int], str | None] = {}
-    for table, keys, out in (
-        (Frame, frame_keys, frames),
-        (SensorBatch, sensor_keys, sensors),
-    ):
-        for chunk in _chunks(sorted(set(keys)), 300):
-            rows = s.execute(
-                select(table.module_id, table.boot, table.seq, table.sha256).where(
-                    tuple_(table.module_id, table.boot, table.seq).in_(chunk)
-                )
-            )
-            for mid, boot, seq, sha in rows:
-                out[(mid, boot, int(seq))] = sha
+    fkeys, skeys = set(frame_keys), set(sensor_keys)
+    for chunk in _chunks(sorted(fkeys | skeys), 300):
+        for mid, boot, seq, sha, is_frame in s.execute(_CHECKSUMS, {"keys": list(chunk)}):
+            key = (mid, boot, int(seq))
+            if is_frame and key in fkeys:
+                frames[key] = sha
+            elif not is_frame and key in skeys:
+                sensors[key] = sha
     return frames, sensors
 
 

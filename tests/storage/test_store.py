@@ -134,3 +134,66 @@ def test_a_batch_of_files_is_written_whole_each_path_once(tmp_path: Path) -> Non
     with pytest.raises(UnsafePath):  # nothing is written when one path is unsafe
         files.write_many([(files.relative_path(1, "A", "b2", 1), b"x"), ("../escape.png", b"x")])
     assert not files.resolve(files.relative_path(1, "A", "b2", 1)).exists()
+
+
+def test_batch_checksums_events_and_results_come_back_row_for_row(store: Store) -> None:
+    """One lookup answers both tables; events get ids in their order; results of different
+    shapes (ok, rejected) go in together and a resent one is skipped."""
+    from camcal.core.events import Event, EventKind
+
+    dive = store.current_dive()
+    rows = [frame_row(1), frame_row(2)]
+    rows[1].sha256 = "2" * 64
+    events = lambda f, fid: Event(EventKind.FRAME, {"frame_id": fid, "seq": f.seq}, 1.0, "A", dive.id)  # noqa: E731
+    out = store.commit_batch(
+        dive.id, rows, [SensorBatchRow("A", "b1", 3, 1.0, [], "3" * 64)], frame_event=events
+    )
+    assert [e.payload["seq"] for e in out.events] == [1, 2]
+    assert out.events[0].id is not None and out.events[1].id == out.events[0].id + 1
+    keys = [("A", "b1", q) for q in (1, 2, 3, 9)]
+    frames, sensors = store.call(queries.stored_checksums, keys, keys)
+    assert frames == {("A", "b1", 1): "0" * 64, ("A", "b1", 2): "2" * 64}
+    assert sensors == {("A", "b1", 3): "3" * 64}
+    assert store.call(queries.stored_checksums, keys[:1], keys[1:2]) == ({("A", "b1", 1): "0" * 64}, {})
+
+    run = store.analysis_run(dive.id)
+    fid1, fid2 = out.new_frames[("A", "b1", 1)], out.new_frames[("A", "b1", 2)]
+    ok = {"frame_id": fid1, "status": "ok", "i_center_gray": 5.0, "fit": {"a": 1}, "analysed_unix_s": 2.0}
+    bad = {"frame_id": fid2, "status": "rejected", "reason": "saturated", "analysed_unix_s": 2.0}
+    assert store.save_results(run.id, [ok, bad]) == 2
+    assert store.save_results(run.id, [bad]) == 0
+    with pytest.raises(Exception, match="no_such_column"):
+        store.save_results(run.id, [{**ok, "frame_id": fid2, "no_such_column": 1}])
+    from sqlalchemy import select
+
+    from storage.models import FrameResult
+
+    with store.read() as s:
+        got = {r.frame_id: r for r in s.scalars(select(FrameResult).where(FrameResult.run_id == run.id))}
+    assert got[fid1].i_center_gray == 5.0 and got[fid1].reason is None
+    assert got[fid2].reason == "saturated" and got[fid2].i_center_gray is None and got[fid2].fit is None
+
+
+def test_visit_upserts_of_one_batch_act_as_if_one_by_one(store: Store) -> None:
+    dive = store.current_dive()
+    run = store.analysis_run(dive.id)
+    base = {"run_id": run.id, "dive_id": dive.id, "wavelength_nm": 470, "t_unix_s": 1.0, "n_pairs": 2}
+    a1 = {**base, "visit_key": "a", "lambda_att_m": 20.0, "window_s": 5.0}
+    b = {**base, "visit_key": "b", "lambda_att_m": 21.0, "window_s": 5.0}
+    a2 = {**base, "visit_key": "a", "lambda_att_m": 22.0, "final": False, "window_s": 5.0}
+    c1 = {**a1, "visit_key": "c", "lambda_att_m": 23.0}
+    c2 = {**a1, "visit_key": "c", "lambda_att_m": 24.0}  # same columns, same key: one statement
+    ids = store.save_visit_points(run.id, [a1, b, c1, a2, c2])
+    assert set(ids) == {"a", "b", "c"}
+    from sqlalchemy import select
+
+    from storage.models import AttenuationPoint
+
+    def points() -> dict[str, tuple[float, bool]]:
+        with store.read() as s:
+            q = select(AttenuationPoint).where(AttenuationPoint.run_id == run.id)
+            return {p.visit_key: (p.lambda_att_m, p.final) for p in s.scalars(q)}
+
+    assert points() == {"a": (22.0, False), "b": (21.0, True), "c": (24.0, True)}
+    assert store.save_visit_points(run.id, [{**b, "lambda_att_m": 30.0}], ["a", "c"]) == {"b": ids["b"]}
+    assert points() == {"b": (30.0, True)}

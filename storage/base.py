@@ -5,9 +5,9 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from typing import Any, Concatenate, ParamSpec, TypeVar
+from typing import Any, Concatenate, ParamSpec, TypeVar, cast
 
-from sqlalchemy import Engine, insert, literal, text, update
+from sqlalchemy import Engine, Table, insert, literal, text, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -70,7 +70,7 @@ class StoreBase:
         ]
         # One cached Core statement, executemany (no ORM objects, no flush); the ids come back in
         # the order of the rows, which is the order of the event log.
-        stmt = insert(EventRow.__table__).returning(EventRow.id, sort_by_parameter_order=True)
+        stmt = insert(cast(Table, EventRow.__table__)).returning(EventRow.id, sort_by_parameter_order=True)
         ids = [int(i) for i in s.execute(stmt, rows).scalars()]
         for e, i in zip(events, ids, strict=True):
             e.id = i

@@ -12,9 +12,9 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
-from sqlalchemy import case, insert, select, update
+from sqlalchemy import Table, case, insert, select, update
 from sqlalchemy.orm import Session
 
 from camcal.core.events import Event
@@ -171,7 +171,7 @@ class Store(AnalysisWrites, OperationsWrites):
         changes["last_seen_unix_s"] = case((Module.last_seen_unix_s < t, t), else_=Module.last_seen_unix_s)
         with self.session() as s:
             self._ensure_modules(s, [module_id], t)
-            s.execute(update(Module.__table__).where(Module.id == module_id).values(**changes))
+            s.execute(update(cast(Table, Module.__table__)).where(Module.id == module_id).values(**changes))
 
     def _ensure_modules(self, s: Session, module_ids: Iterable[str], t: float) -> None:
         """Module rows for ``module_ids`` (one statement; a row another process just added is kept)."""

@@ -18,7 +18,7 @@ from storage.models import (
 
 def _checksums_statement() -> Any:
     """One SELECT of both tables for a list of keys (built once: a Core statement, cached compiled)."""
-    keys = bindparam("keys", expanding=True)
+    keys: Any = bindparam("keys", expanding=True)
     parts = [
         select(t.c.module_id, t.c.boot, t.c.seq, t.c.sha256, literal(is_frame).label("is_frame")).where(
             tuple_(t.c.module_id, t.c.boot, t.c.seq).in_(keys)

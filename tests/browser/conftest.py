@@ -18,13 +18,19 @@ from urllib.parse import urlsplit
 import httpx
 import pytest
 
-from tests.utils.system import REPO, System, camcal_up, wait_until
+from tests.utils.system import REPO, SHORT_DIVE, System, camcal_up, wait_until
+
+#: The browser tests' shared dive: `SHORT_DIVE` with an hour on station.
+BROWSER_DIVE = {**SHORT_DIVE, "--station-s": "3600"}
 
 
 @pytest.fixture(scope="package")
 def system(tmp_path_factory: pytest.TempPathFactory) -> Iterator[System]:
-    """``camcal up`` for the browser tests; stopped after them (its simulated dive loads both cores)."""
-    with camcal_up(tmp_path_factory.mktemp("browser") / "data") as s:
+    """``camcal up`` for the browser tests; stopped after them (its simulated dive loads both cores).
+
+    The short dive with an hour on station (3 min at speed 20): the modules stay linked and keep
+    adding λ_att visits for as long as the package's tests run, whatever their order and pace."""
+    with camcal_up(tmp_path_factory.mktemp("browser") / "data", dive=BROWSER_DIVE) as s:
         yield s
 
 

@@ -45,6 +45,7 @@ from analysis.transport.scene import LEM_RADIUS_M
 from analysis.transport.templates import (
     EmissionProfile,
     TemplateCamera,
+    TemplateGrid,
     TemplateSettings,
     build_template_grid,
 )
@@ -57,10 +58,10 @@ REACH_PX = 160
 BIN_PX = 8
 
 
-def transport_profile(
-    distance_m: float, la: float, ls: float, photons: int, orders: int, cache: TemplateCache
-) -> tuple[np.ndarray, np.ndarray]:
-    """The transport's halo per one-pixel band (radiance, error), uniform LEM, at exactly this water."""
+def transport_grid(
+    distance_m: float, ls: float, photons: int, orders: int, cache: TemplateCache, seed: int = 3
+) -> TemplateGrid:
+    """The transport's templates for one camera at ``distance_m``, one scattering-length node ``ls``."""
     settings = TemplateSettings(
         cameras=(TemplateCamera("camera", distance_m, 1),),
         focal_px=FOCAL_PX,
@@ -68,9 +69,16 @@ def transport_profile(
         lambda_sca_nodes_m=(ls,),
         n_photons=photons,
         max_order=orders,
-        seed=3,
+        seed=seed,
     )
-    grid = build_template_grid(settings, cache)
+    return build_template_grid(settings, cache)
+
+
+def transport_profile(
+    distance_m: float, la: float, ls: float, photons: int, orders: int, cache: TemplateCache
+) -> tuple[np.ndarray, np.ndarray]:
+    """The transport's halo per one-pixel band (radiance, error), uniform LEM, at exactly this water."""
+    grid = transport_grid(distance_m, ls, photons, orders, cache)
     value, err = grid.halo(la, ls).total(EmissionProfile(1.0))
     return value[0], err[0]
 

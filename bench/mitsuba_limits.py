@@ -40,26 +40,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from analysis.transport.cache import TemplateCache
 from analysis.transport.disk import disk_radius_px
 from analysis.transport.scene import LEM_RADIUS_M
-from analysis.transport.templates import TemplateCamera, TemplateGrid, TemplateSettings, build_template_grid
-from bench.bench_mitsuba import FOCAL_PX, REACH_PX, compare_halo
+from analysis.transport.templates import TemplateGrid
+from bench.bench_mitsuba import FOCAL_PX, compare_halo, transport_grid
 from bench.mitsuba_scene import render_strip
 
 ORDERS = 12
-
-
-def transport_grid(
-    distance_m: float, ls: float, photons: int, cache: TemplateCache, seed: int = 3
-) -> TemplateGrid:
-    settings = TemplateSettings(
-        cameras=(TemplateCamera("camera", distance_m, 1),),
-        focal_px=FOCAL_PX,
-        n_bands=REACH_PX,
-        lambda_sca_nodes_m=(ls,),
-        n_photons=photons,
-        max_order=ORDERS,
-        seed=seed,
-    )
-    return build_template_grid(settings, cache)
 
 
 def transport_orders(grid: TemplateGrid, la: float, ls: float, up_to: int) -> tuple[np.ndarray, np.ndarray]:
@@ -106,7 +91,7 @@ def main() -> None:
     cache = TemplateCache(args.cache or tempfile.mkdtemp(prefix="camcal-limits-"))
     dist, ls, la = args.distance, args.lambda_sca, args.lambda_abs
     r_disk = disk_radius_px(dist, LEM_RADIUS_M, FOCAL_PX)
-    grids = [transport_grid(dist, ls, args.photons, cache, 3 + i) for i in range(args.seeds)]
+    grids = [transport_grid(dist, ls, args.photons, ORDERS, cache, 3 + i) for i in range(args.seeds)]
     cases = [
         ("single scattering", la, 1),
         ("up to 2 scatterings", la, 2),

@@ -50,6 +50,7 @@ vertices rarely share a one-pixel band, so their correlation is neglected).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -162,24 +163,59 @@ def run_transport(
     Deterministic for a given ``seed`` (one `numpy.random.Generator` drives
     every batch in turn).
     """
+    return run_transport_reweighted(scene, medium, config, [medium], seed)[0]
+
+
+def run_transport_reweighted(
+    scene: TransportScene,
+    medium: ScatteringMedium,
+    config: TransportConfig,
+    targets: Sequence[ScatteringMedium],
+    seed: int = 0,
+) -> list[TransportTally]:
+    """One run sampled in ``medium``, tallied for each of ``targets`` (other phase functions).
+
+    The photons are drawn as in `run_transport` for ``medium``; each target's
+    weight takes, at every scattering, the ratio of its phase function to
+    the sampling density (the natural part of which is ``medium``'s), and
+    its next-event estimates use its own phase function. Each tally is an
+    unbiased estimate for its target, and all share the same photons: their
+    differences (the halo's change with ⟨cos θ⟩ or the Rayleigh share) carry
+    far less Monte Carlo noise than independent runs' would. Targets must
+    share ``medium``'s scattering length (reweighting in λ_sca is done
+    afterwards from the path moments). A target equal to ``medium`` gives
+    exactly `run_transport`'s tally: the random stream does not depend on
+    the targets.
+    """
+    if not targets:
+        raise ValueError("targets: at least one phase function to tally")
+    for t in targets:
+        if t.lambda_sca_m != medium.lambda_sca_m:
+            raise ValueError(
+                f"target lambda_sca_m {t.lambda_sca_m} differs from the sampled {medium.lambda_sca_m}"
+            )
     rng = np.random.default_rng(seed)
-    acc = _Accumulator(scene, config)
+    accs = [_Accumulator(scene, config) for _ in targets]
     proposals = _proposals(scene, medium)
     left = config.n_photons
     i = 0
     while left > 0:
         n = min(config.batch_size, left)
-        acc.group = i % acc.n_groups
-        _scattered_batch(rng, n, scene, medium, config, proposals, acc)
+        for acc in accs:
+            acc.group = i % acc.n_groups
+        _scattered_batch(rng, n, scene, medium, config, proposals, accs, targets)
         left -= n
         i += 1
     left = config.direct_samples
     while left > 0:
         n = min(config.batch_size, left)
-        _direct_batch(rng, n, scene, medium, config, acc)
+        _direct_batch(rng, n, scene, medium, config, accs)
         left -= n
-    s0, s1, s2, q = acc.arrays()
-    return TransportTally(scene, medium, config, seed, s0, s1, s2, q, acc.path_edges, acc.group_w)
+    out = []
+    for target, acc in zip(targets, accs, strict=True):
+        s0, s1, s2, q = acc.arrays()
+        out.append(TransportTally(scene, target, config, seed, s0, s1, s2, q, acc.path_edges, acc.group_w))
+    return out
 
 
 def _proposals(scene: TransportScene, medium: ScatteringMedium) -> list[ConeProposal]:
@@ -199,7 +235,7 @@ def _direct_batch(
     scene: TransportScene,
     medium: ScatteringMedium,
     config: TransportConfig,
-    acc: _Accumulator,
+    accs: Sequence[_Accumulator],
 ) -> None:
     """Unscattered light: surface points drawn uniformly, each seen along its straight line.
 
@@ -217,7 +253,8 @@ def _direct_batch(
         cos_y = np.einsum("ij,ij->i", normal, v) / d
         value = np.where(cos_y > 0, scale * cos_y * np.exp(-d / medium.lambda_sca_m) / (d * d), 0.0)
         r_px, _ = _camera_view(cam, y)
-        acc.add(c, v[:, 2] / d, 0, r_px, d, value)
+        for acc in accs:  # the same for every phase function
+            acc.add(c, v[:, 2] / d, 0, r_px, d, value)
 
 
 def _scattered_batch(
@@ -227,9 +264,14 @@ def _scattered_batch(
     medium: ScatteringMedium,
     config: TransportConfig,
     proposals: list[ConeProposal],
-    acc: _Accumulator,
+    accs: Sequence[_Accumulator],
+    targets: Sequence[ScatteringMedium],
 ) -> None:
-    """Follow ``n`` photons from their first scattering vertex to ``max_order``."""
+    """Follow ``n`` photons from their first scattering vertex to ``max_order``.
+
+    Sampled in ``medium``; one weight per target phase function (row of
+    ``weights``), tallied into that target's accumulator.
+    """
     a = scene.lem_radius_m
     lam = medium.lambda_sca_m
     q_nat = config.natural_fraction
@@ -288,14 +330,16 @@ def _scattered_batch(
     path = s
     order = 1
     live = weight > 0
-    x, direction, weight, path = x[live], direction[live], weight[live], path[live]
+    # The first flight does not depend on the phase function: every target starts with this weight.
+    weights = np.repeat(weight[live][None], len(targets), axis=0)
+    x, direction, path = x[live], direction[live], path[live]
     emission_mu = emission_mu[live]
 
-    while len(weight):
+    while weights.shape[1]:
         # --- next-event estimate toward each camera from this vertex.
         for c, cam in enumerate(scene.cameras):
             r_px, in_front = _camera_view(cam, x)
-            near = in_front & (r_px < acc.edges_px[-1])
+            near = in_front & (r_px < accs[0].edges_px[-1])
             if not np.any(near):
                 continue
             xv, dv = x[near], direction[near]
@@ -304,13 +348,15 @@ def _scattered_batch(
             to_cam = v / d[:, None]
             cos_theta = np.einsum("ij,ij->i", dv, to_cam)
             blocked = segment_hits_sphere(xv, to_cam, d, a)
-            phase = mixed_phase_sr(cos_theta, medium.mie_g, medium.rayleigh_fraction)
-            value = np.where(blocked, 0.0, packet * weight[near] * phase * np.exp(-d / lam) / (d * d))
-            acc.add(c, emission_mu[near], order, r_px[near], path[near] + d, value)
+            seen = np.where(blocked, 0.0, packet * np.exp(-d / lam) / (d * d))
+            for t, (target, acc) in enumerate(zip(targets, accs, strict=True)):
+                phase = mixed_phase_sr(cos_theta, target.mie_g, target.rayleigh_fraction)
+                value = seen * weights[t, near] * phase
+                acc.add(c, emission_mu[near], order, r_px[near], path[near] + d, value)
         if order >= config.max_order:
             break
         # --- next flight: natural, forced into one camera's cone, or guided toward a camera.
-        n_live = len(weight)
+        n_live = weights.shape[1]
         strategy = strategies(rng, n_live, q_nat, n_cones, q_guided)
         new_x = np.empty_like(x)
         nat = strategy == 0
@@ -336,22 +382,19 @@ def _scattered_batch(
         new_dir = step / s_safe[:, None]
         blocked = segment_hits_sphere(x, new_dir, s_safe, a) | (np.linalg.norm(new_x, axis=1) <= a)
         cos_theta = np.einsum("ij,ij->i", direction, new_dir)
-        natural = (
-            mixed_phase_sr(cos_theta, medium.mie_g, medium.rayleigh_fraction)
-            * np.exp(-s_safe / lam)
-            / (lam * s_safe * s_safe)
-        )
-        mix = q_nat * natural
         free_path = np.exp(-s_safe / lam) / (lam * s_safe * s_safe)
+        mix = q_nat * mixed_phase_sr(cos_theta, medium.mie_g, medium.rayleigh_fraction) * free_path
         for prop in proposals:
             mix = mix + q_next * prop.pdf(new_x)
             if q_guide > 0:
                 aim = unit_toward(prop.camera, x)
                 guided = henyey_greenstein_sr(np.einsum("ij,ij->i", new_dir, aim), guide_g)
                 mix = mix + q_guide * guided * free_path
-        weight = np.where(blocked, 0.0, weight * natural / np.maximum(mix, 1e-300))
+        per_mix = np.where(blocked, 0.0, free_path / np.maximum(mix, 1e-300))
+        for t, target in enumerate(targets):
+            weights[t] *= mixed_phase_sr(cos_theta, target.mie_g, target.rayleigh_fraction) * per_mix
         path = path + s
         order += 1
-        live = (weight > 0) & (path < config.path_max_m)
-        x, direction, weight, path = new_x[live], new_dir[live], weight[live], path[live]
+        live = (per_mix > 0) & np.any(weights > 0, axis=0) & (path < config.path_max_m)
+        x, direction, weights, path = new_x[live], new_dir[live], weights[:, live], path[live]
         emission_mu = emission_mu[live]

@@ -67,7 +67,12 @@ class TemplateSettings:
     camera; ``outer_px``/``n_outer`` add wider bins out to the frame's corner
     for the simulator. The Monte Carlo of the higher orders tallies bins of
     ``mc_band_px`` pixels (interpolated onto the bands: multiply scattered
-    light is smooth) with ``n_photons`` per node.
+    light is smooth) with ``n_photons`` per node. With ``mc_phase`` =
+    (⟨cos θ⟩, Rayleigh share) one Monte Carlo run per scattering-length node,
+    sampled with that phase function, is reweighted to every ⟨cos θ⟩ node
+    (`analysis.transport.engine.run_transport_reweighted`): the nodes share
+    their photons, so the halo's change between them is nearly free of
+    Monte Carlo noise (what a fit of ⟨cos θ⟩ needs); None: a run per node.
     """
 
     cameras: tuple[TemplateCamera, ...]
@@ -86,6 +91,7 @@ class TemplateSettings:
     path_max_m: float = 400.0
     seed: int = 0
     emission_shape: str = "linear"
+    mc_phase: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         if not self.cameras:
@@ -104,6 +110,8 @@ class TemplateSettings:
             raise ValueError(f"mie_g_nodes must lie in (-1, 1) and increase, got {gs}")
         if not 0 <= self.rayleigh_fraction <= 1:
             raise ValueError(f"rayleigh_fraction must lie in [0, 1], got {self.rayleigh_fraction}")
+        if self.mc_phase is not None and not (-1 < self.mc_phase[0] < 1 and 0 <= self.mc_phase[1] <= 1):
+            raise ValueError(f"mc_phase: (<cos theta> in (-1, 1), share in [0, 1]), got {self.mc_phase}")
         if not self.refractive_index >= 1:
             raise ValueError(f"refractive_index must be >= 1, got {self.refractive_index}")
 
@@ -142,6 +150,7 @@ class TemplateSettings:
             d.pop(k)
         if d["emission_shape"] == "linear":
             d.pop("emission_shape")  # the caches made before the shape could change stay valid
+        d.pop("mc_phase")  # the Monte Carlo pieces name it themselves (the first order does not need it)
         return d
 
     def mc_config(self) -> TransportConfig:

@@ -34,7 +34,7 @@ from functools import partial
 import numpy as np
 
 from analysis.transport.cache import TemplateCache, cache_key
-from analysis.transport.engine import run_transport
+from analysis.transport.engine import run_transport, run_transport_reweighted
 from analysis.transport.scene import (
     LEM_RADIUS_M,
     ScatteringMedium,
@@ -247,21 +247,40 @@ def _node_seed(settings: TemplateSettings, lambda_sca_m: float, g: float) -> int
     return int(seq.generate_state(1, dtype=np.uint64)[0])
 
 
-def _mc_piece(args: tuple[TemplateSettings, float, float]) -> dict[str, np.ndarray]:
-    settings, lam, g = args
-    tally = run_transport(
-        settings.mc_scene(),
-        ScatteringMedium(lam, g, settings.rayleigh_fraction),
-        settings.mc_config(),
-        seed=_node_seed(settings, lam, g),
-    )
-    return {
-        "sum_w": tally.sum_w,
-        "sum_wl": tally.sum_wl,
-        "sum_wl2": tally.sum_wl2,
-        "sum_w2": tally.sum_w2,
-        "group_w": tally.group_w,
-    }
+def _mc_piece(args: tuple[TemplateSettings, float, tuple[float, ...]]) -> list[dict[str, np.ndarray]]:
+    """The Monte Carlo of one scattering-length node for the ⟨cos θ⟩ values ``gs``: a run each, or one
+    run reweighted to all of them (``settings.mc_phase``)."""
+    settings, lam, gs = args
+    r = settings.rayleigh_fraction
+    if settings.mc_phase is None:
+        tallies = [
+            run_transport(
+                settings.mc_scene(),
+                ScatteringMedium(lam, g, r),
+                settings.mc_config(),
+                seed=_node_seed(settings, lam, g),
+            )
+            for g in gs
+        ]
+    else:
+        g0, r0 = settings.mc_phase
+        tallies = run_transport_reweighted(
+            settings.mc_scene(),
+            ScatteringMedium(lam, g0, r0),
+            settings.mc_config(),
+            [ScatteringMedium(lam, g, r) for g in gs],
+            seed=_node_seed(settings, lam, g0),
+        )
+    return [
+        {
+            "sum_w": t.sum_w,
+            "sum_wl": t.sum_wl,
+            "sum_wl2": t.sum_wl2,
+            "sum_w2": t.sum_w2,
+            "group_w": t.group_w,
+        }
+        for t in tallies
+    ]
 
 
 def build_template_grid(
@@ -309,6 +328,8 @@ def build_template_grid(
                 "max_order": settings.max_order,
                 "path_max_m": settings.path_max_m,
             }
+            if settings.mc_phase is not None:
+                desc["mc_phase"] = list(settings.mc_phase)
             key = cache_key("higher-orders", desc)
             found = cache.load(key)
             if found is None:
@@ -318,7 +339,12 @@ def build_template_grid(
             done += 1
             if progress:
                 progress(done, total)
-    jobs = [(settings, lam, g) for (g, lam) in wanted]
+    jobs: list[tuple[TemplateSettings, float, tuple[float, ...]]]
+    if settings.mc_phase is None:
+        jobs = [(settings, lam, (g,)) for (g, lam) in wanted]
+    else:  # one run per scattering length serves every ⟨cos θ⟩ node
+        lams = sorted({lam for _, lam in wanted})
+        jobs = [(settings, lam, tuple(g for (g, x) in wanted if x == lam)) for lam in lams]
     if executor is not None and len(jobs) > 1:
         results = executor.map(_mc_piece, jobs)
         for job, arrays in zip(jobs, results, strict=True):
@@ -376,19 +402,20 @@ def _store(
     cache: TemplateCache,
     wanted: Mapping[tuple[float, float], tuple[str, dict[str, object]]],
     nodes: dict[tuple[float, float], _MCNode],
-    job: tuple[TemplateSettings, float, float],
-    arrays: Mapping[str, np.ndarray],
+    job: tuple[TemplateSettings, float, tuple[float, ...]],
+    pieces: Sequence[Mapping[str, np.ndarray]],
     done: int,
     total: int,
     progress: Callable[[int, int], None] | None,
 ) -> int:
-    _, lam, g = job
-    key, desc = wanted[(g, lam)]
-    cache.save(key, arrays, desc)
-    nodes[(g, lam)] = _node(lam, g, arrays)
-    done += 1
-    if progress:
-        progress(done, total)
+    _, lam, gs = job
+    for g, arrays in zip(gs, pieces, strict=True):
+        key, desc = wanted[(g, lam)]
+        cache.save(key, arrays, desc)
+        nodes[(g, lam)] = _node(lam, g, arrays)
+        done += 1
+        if progress:
+            progress(done, total)
     return done
 
 

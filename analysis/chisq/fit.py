@@ -38,14 +38,20 @@ class Objective:
         """The minimum: from ``start`` (ln λ_abs, ln λ_sca), or from a coarse scan when None.
 
         ``near``: the start is already close (a refit of the same data with one input
-        changed): one pass with a small first simplex instead of two with a wide one.
+        changed): a small first simplex, and no second pass when the first stayed put.
         """
         best = self.coarse_start() if start is None else np.clip(start, self.bounds[:, 0], self.bounds[:, 1])
         prob = self.prob
         step = np.array([0.02, 0.01]) if near else np.array([0.1, 0.05])
-        for _ in range(1 if near else 2):  # the template errors held at the current best water
+        for _ in range(2):  # the template errors held at the current best water
             prob.freeze_template_errors(math.exp(best[0]), math.exp(best[1]))
+            before = best
             best = self._nelder_mead(best, step)
+            # A refit that stayed put is done; one that moved (another ⟨cos θ⟩ moves λ_sca by tens of
+            # per cent) holds the errors again at its own water: held at the start's, the templates'
+            # errors there would weigh its χ², and χ² of different refits would not compare.
+            if near and float(np.max(np.abs(best - before))) < 1e-3:
+                break
         for _ in range(2):
             _, info = prob.chi2(math.exp(best[0]), math.exp(best[1]), detail=True)
             shifts = np.asarray(info["shifts"])

@@ -11,10 +11,10 @@ the templates' 6). Two waters, three wavelengths each: deep-sea (λ_abs /
 λ_sca 39/39, 65/50, 31/65 m) and turbid (28/14, 32/16, 30/15 m).
 
 For each water and wavelength, ``--seeds`` frame sets (independent sensor
-noise and pointing jitter) are fitted; the systematic budget is computed
-once per water and wavelength (on the first seed: it describes the set-up,
-not the noise; per seed with ``--sample-systematics``) and added in
-quadrature to every seed's fit error. Printed
+noise and pointing jitter) are fitted, each with its systematic budget
+(the phase function's line: the RMS shift over its priors, or over the
+data's posterior with ``--narrow-by-data``), added in quadrature to the
+fit error. Printed
 per water and wavelength: the mean relative bias of λ_abs and λ_sca, the
 pulls (value - truth) / total error (mean, RMS), the median χ²/ndof and how
 many fits gave a limit instead of a value; then each of the issue's targets
@@ -136,6 +136,7 @@ class Job:
     truth_photons: int
     cache: str
     sample_systematics: bool = False
+    narrow: bool = False
 
 
 def truth_phase(job: Job, seed: int) -> tuple[tuple[float, float], int]:
@@ -161,7 +162,6 @@ def run_job(job: Job) -> dict[str, object]:
     out: dict[str, object] = {"water": job.water, "wavelength_nm": job.wl, "truth": [a_true, s_true]}
     config = FitConfig(contour_points=7)
     rows = []
-    budget = None
     settings_used = None
     for seed in range(job.seeds):
         phase, truth_seed = truth_phase(job, seed)
@@ -184,10 +184,11 @@ def run_job(job: Job) -> dict[str, object]:
         except (FitInputError, ValueError) as exc:
             rows.append({"seed": seed, "error": str(exc)})
             continue
-        # The budget describes the set-up, so one per water and wavelength, except when the truth's
-        # phase function changes from set to set: the data's posterior of ⟨cos θ⟩ does too.
-        if budget is None or job.sample_systematics:
-            budget = systematic_budget(fit, prof, job.grid, job.variations, SystematicsConfig())
+        # Per frame set: the data's posterior of the phase function (reported, and the error with
+        # --narrow-by-data) belongs to each set's data.
+        sys_config = SystematicsConfig(narrow_by_data=job.narrow)
+        budget = systematic_budget(fit, prof, job.grid, job.variations, sys_config)
+        phase = next((i for i in budget.items if i.name == "phase_function"), None)
         if "budget" not in out:
             out["budget_seconds"] = budget.seconds
             out["fit_seconds"] = t_fit
@@ -208,6 +209,16 @@ def run_job(job: Job) -> dict[str, object]:
                     fit.lambda_sca.limit_m,
                 ],
                 "sys": [budget.lambda_abs_sys_m, budget.lambda_sca_sys_m],
+                # The phase line's refits, so that other ways of weighing them can be studied offline.
+                "phase": None
+                if phase is None
+                else {
+                    "cases": list(phase.cases),
+                    "abs": list(phase.lambda_abs_shifts_m),
+                    "sca": list(phase.lambda_sca_shifts_m),
+                    "dchi2": list(phase.delta_chi2),
+                    "note": phase.note,
+                },
                 "chi2_ndof": fit.chi2_ndof,
                 "error_scale": fit.error_scale,
                 "truth_phase": list(phase),
@@ -275,6 +286,11 @@ def main() -> None:
         action="store_true",
         help="draw the truth's ⟨cos θ⟩ and Rayleigh share per frame set from the budget's priors",
     )
+    ap.add_argument(
+        "--narrow-by-data",
+        action="store_true",
+        help="weigh the phase function's refits by the data's posterior instead of the uniform prior",
+    )
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     cache = args.cache or tempfile.mkdtemp(prefix="camcal-truth-")
@@ -318,6 +334,7 @@ def main() -> None:
                     args.truth_photons,
                     cache,
                     args.sample_systematics,
+                    args.narrow_by_data,
                 )
             )
     t0 = time.perf_counter()

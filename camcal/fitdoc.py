@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from analysis.chisq import ChiSquareFit, Estimate, SystematicBudget
+from analysis.chisq.results import cases_text
 from camcal.core import __version__
 from camcal.fitset import AttenuationCheck, FolderFit
 
@@ -107,6 +108,7 @@ def budget_entry(b: SystematicBudget) -> dict[str, Any]:
                 "name": i.name,
                 "label": i.label,
                 "cases": list(i.cases),
+                "cases_text": cases_text(i.cases),
                 "lambda_abs_shift_m": [_r(v, 3) for v in i.lambda_abs_shifts_m],
                 "lambda_sca_shift_m": [_r(v, 3) for v in i.lambda_sca_shifts_m],
                 "lambda_att_shift_m": [_r(v, 3) for v in i.lambda_att_shifts_m],

@@ -150,6 +150,13 @@ class Estimate:
         return f"{symbol} unconstrained"
 
 
+def cases_text(cases: tuple[str, ...] | list[str], most: int = 6) -> str:
+    """A budget line's cases for a table: all of them, or the first and last and how many."""
+    if len(cases) <= most:
+        return ", ".join(cases)
+    return f"{cases[0]} … {cases[-1]} ({len(cases)} refits)"
+
+
 def largest_shift(values: tuple[float, ...]) -> float:
     """The largest finite |shift| of a budget item (NaN when none is finite)."""
     finite = [abs(v) for v in values if math.isfinite(v)]

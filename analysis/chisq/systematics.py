@@ -1,16 +1,26 @@
-"""The systematic budget: what the fit holds fixed, varied one at a time, and the shifts it causes.
+"""The systematic budget: what the fit holds fixed, varied, and the shifts it causes.
 
 The fit holds the phase function (⟨cos θ⟩ and the Rayleigh share) and the
 LEM's angular emission shape (linear in the cosine of the emission angle)
-fixed; neither the real water nor the real LEM promises them. Each is
-varied over a plausible range and λ_abs and λ_sca are fitted again. The
-phase function's two parameters are uniform priors over their ranges that
-the data narrow: each length's error is the RMS of its shift over the
-parameter's posterior exp(-Δχ²/2s²) (`marginal_error`), so the data's
-preferred value and its width count, and a refit that runs away where the
-data exclude the parameter does not. An alternative emission shape counts
-with its full shift. Their sum in quadrature, with the templates' own
-accuracy on λ_sca, is the systematic error quoted.
+fixed; neither the real water nor the real LEM promises them.
+
+The phase function's two parameters are varied *jointly*: the lengths
+are refitted on a grid of (⟨cos θ⟩, Rayleigh share) over their ranges, on
+templates that share their photons between the grid's cases (one Monte
+Carlo run per scattering length, reweighted: `variation_settings`), and
+each length's error is its root-mean-square shift from the nominal over a
+uniform prior on that box (`marginal_posterior`). If the water's phase
+function is a draw from that prior, the pulls of the lengths have an RMS
+of one by construction. Varying one parameter at a time (the budget
+before) missed their correlated move: in turbid water a ⟨cos θ⟩ below the
+nominal with a Rayleigh share away from it shifted λ_abs by 25-35 % where
+each alone said ~12 %. The data's own posterior, exp(-Δχ²/2s²) over the
+box, is computed and reported in the line's note, but narrows the error
+only with ``SystematicsConfig.narrow_by_data``: on independent frames it
+pointed away from the truth's phase function in about half the turbid sets
+(docs/transport.md). An alternative emission shape counts with its full
+shift. Their sum in quadrature, with the templates' own accuracy on λ_sca,
+is the systematic error quoted.
 
 The nuisances the fit already floats with a prior (I0'/I0, the PSF width,
 the two distances) are listed too, as *impacts*: the shift when the
@@ -21,7 +31,8 @@ are not added to the systematic error a second time.
 Refits start from the nominal minimum and use the same searches as the fit
 (`analysis.chisq.fit.Objective.minimise`), without intervals or maps: a few
 hundred χ² evaluations each. Alternative templates are needed only at the
-scattering-length nodes around the fitted λ_sca (`variation_settings`).
+scattering-length nodes a refit can reach from the fitted λ_sca
+(`variation_settings`).
 """
 
 from __future__ import annotations
@@ -46,19 +57,23 @@ class SystematicsConfig:
 
     ``mie_g_range``: ⟨cos θ⟩ of the Mie part (the paper scanned 0.88-0.96
     around its 0.92-0.93); ``rayleigh_range``: the share of scattering that
-    is Rayleigh (~17 % in the deep-sea model); ``emission_shapes``: the
-    alternative angular emission shapes of the LEM
-    (`analysis.transport.scene.EMISSION_SHAPES`). ⟨cos θ⟩ and the Rayleigh
-    share are uniform priors over their ranges, narrowed by the data
-    (`marginal_error`): ⟨cos θ⟩ is refitted at ``mie_g_points`` values
-    evenly over its range (and the nominal), the Rayleigh share at the ends
-    and the nominal. Each alternative emission shape's full shift is its
-    error.
+    is Rayleigh (~17 % in the deep-sea model). Both are uniform priors,
+    fitted jointly with the lengths: refits at ``mie_g_points`` values of
+    ⟨cos θ⟩ evenly over its range (and the nominal) times the Rayleigh
+    share's two ends and nominal, on templates with ``phase_photon_factor``
+    times the fit's photons per node. The error is the RMS shift over the
+    priors; ``narrow_by_data`` weighs it by the data's posterior instead
+    (not yet trustworthy: see the module). ``emission_shapes``: the alternative
+    angular emission shapes of the LEM
+    (`analysis.transport.scene.EMISSION_SHAPES`), each counted with its full
+    shift.
     """
 
     mie_g_range: tuple[float, float] = (0.88, 0.96)
     mie_g_points: int = 5
     rayleigh_range: tuple[float, float] = (0.10, 0.25)
+    phase_photon_factor: float = 4.0
+    narrow_by_data: bool = False
     emission_shapes: tuple[str, ...] = ("hemispheres",)
 
     def __post_init__(self) -> None:
@@ -70,6 +85,17 @@ class SystematicsConfig:
         lo, hi = self.rayleigh_range
         if not 0 <= lo < hi <= 1:
             raise ValueError(f"rayleigh_range must be increasing inside [0, 1], got {self.rayleigh_range}")
+        if not self.phase_photon_factor > 0:
+            raise ValueError(f"phase_photon_factor must be > 0, got {self.phase_photon_factor}")
+
+    def mie_g_values(self, nominal: float) -> tuple[float, ...]:
+        """The ⟨cos θ⟩ values refitted, the phase templates' nodes: evenly over the range, and the nominal."""
+        lo, hi = self.mie_g_range
+        return tuple(sorted({*(round(float(g), 4) for g in np.linspace(lo, hi, self.mie_g_points)), nominal}))
+
+    def rayleigh_values(self, nominal: float) -> tuple[float, ...]:
+        """The Rayleigh shares refitted: the range's ends and the nominal."""
+        return tuple(sorted({*self.rayleigh_range, nominal}))
 
 
 #: Said of a budget line whose refit ended on the edge of the templates' range.
@@ -86,23 +112,63 @@ def nodes_around(nodes: Sequence[float], values: Sequence[float]) -> tuple[float
     return tuple(sorted(keep))
 
 
+def nodes_covering(nodes: Sequence[float], lo: float, hi: float) -> tuple[float, ...]:
+    """The nodes bracketing [lo, hi], the list extended geometrically beyond its ends where needed.
+
+    An extension continues the outermost spacing (the ratio of the two
+    outermost nodes; 1.65 for a single node), so the same nominal nodes and
+    range always give the same list, and the templates stay cached.
+    """
+    ext = sorted(float(x) for x in nodes)
+    up = ext[-1] / ext[-2] if len(ext) > 1 else 1.65
+    down = ext[1] / ext[0] if len(ext) > 1 else 1.65
+    while ext[-1] < hi:
+        ext.append(round(ext[-1] * up, 3))
+    while ext[0] > lo:
+        ext.insert(0, round(ext[0] / down, 3))
+    i = int(np.searchsorted(ext, lo, side="right")) - 1
+    j = int(np.searchsorted(ext, hi, side="left"))
+    return tuple(ext[max(i, 0) : j + 1])
+
+
+#: Margin on the scattering lengths a phase refit can reach (the Rayleigh share moves them too).
+_REACH_MARGIN = 1.15
+
+
 def variation_settings(
     base: TemplateSettings, lambda_sca_m: Sequence[float], config: SystematicsConfig
 ) -> dict[str, TemplateSettings]:
     """The template settings each variation needs (around the fitted ``lambda_sca_m`` only).
 
-    Keys: ``"mie_g"`` (nodes at both ends of the range and the nominal),
-    ``"rayleigh=<share>"`` and ``"emission=<shape>"``. The Rayleigh and
-    emission variants keep the nominal seeds, so their Monte Carlo follows the
-    same photons as the nominal templates and the shifts are not buried in
-    independent noise.
+    Keys: ``"phase:rayleigh=<share>"`` (one per Rayleigh share of
+    `SystematicsConfig.rayleigh_values`, with the ⟨cos θ⟩ nodes of
+    `SystematicsConfig.mie_g_values`, ``phase_photon_factor`` times the
+    photons, all of them one Monte Carlo sample per scattering length drawn
+    at the nominal phase function and reweighted (``mc_phase``: the changes
+    between the phase-function cases carry little Monte Carlo noise), and
+    the scattering-length nodes a refit reaches: the halo's
+    width holds λ_sca(1 - ⟨cos θ⟩), so a refit at ⟨cos θ⟩ = g moves λ_sca by
+    (1 - g₀)/(1 - g)) and ``"emission=<shape>"`` (the nominal's nodes around
+    the fitted lengths and its seed, so its Monte Carlo follows the same
+    photons as the nominal templates and the shift is not buried in
+    independent noise).
     """
-    nodes = nodes_around(base.lambda_sca_nodes_m, lambda_sca_m)
-    local = replace(base, lambda_sca_nodes_m=nodes)
     g0 = base.mie_g_nodes[0]
-    out = {"mie_g": replace(local, mie_g_nodes=tuple(sorted({*config.mie_g_range, g0})))}
-    for share in config.rayleigh_range:
-        out[f"rayleigh={share:g}"] = replace(local, rayleigh_fraction=share)
+    gs = config.mie_g_values(g0)
+    lo = min(lambda_sca_m) * (1 - g0) / (1 - gs[0]) / _REACH_MARGIN
+    hi = max(lambda_sca_m) * (1 - g0) / (1 - gs[-1]) * _REACH_MARGIN
+    phase = replace(
+        base,
+        lambda_sca_nodes_m=nodes_covering(base.lambda_sca_nodes_m, lo, hi),
+        mie_g_nodes=gs,
+        n_photons=max(1000, round(base.n_photons * config.phase_photon_factor)),
+        mc_phase=(g0, base.rayleigh_fraction),
+    )
+    out = {
+        f"phase:rayleigh={share:g}": replace(phase, rayleigh_fraction=share)
+        for share in config.rayleigh_values(base.rayleigh_fraction)
+    }
+    local = replace(base, lambda_sca_nodes_m=nodes_around(base.lambda_sca_nodes_m, lambda_sca_m))
     for shape in config.emission_shapes:
         out[f"emission={shape}"] = replace(local, emission_shape=shape)
     return out
@@ -191,73 +257,101 @@ def _largest(d: np.ndarray) -> np.ndarray:
     return np.max(np.abs(d[:, :3]), axis=0)
 
 
-def constrained_error(
-    nominal: float, ends: tuple[float, float], d: np.ndarray, error_scale: float
-) -> tuple[np.ndarray, float]:
-    """Errors on the three lengths from a held parameter x, narrowed by the data's own Δχ² (linearised).
+#: Points per axis of the fine grid on which `marginal_posterior` integrates.
+_MARGINAL_POINTS = 201
 
-    The range ``ends`` is the prior: x uniform between them (σ = width/√12).
-    The data's information on x is the curvature a of the parabola
-    a·δ² + b·δ (δ = x - nominal) through the nominal (Δχ² = 0) and the two
-    ends' Δχ² (divided by the error scale²). The posterior width is
-    1/√(a + 1/σ_prior²), and each length's error the secant slope between
-    the ends times that width. Kept as the linear limit of
-    `marginal_error`, which the budget uses: a refit that runs away at one
-    end (λ_abs to the grid's edge) makes the secant, hence this error, huge
-    even where the data exclude that end.
+
+@dataclass(frozen=True)
+class Marginal:
+    """What the posterior over held parameters says: the lengths' mean shift and spread, the parameters'.
+
+    ``shift_m`` and ``spread_m``: posterior mean and standard deviation of
+    the (λ_abs, λ_sca, λ_att) shifts from the reference (NaN for a length
+    the fit only bounds); ``mean`` and ``sd``: each parameter's posterior
+    mean and standard deviation.
     """
-    lo, hi = ends
-    dx = np.array([lo - nominal, hi - nominal])
-    y = d[:, 3] / error_scale**2
-    a, _ = np.linalg.solve(np.stack([dx * dx, dx], axis=1), y)
-    prior = (hi - lo) / math.sqrt(12.0)
-    width = 1.0 / math.sqrt(max(float(a), 0.0) + 1.0 / prior**2)
-    slope = (d[1, :3] - d[0, :3]) / (hi - lo)
-    return np.abs(slope) * width, width
+
+    shift_m: np.ndarray
+    spread_m: np.ndarray
+    mean: tuple[float, ...]
+    sd: tuple[float, ...]
+
+    @property
+    def rms_m(self) -> np.ndarray:
+        """√(E[Δλ²]): the spread plus the distance of the posterior's mean from the reference."""
+        return np.hypot(self.shift_m, self.spread_m)
 
 
-#: Points of the fine grid over a held parameter's range on which `marginal_error` integrates.
-_MARGINAL_POINTS = 401
+def marginal_posterior(axes: Sequence[Sequence[float]], d: np.ndarray, error_scale: float) -> Marginal:
+    """The lengths' shifts averaged over the data's posterior of held parameters with uniform priors.
 
-
-def marginal_error(
-    x: Sequence[float], d: np.ndarray, error_scale: float
-) -> tuple[np.ndarray, tuple[float, float]]:
-    """Errors on the three lengths from a held parameter, marginalised over the data's posterior of it.
-
-    ``x`` are the parameter's values at which the lengths were refitted
-    (their ends span the prior's range, uniform; one of them the reference,
-    with zero shifts) and ``d`` the rows (Δλ_abs, Δλ_sca, Δλ_att, Δχ²)
-    against that reference. Between the points the shifts and Δχ² are
-    interpolated linearly; the posterior of the parameter is
-    exp(-Δχ²/(2 s²)) over the range (s the fit's error scale), and each
-    length's error is the root mean square of its shift under it,
-    √(E[Δλ²]) = √(var + (mean shift)²): the spread the parameter's
-    uncertainty gives the length, plus how far the data's preferred value
-    moves it from the reported one. Where the data pin the parameter this
-    is the shift over the posterior's width; where they do not, it is the
-    spread over the prior's range; a refit that runs away where the data
-    exclude the parameter gets that exclusion's weight, not the secant's.
-    Returns the errors and the parameter's posterior mean and standard
-    deviation (what the data say of it).
+    ``axes`` are the parameters' values at which the lengths were refitted
+    (each axis's ends span that prior's range; one grid point the
+    reference, with zero shifts) and ``d`` has shape (*axis lengths, 4):
+    (Δλ_abs, Δλ_sca, Δλ_att, Δχ²) against the reference. Between the points
+    shifts and Δχ² are interpolated axis by axis (along an axis of four or
+    more points Δχ² by a cubic spline, the shifts by a shape-preserving
+    cubic; linear along a shorter one); the posterior is
+    exp(-Δχ²/(2 s²)) over the prior's box (s the fit's error scale). Where
+    the data pin the parameters, the mean shift moves the lengths to where
+    the data put them and the spread is the shift over the posterior's
+    width; where they do not, the spread covers the prior's range; a refit
+    that runs away where the data exclude its parameters gets that
+    exclusion's weight, not a secant's.
     """
-    order = np.argsort(np.asarray(x, dtype=float))
-    xs = np.asarray(x, dtype=float)[order]
-    rows = np.asarray(d, dtype=float)[order]
-    fine = np.linspace(xs[0], xs[-1], _MARGINAL_POINTS)
-    dchi2 = np.interp(fine, xs, rows[:, 3]) / error_scale**2
+    from scipy.interpolate import CubicSpline, PchipInterpolator, interp1d
+
+    d = np.asarray(d, dtype=float)
+    keep = [k for k, ax in enumerate(axes) if len(ax) > 1]
+    if not keep:  # nothing varied: no shift, no spread
+        zero = np.zeros(3)
+        return Marginal(zero, zero, tuple(float(ax[0]) for ax in axes), tuple(0.0 for _ in axes))
+    bounded = [not np.all(np.isfinite(d[..., k])) for k in range(3)]
+    vals = np.nan_to_num(d.reshape([len(axes[k]) for k in keep] + [4]))
+    pts = [np.asarray(axes[k], dtype=float) for k in keep]
+    fine = []
+    for k, x in enumerate(pts):
+        order = np.argsort(x)
+        x, vals = x[order], np.take(vals, order, axis=k)
+        f = np.linspace(x[0], x[-1], _MARGINAL_POINTS)
+        if len(x) >= 4:
+            # Δχ² by a cubic spline (near a parabola, and the posterior can be narrower than the
+            # points' spacing), the shifts by a shape-preserving cubic (no ringing where a refit ran
+            # away at an end the data exclude).
+            vals = np.concatenate(
+                [PchipInterpolator(x, vals[..., :3], axis=k)(f), CubicSpline(x, vals[..., 3:], axis=k)(f)],
+                axis=-1,
+            )
+        else:
+            vals = interp1d(x, vals, axis=k)(f)
+        fine.append(f)
+    mesh = np.stack(np.meshgrid(*fine, indexing="ij"), axis=-1)
+    dchi2 = vals[..., 3] / error_scale**2
+    trapezoid = np.ones(_MARGINAL_POINTS)
+    trapezoid[[0, -1]] = 0.5
     w = np.exp(-0.5 * (dchi2 - dchi2.min()))
-    w[[0, -1]] *= 0.5  # the trapezoid rule
+    for k in range(len(pts)):  # the trapezoid rule along each axis
+        w *= trapezoid.reshape([-1 if j == k else 1 for j in range(len(pts))])
     w /= w.sum()
-    errors = np.empty(3)
+    shift, spread = np.empty(3), np.empty(3)
     for k in range(3):
-        if not np.all(np.isfinite(rows[:, k])):
-            errors[k] = np.nan
+        if bounded[k]:
+            shift[k] = spread[k] = np.nan
             continue
-        shift = np.interp(fine, xs, rows[:, k])
-        errors[k] = math.sqrt(float(np.sum(w * shift * shift)))
-    mean = float(np.sum(w * fine))
-    return errors, (mean, math.sqrt(max(float(np.sum(w * (fine - mean) ** 2)), 0.0)))
+        shift[k] = float(np.sum(w * vals[..., k]))
+        spread[k] = math.sqrt(max(float(np.sum(w * (vals[..., k] - shift[k]) ** 2)), 0.0))
+    mean, sd = [], []
+    it = iter(range(len(pts)))
+    for k, ax in enumerate(axes):
+        if k not in keep:
+            mean.append(float(ax[0]))
+            sd.append(0.0)
+            continue
+        j = next(it)
+        m = float(np.sum(w * mesh[..., j]))
+        mean.append(m)
+        sd.append(math.sqrt(max(float(np.sum(w * (mesh[..., j] - m) ** 2)), 0.0)))
+    return Marginal(shift, spread, tuple(mean), tuple(sd))
 
 
 def systematic_budget(
@@ -278,41 +372,39 @@ def systematic_budget(
     refit = _Refitter(fit, settings, grid)
     cfg = fit.config
     items: list[SystematicShift] = []
-    held = [
-        ("mie_g", "Mie ⟨cos θ⟩", fit.mie_g, config.mie_g_range),
-        (
-            "rayleigh_fraction",
-            "Rayleigh share of scattering",
-            grid.settings.rayleigh_fraction,
-            config.rayleigh_range,
-        ),
-    ]
-    for name, label, nominal, ends in held:
-        if name == "mie_g":
-            if "mie_g" not in variations:
-                continue
-            var = variations["mie_g"]
-            points = sorted({*np.linspace(ends[0], ends[1], config.mie_g_points).round(4), nominal})
-            cases = [(f"{g:g}", {"grid": var, "config": replace(cfg, mie_g=float(g))}) for g in points]
-            reference: dict[str, object] | None = {"grid": var, "config": replace(cfg, mie_g=nominal)}
-        else:
-            if not all(f"rayleigh={x:g}" in variations for x in ends):
-                continue
-            points = [ends[0], nominal, ends[1]]
-            cases = [(f"{ends[0]:g}", {"grid": variations[f"rayleigh={ends[0]:g}"]})]
-            cases += [(f"{nominal:g}", {})]
-            cases += [(f"{ends[1]:g}", {"grid": variations[f"rayleigh={ends[1]:g}"]})]
-            reference = None
+    g0, r0 = fit.mie_g, grid.settings.rayleigh_fraction
+    gs, rs = config.mie_g_values(g0), config.rayleigh_values(r0)
+    if all(f"phase:rayleigh={r:g}" in variations for r in rs):
+        cases = [
+            (f"{g:g}/{r:g}", {"grid": variations[f"phase:rayleigh={r:g}"], "config": replace(cfg, mie_g=g)})
+            for r in rs
+            for g in gs
+        ]
+        reference = {"grid": variations[f"phase:rayleigh={r0:g}"], "config": replace(cfg, mie_g=g0)}
         hits = refit.edge_hits
         d = refit.shifts(cases, reference)
-        errors, (mean, width) = marginal_error(points, d, fit.error_scale)
-        note = (
-            f"the data: {mean:.3g} ± {width:.2g} (prior uniform over {ends[0]:g}-{ends[1]:g}, nominal "
-            f"{nominal:g}); error: RMS shift over that posterior"
+        box = d.reshape(len(rs), len(gs), 4)
+        data = marginal_posterior([rs, gs], box, fit.error_scale)
+        flat = box.copy()
+        flat[..., 3] = 0.0
+        prior = marginal_posterior([rs, gs], flat, 1.0)
+        said = (
+            f"the data alone: ⟨cos θ⟩ {data.mean[1]:.3f} ± {data.sd[1]:.3f}, Rayleigh share "
+            f"{data.mean[0]:.2f} ± {data.sd[0]:.2f}"
         )
+        box_text = (
+            f"⟨cos θ⟩ {gs[0]:g}-{gs[-1]:g} × Rayleigh share {rs[0]:g}-{rs[-1]:g} (nominal {g0:g}/{r0:g})"
+        )
+        if config.narrow_by_data:
+            errors = data.rms_m
+            note = f"error: RMS shift over the data's posterior on {box_text}; {said}"
+        else:
+            errors = prior.rms_m
+            note = f"error: RMS shift over a uniform prior on {box_text}; {said} (not used)"
         if refit.edge_hits > hits:
             note += EDGE_NOTE
-        items.append(_shift_item(name, label, cases, d, errors, note=note))
+        label = "phase function: Mie ⟨cos θ⟩ and Rayleigh share (jointly)"
+        items.append(_shift_item("phase_function", label, cases, d, errors, note=note))
     cases = [
         (shape, {"grid": variations[f"emission={shape}"]})
         for shape in config.emission_shapes

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from analysis.chisq.results import cases_text
 from camcal.fitdoc import estimate_text
 from camcal.fitplots import contour_figure, profiles_figure
 from camcal.report import figures
@@ -162,7 +163,7 @@ def _budgets(fits: list[dict[str, Any]]) -> str:
         rows = [
             (
                 i["label"],
-                ", ".join(i["cases"]),
+                cases_text(i["cases"]),
                 (_FLOATED if i["profiled"] else "") + i["note"],
                 num(i["lambda_abs_err_m"], 3),
                 num(i["lambda_sca_err_m"], 3),
@@ -180,13 +181,15 @@ def _budgets(fits: list[dict[str, Any]]) -> str:
                 num(b["lambda_att_sys_m"], 3),
             )
         )
-        head = ["varied (one at a time)", "cases", "note", "λ_abs [m]", "λ_sca [m]", "λ_att [m]"]
+        head = ["varied", "cases", "note", "λ_abs [m]", "λ_sca [m]", "λ_att [m]"]
         out += f"<h3>{f['wavelength_nm']} nm: systematic budget</h3>" + table(head, rows, text_cols=3)
     if out:
         out = (
-            "<p>What the fit holds fixed, varied one at a time: each line's error on the lengths "
-            "(⟨cos θ⟩ and the Rayleigh share: the RMS shift over the data's posterior, a prior uniform "
-            "over the range times exp(-Δχ²/2s²); the emission shape: the full shift). The sum in "
+            "<p>What the fit holds fixed, varied: each line's error on the lengths (⟨cos θ⟩ and the "
+            "Rayleigh share, fitted jointly with the lengths under uniform priors: the values quoted "
+            "above are moved by the posterior's mean shift and the line's error is its spread, the "
+            "posterior being the priors times exp(-Δχ²/2s²) over a grid of refits; the emission shape: "
+            "the full shift). The sum in "
             "quadrature is the systematic error "
             "quoted above.</p>" + out
         )

@@ -12,9 +12,9 @@ from analysis.chisq import LOWER_LIMIT, MEASURED, FitConfig, SettingProfiles, fi
 from analysis.chisq.limits import error_scale, estimate
 from analysis.chisq.systematics import (
     SystematicsConfig,
-    constrained_error,
-    marginal_error,
+    marginal_posterior,
     nodes_around,
+    nodes_covering,
     variation_settings,
 )
 from analysis.chisq.wavelength import make_objective
@@ -83,60 +83,69 @@ def test_error_scale_is_never_below_one() -> None:
     assert error_scale(10.0, 0) == 1.0
 
 
-def test_constrained_error_follows_the_data_and_the_prior() -> None:
-    # Δλ = 100 m per unit of x; the data's Δχ² = a·δ².
-    ends = (0.88, 0.96)
-    nominal = 0.93
-    prior = (ends[1] - ends[0]) / math.sqrt(12)
-
-    def shifts(a: float) -> np.ndarray:
-        dx = np.array(ends) - nominal
-        return np.stack([100 * dx, 50 * dx, 10 * dx, a * dx * dx], axis=1)
-
-    err, width = constrained_error(nominal, ends, shifts(0.0), 1.0)
-    assert width == pytest.approx(prior)  # no information in the data: the prior's width
-    assert err == pytest.approx([100 * prior, 50 * prior, 10 * prior])
-    err, width = constrained_error(nominal, ends, shifts(1e6), 1.0)
-    assert width == pytest.approx(1 / math.sqrt(1e6 + 1 / prior**2))
-    # An error scale of 3 divides the data's Δχ² by 9: a wider width.
-    _, scaled = constrained_error(nominal, ends, shifts(1e6), 3.0)
-    assert scaled == pytest.approx(1 / math.sqrt(1e6 / 9 + 1 / prior**2))
+G = [0.88, 0.90, 0.92, 0.93, 0.94, 0.96]
+R = [0.10, 0.17, 0.25]
 
 
-def test_marginal_error_weighs_each_shift_by_what_the_data_allow() -> None:
-    points = [0.88, 0.90, 0.92, 0.93, 0.94, 0.96]
-    dx = np.array(points) - 0.93
+def test_marginal_posterior_weighs_each_shift_by_what_the_data_allow() -> None:
+    """The posterior's mean shift and spread: the prior alone, data that pin, data that move."""
+    dx = np.array(G) - 0.93
 
     def rows(dchi2: np.ndarray, abs_shift: np.ndarray | None = None) -> np.ndarray:
         a = 100 * dx if abs_shift is None else abs_shift
         return np.stack([a, 50 * dx, 10 * dx, dchi2], axis=1)
 
-    # No information in the data: the RMS shift over the uniform prior, about the nominal.
-    err, (mean, width) = marginal_error(points, rows(np.zeros(6)), 1.0)
-    uniform_rms = math.sqrt(((0.96 - 0.93) ** 3 + (0.93 - 0.88) ** 3) / (3 * 0.08))
-    assert err == pytest.approx([100 * uniform_rms, 50 * uniform_rms, 10 * uniform_rms], rel=1e-3)
-    assert mean == pytest.approx(0.92, abs=1e-3) and width == pytest.approx(0.08 / math.sqrt(12), rel=1e-2)
-    # Data that pin the parameter at the nominal (Δχ² = δ²/0.01²): slope times the posterior width.
-    err, (mean, width) = marginal_error(points, rows(dx**2 / 0.01**2), 1.0)
-    assert mean == pytest.approx(0.93, abs=1e-3) and width == pytest.approx(0.01, rel=0.1)
-    assert err[0] == pytest.approx(100 * 0.01, rel=0.1)
+    # No information in the data: the shift's mean and spread over the uniform prior.
+    m = marginal_posterior([G], rows(np.zeros(6)), 1.0)
+    uniform_sd = 0.08 / math.sqrt(12)
+    assert m.shift_m == pytest.approx([100 * -0.01, 50 * -0.01, 10 * -0.01], rel=1e-2)
+    assert m.spread_m == pytest.approx([100 * uniform_sd, 50 * uniform_sd, 10 * uniform_sd], rel=1e-2)
+    assert m.mean[0] == pytest.approx(0.92, abs=1e-3) and m.sd[0] == pytest.approx(uniform_sd, rel=1e-2)
+    # Data that pin the parameter at the nominal (Δχ² = δ²/0.01²): no shift, slope times the width.
+    m = marginal_posterior([G], rows(dx**2 / 0.01**2), 1.0)
+    assert m.mean[0] == pytest.approx(0.93, abs=1e-3) and m.sd[0] == pytest.approx(0.01, rel=0.1)
+    assert abs(m.shift_m[0]) < 0.1 and m.spread_m[0] == pytest.approx(100 * 0.01, rel=0.1)
     # An error scale of 2 widens the posterior about twofold (the range's ends cut it a little).
-    _, (_, scaled) = marginal_error(points, rows(dx**2 / 0.01**2), 2.0)
-    assert 1.6 * width < scaled < 2.1 * width
-    # A refit that ran away at an end the data exclude (Δχ² 200) does not blow the error up,
-    # where the secant of the linearised budget does.
+    wide = marginal_posterior([G], rows(dx**2 / 0.01**2), 2.0)
+    assert 1.6 * m.sd[0] < wide.sd[0] < 2.1 * m.sd[0]
+    # A refit that ran away at an end the data exclude (Δχ² 200) does not blow the error up.
     runaway = 100 * dx
     runaway[-1] = 1900.0
     dchi2 = dx**2 / 0.01**2
     dchi2[-1] = 200.0
-    err, _ = marginal_error(points, rows(dchi2, runaway), 1.0)
-    assert err[0] < 5.0
-    lin, _ = constrained_error(0.93, (0.88, 0.96), rows(dchi2, runaway)[[0, -1]], 1.0)
-    assert lin[0] > 10 * err[0]
-    # Data that prefer another value: the error includes the shift to it.
-    err, (mean, _) = marginal_error(points, rows((dx - 0.02) ** 2 / 0.005**2 - 0.02**2 / 0.005**2), 1.0)
-    assert mean == pytest.approx(0.95, abs=2e-3)
-    assert err[1] == pytest.approx(50 * 0.02, rel=0.1)
+    assert marginal_posterior([G], rows(dchi2, runaway), 1.0).spread_m[0] < 5.0
+    # Data that prefer another value: the lengths move there, and the spread stays the width's.
+    m = marginal_posterior([G], rows((dx - 0.02) ** 2 / 0.005**2 - 0.02**2 / 0.005**2), 1.0)
+    assert m.mean[0] == pytest.approx(0.95, abs=2e-3)
+    assert m.shift_m[1] == pytest.approx(50 * 0.02, rel=0.05)
+    assert m.spread_m[1] == pytest.approx(50 * 0.005, rel=0.15)
+    assert m.rms_m[1] == pytest.approx(math.hypot(m.shift_m[1], m.spread_m[1]))
+    # A length the fit only bounds gets no shift and no spread.
+    bounded = rows(np.zeros(6))
+    bounded[:, 0] = np.nan
+    m = marginal_posterior([G], bounded, 1.0)
+    assert math.isnan(m.shift_m[0]) and math.isnan(m.spread_m[0]) and np.isfinite(m.shift_m[1])
+
+
+def test_marginal_posterior_over_two_parameters_moves_them_together() -> None:
+    """The data fix one combination of ⟨cos θ⟩ and the Rayleigh share: each alone would mislead."""
+    g, r = np.meshgrid(np.array(G) - 0.93, np.array(R) - 0.17, indexing="xy")  # shape (r, g)
+    # λ_abs shifts with both; the data pin (g, r) at (0.90, 0.22) with widths 0.004 and 0.02.
+    d_abs = 300 * g - 40 * r
+    dchi2 = ((g + 0.03) / 0.004) ** 2 + ((r - 0.05) / 0.02) ** 2
+    dchi2 -= dchi2[1, 3]  # the reference's Δχ² is zero
+    d = np.stack([d_abs, 0.5 * d_abs, 0.1 * d_abs, dchi2], axis=-1)
+    m = marginal_posterior([R, G], d, 1.0)
+    assert m.mean == pytest.approx((0.22, 0.90), abs=3e-3)
+    assert m.shift_m[0] == pytest.approx(300 * -0.03 - 40 * 0.05, rel=0.05)
+    # The spread: both parameters' widths through their slopes (linear model, independent).
+    assert m.spread_m[0] == pytest.approx(math.hypot(300 * 0.004, 40 * 0.02), rel=0.15)
+    # With Δχ² depending on ⟨cos θ⟩ alone the Rayleigh axis is the prior's: it adds 40 m × its width.
+    flat_r = ((g + 0.03) / 0.004) ** 2 - (0.03 / 0.004) ** 2
+    m2 = marginal_posterior([R, G], np.stack([d_abs, d_abs, d_abs, flat_r], axis=-1), 1.0)
+    r_sd = 0.15 / math.sqrt(12)
+    assert m2.sd[0] == pytest.approx(r_sd, rel=0.02)
+    assert m2.spread_m[0] == pytest.approx(math.hypot(300 * 0.004, 40 * r_sd), rel=0.15)
 
 
 def test_variations_need_templates_only_near_the_fitted_scattering_lengths() -> None:
@@ -147,14 +156,32 @@ def test_variations_need_templates_only_near_the_fitted_scattering_lengths() -> 
 
     base = grid_settings(CASES["turbid"])
     v = variation_settings(base, [25.0], SystematicsConfig())
-    assert set(v) == {"mie_g", "rayleigh=0.1", "rayleigh=0.25", "emission=hemispheres"}
-    assert v["mie_g"].mie_g_nodes == (0.88, 0.93, 0.96)
+    assert set(v) == {
+        "phase:rayleigh=0.1",
+        "phase:rayleigh=0.17",
+        "phase:rayleigh=0.25",
+        "emission=hemispheres",
+    }
+    phase = v["phase:rayleigh=0.1"]
+    assert phase.mie_g_nodes == (0.88, 0.9, 0.92, 0.93, 0.94, 0.96)
+    assert phase.rayleigh_fraction == 0.1 and v["phase:rayleigh=0.25"].rayleigh_fraction == 0.25
+    assert phase.n_photons == 4 * base.n_photons  # the data tell ⟨cos θ⟩ by shapes finer than the fit's MC
+    # A refit at ⟨cos θ⟩ 0.96 moves λ_sca 25 m to 25·0.07/0.04 = 44 m, at 0.88 to 15 m: nodes cover both.
+    nodes = phase.lambda_sca_nodes_m
+    assert nodes[0] <= 15.0 / 1.15 and nodes[-1] >= 44.0 * 1.15
     assert v["emission=hemispheres"].emission_shape == "hemispheres"
-    # The variants share the nominal's seed (correlated Monte Carlo), and only the emission variant
+    # The emission variant shares the nominal's seed and nodes (correlated Monte Carlo), and only it
     # describes itself differently from a nominal cache entry.
-    assert {s.seed for s in v.values()} == {base.seed}
+    assert v["emission=hemispheres"].seed == base.seed
     assert "emission_shape" not in base.geometry_description()
     assert v["emission=hemispheres"].geometry_description()["emission_shape"] == "hemispheres"
+
+
+def test_nodes_covering_extends_the_list_geometrically() -> None:
+    assert nodes_covering((12.0, 20.0), 14.0, 18.0) == (12.0, 20.0)
+    assert nodes_covering((12.0, 20.0), 13.0, 45.0) == (12.0, 20.0, 33.333, 55.555)
+    assert nodes_covering((20.0, 33.0, 55.0, 90.0), 25.0, 40.0) == (20.0, 33.0, 55.0)
+    assert nodes_covering((20.0,), 10.0, 20.0) == (7.346, 12.121, 20.0)
 
 
 def test_emission_shapes_agree_at_the_poles_and_the_equator() -> None:

@@ -156,17 +156,19 @@ def test_templates_went_to_the_cache_directory(fitted: tuple[int, str, Path], ca
 def test_fit_with_its_systematic_budget(
     fitted: tuple[int, str, Path], frameset: Path, cache_dir: Path, tmp_path: Path
 ) -> None:
-    """The default fit: each held input varied, the shifts in the JSON, the table and the report."""
+    """The default fit: what it holds fixed varied, the shifts in the JSON, the table and the report."""
     cache = shutil.copytree(
         cache_dir, tmp_path / "cache"
     )  # the variants' templates stay out of the shared one
-    code, output = run(*fit_args(frameset, cache, "--json", str(tmp_path / "fit.json")))
+    code, output = run(
+        *fit_args(frameset, cache, "--json", str(tmp_path / "fit.json"), "--sys-photon-factor", "0.5")
+    )
     assert code == 0, output
     (f,) = json.loads((tmp_path / "fit.json").read_text())["fits"]
     (plain,) = json.loads((fitted[2] / "fit.json").read_text())["fits"]
     b = f["systematics"]
     names = [i["name"] for i in b["items"]]
-    assert names[:4] == ["mie_g", "rayleigh_fraction", "emission_shape", "template_accuracy"]
+    assert names[:3] == ["phase_function", "emission_shape", "template_accuracy"]
     assert {"emission_ratio", "psf_sigma", "distance_near", "distance_far"} <= set(names)
     held = [i for i in b["items"] if not i["profiled"]]
     for key in ("lambda_abs", "lambda_sca"):
@@ -175,16 +177,20 @@ def test_fit_with_its_systematic_budget(
         assert f[key]["sys_err_m"] == b[f"{key}_sys_m"]
     # The same fit as without the budget: the budget adds errors, it does not move the values.
     assert f["lambda_abs_m"] == plain["lambda_abs_m"] and f["lambda_sca_m"] == plain["lambda_sca_m"]
-    # A larger ⟨cos θ⟩ puts the same halo at a longer scattering length (λ_sca(1 - g) holds the
-    # halo's width): the two ends of the range shift λ_sca in opposite directions.
-    g = next(i for i in b["items"] if i["name"] == "mie_g")
-    assert g["cases"] == ["0.88", "0.9", "0.92", "0.93", "0.94", "0.96"]
-    assert g["lambda_sca_shift_m"][0] < 0 < g["lambda_sca_shift_m"][-1]
-    assert g["lambda_sca_shift_m"][3] == 0.0 and g["delta_chi2"][3] == 0.0  # the reference
-    # The line's error: the RMS shift over the data's posterior of ⟨cos θ⟩, never beyond the
-    # largest shift; the note says what the data make of ⟨cos θ⟩.
-    assert 0 < g["lambda_sca_err_m"] <= max(abs(x) for x in g["lambda_sca_shift_m"])
-    assert g["note"].startswith("the data: 0.9")
+    # Refits on a grid of ⟨cos θ⟩ × Rayleigh share. A larger ⟨cos θ⟩ puts the same halo at a longer
+    # scattering length (λ_sca(1 - g) holds the halo's width): the two ends shift λ_sca apart.
+    p = next(i for i in b["items"] if i["name"] == "phase_function")
+    assert len(p["cases"]) == 18 and p["cases"][0] == "0.88/0.1" and "(18 refits)" in p["cases_text"]
+    ref = p["cases"].index("0.93/0.17")
+    assert p["lambda_sca_shift_m"][ref] == 0.0 and p["delta_chi2"][ref] == 0.0
+    at = {c: s for c, s in zip(p["cases"], p["lambda_sca_shift_m"], strict=True)}
+    assert at["0.88/0.17"] < 0 < at["0.96/0.17"]
+    # The line's error: the RMS shift over the uniform prior on the box, so between the smallest
+    # and the largest |shift|; the note also says what the data alone make of the two parameters.
+    shifts = [abs(x) for x in p["lambda_sca_shift_m"]]
+    assert sorted(shifts)[1] < p["lambda_sca_err_m"] < max(shifts)
+    assert p["note"].startswith("error: RMS shift over a uniform prior")
+    assert "the data alone: ⟨cos θ⟩ 0." in p["note"]
     # Sums finite, budget shown in the table, and the fit's λ_att error grew by its systematic part.
     assert "systematic budget" in output and "quadrature" in output  # the 80-column table wraps cells
     assert f["lambda_att_fit_err_m"] >= plain["lambda_att_fit_err_m"]

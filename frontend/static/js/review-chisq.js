@@ -68,14 +68,14 @@ function budgetTable(f) {
     el(
       "table",
       {},
-      el("thead", {}, row(["varied (one at a time)", "cases", "λ_abs (m)", "λ_sca (m)", "λ_att (m)", "note"].map((h, i) => el("th", { class: i > 1 && i < 5 ? "r" : "" }, h)))),
+      el("thead", {}, row(["varied", "cases", "λ_abs (m)", "λ_sca (m)", "λ_att (m)", "note"].map((h, i) => el("th", { class: i > 1 && i < 5 ? "r" : "" }, h)))),
       el(
         "tbody",
         {},
         ...b.items.map((i) =>
           row([
             el("td", {}, i.label),
-            el("td", {}, i.cases.join(", ")),
+            el("td", {}, i.cases_text ?? i.cases.join(", ")),
             el("td", { class: "r" }, fmt(i.lambda_abs_err_m, 3)),
             el("td", { class: "r" }, fmt(i.lambda_sca_err_m, 3)),
             el("td", { class: "r" }, fmt(i.lambda_att_err_m, 3)),

@@ -188,7 +188,7 @@ def run_job(job: Job) -> dict[str, object]:
         # --narrow-by-data) belongs to each set's data.
         sys_config = SystematicsConfig(narrow_by_data=job.narrow)
         budget = systematic_budget(fit, prof, job.grid, job.variations, sys_config)
-        phase = next((i for i in budget.items if i.name == "phase_function"), None)
+        line = next((i for i in budget.items if i.name == "phase_function"), None)
         if "budget" not in out:
             out["budget_seconds"] = budget.seconds
             out["fit_seconds"] = t_fit
@@ -211,13 +211,13 @@ def run_job(job: Job) -> dict[str, object]:
                 "sys": [budget.lambda_abs_sys_m, budget.lambda_sca_sys_m],
                 # The phase line's refits, so that other ways of weighing them can be studied offline.
                 "phase": None
-                if phase is None
+                if line is None
                 else {
-                    "cases": list(phase.cases),
-                    "abs": list(phase.lambda_abs_shifts_m),
-                    "sca": list(phase.lambda_sca_shifts_m),
-                    "dchi2": list(phase.delta_chi2),
-                    "note": phase.note,
+                    "cases": list(line.cases),
+                    "abs": list(line.lambda_abs_shifts_m),
+                    "sca": list(line.lambda_sca_shifts_m),
+                    "dchi2": list(line.delta_chi2),
+                    "note": line.note,
                 },
                 "chi2_ndof": fit.chi2_ndof,
                 "error_scale": fit.error_scale,

@@ -13,8 +13,8 @@ the templates' 6). Two waters, three wavelengths each: deep-sea (λ_abs /
 For each water and wavelength, ``--seeds`` frame sets (independent sensor
 noise and pointing jitter) are fitted, each with its systematic budget
 (the phase function's line: the RMS shift over its priors, or over the
-data's posterior with ``--narrow-by-data``), added in quadrature to the
-fit error. Printed
+data's posterior with ``--narrow-by-data``, upward and downward apart),
+added in quadrature to the fit error, the side toward the truth. Printed
 per water and wavelength: the mean relative bias of λ_abs and λ_sca, the
 pulls (value - truth) / total error (mean, RMS), the median χ²/ndof and how
 many fits gave a limit instead of a value; then each of the issue's targets
@@ -209,6 +209,9 @@ def run_job(job: Job) -> dict[str, object]:
                     fit.lambda_sca.limit_m,
                 ],
                 "sys": [budget.lambda_abs_sys_m, budget.lambda_sca_sys_m],
+                # each side on its own: the truth below the value meets the downward error
+                "sys_down": [budget.sys_down_m(0), budget.sys_down_m(1)],
+                "sys_up": [budget.sys_up_m(0), budget.sys_up_m(1)],
                 # The phase line's refits, so that other ways of weighing them can be studied offline.
                 "phase": None
                 if line is None
@@ -228,6 +231,13 @@ def run_job(job: Job) -> dict[str, object]:
     return out
 
 
+def side_sys(row: dict, idx: int, truth: float) -> float:
+    """The systematic error toward the truth: downward when the value lies above it, else upward."""
+    key = "abs" if idx == 0 else "sca"
+    side = "sys_down" if row[key][1] > truth else "sys_up"
+    return float(row[side][idx] if side in row else row["sys"][idx])
+
+
 def summarise(res: dict[str, object]) -> dict[str, object]:
     a_true, s_true = res["truth"]  # type: ignore[misc]
     fits = [r for r in res["fits"] if "error" not in r]  # type: ignore[union-attr]
@@ -245,7 +255,7 @@ def summarise(res: dict[str, object]) -> dict[str, object]:
         if measured:
             idx = 0 if key == "abs" else 1
             vals = np.array([r[key][1] for r in measured])
-            tot = np.array([math.hypot(r[key][2], r["sys"][idx]) for r in measured])
+            tot = np.array([math.hypot(r[key][2], side_sys(r, idx, truth)) for r in measured])
             pulls = (vals - truth) / tot
             s[f"{key}_bias"] = float(np.mean(vals) / truth - 1.0)
             s[f"{key}_pull_mean"] = float(np.mean(pulls))

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from analysis.chisq import ChiSquareFit, Estimate, SystematicBudget
-from analysis.chisq.results import cases_text
+from analysis.chisq.results import cases_text, sys_text
 from camcal.core import __version__
 from camcal.fitset import AttenuationCheck, FolderFit
 
@@ -56,17 +56,26 @@ def fit_detail(fit: ChiSquareFit) -> dict[str, Any]:
 NO_BUDGET = "no budget"
 
 
-def estimate_entry(e: Estimate, sys_err_m: float, *, budget: bool = True) -> dict[str, Any]:
+def estimate_entry(
+    e: Estimate, sys_err_m: float, *, budget: bool = True, sys_down_up_m: tuple[float, float] | None = None
+) -> dict[str, Any]:
     """One length: a value with its errors, or a one-sided limit (then ``value_m`` is null).
 
-    ``budget=False`` (a fit made with ``--no-systematics``): ``sys_err_m`` is
-    null and ``systematics`` says "no budget", so no reader prints ± 0.00.
+    ``sys_err_m`` is the systematic error's RMS, ``sys_down_up_m`` its
+    downward and upward parts (`SystematicBudget.sys_down_m`; equal to
+    ``sys_err_m`` when not given). ``budget=False`` (a fit made with
+    ``--no-systematics``): the systematic errors are null and
+    ``systematics`` says "no budget", so no reader prints ± 0.00.
     """
+    quoted = e.measured and budget
+    down, up = sys_down_up_m or (sys_err_m, sys_err_m)
     return {
         "status": e.status,
         "value_m": _r(e.value_m, 3),
         "err_m": _r(e.err_m, 3),
-        "sys_err_m": _r(sys_err_m, 3) if e.measured and budget else None,
+        "sys_err_m": _r(sys_err_m, 3) if quoted else None,
+        "sys_err_down_m": _r(down, 3) if quoted else None,
+        "sys_err_up_m": _r(up, 3) if quoted else None,
         "systematics": "budget" if budget else NO_BUDGET,
         "interval_m": [_r(v, 3) for v in e.interval_m] if e.interval_m else None,
         "limit_m": _r(e.limit_m, 3),
@@ -75,7 +84,8 @@ def estimate_entry(e: Estimate, sys_err_m: float, *, budget: bool = True) -> dic
 
 
 def estimate_text(entry: dict[str, Any], key: str, digits: int = 2) -> str:
-    """``"39.20 ± 1.10 ± 0.30 (sys) m"``, ``"> 180 m (95 % CL)"`` or ``"unconstrained"`` from a fit entry.
+    """``"39.20 ± 1.10 ± 0.30 (sys) m"`` (``+4.10/−0.90 (sys)`` where the systematic error is
+    asymmetric), ``"> 180 m (95 % CL)"`` or ``"unconstrained"`` from a fit entry.
 
     ``key`` is ``"lambda_abs"`` or ``"lambda_sca"``; documents written before
     the estimates existed fall back to their flat keys.
@@ -87,6 +97,8 @@ def estimate_text(entry: dict[str, Any], key: str, digits: int = 2) -> str:
     if e["status"] == "measured" and e.get("value_m") is not None:
         if e.get("systematics") == NO_BUDGET:
             sys_txt = f" ({NO_BUDGET})"
+        elif e.get("sys_err_up_m") is not None and e.get("sys_err_down_m") is not None:
+            sys_txt = f" {sys_text(e['sys_err_up_m'], e['sys_err_down_m'], digits)} (sys)"
         elif e.get("sys_err_m") is not None:
             sys_txt = f" ± {e['sys_err_m']:.{digits}f} (sys)"
         else:
@@ -116,6 +128,9 @@ def budget_entry(b: SystematicBudget) -> dict[str, Any]:
                 "lambda_abs_err_m": _r(i.lambda_abs_m, 3),
                 "lambda_sca_err_m": _r(i.lambda_sca_m, 3),
                 "lambda_att_err_m": _r(i.lambda_att_m, 3),
+                "errors_up_m": [_r(v, 3) for v in i.up_m],
+                "errors_down_m": [_r(v, 3) for v in i.down_m],
+                "errors_text": [sys_text(u, d, 3) for u, d in zip(i.up_m, i.down_m, strict=True)],
                 "profiled": i.profiled,
                 "note": i.note,
             }
@@ -124,6 +139,9 @@ def budget_entry(b: SystematicBudget) -> dict[str, Any]:
         "lambda_abs_sys_m": _r(b.lambda_abs_sys_m, 3),
         "lambda_sca_sys_m": _r(b.lambda_sca_sys_m, 3),
         "lambda_att_sys_m": _r(b.lambda_att_sys_m, 3),
+        "sys_up_m": [_r(b.sys_up_m(k), 3) for k in range(3)],
+        "sys_down_m": [_r(b.sys_down_m(k), 3) for k in range(3)],
+        "sys_text": [sys_text(b.sys_up_m(k), b.sys_down_m(k), 3) for k in range(3)],
         "seconds": _r(b.seconds, 2),
     }
 
@@ -141,8 +159,12 @@ def fit_entry(f: ChiSquareFit, chk: AttenuationCheck) -> dict[str, Any]:
     ab, sc = f.lambda_abs, f.lambda_sca
     return {
         "wavelength_nm": f.wavelength_nm,
-        "lambda_abs": estimate_entry(ab, f.lambda_abs_sys_err_m, budget=f.systematics is not None),
-        "lambda_sca": estimate_entry(sc, f.lambda_sca_sys_err_m, budget=f.systematics is not None),
+        "lambda_abs": estimate_entry(
+            ab, f.lambda_abs_sys_err_m, budget=f.systematics is not None, sys_down_up_m=f.sys_interval_m(0)
+        ),
+        "lambda_sca": estimate_entry(
+            sc, f.lambda_sca_sys_err_m, budget=f.systematics is not None, sys_down_up_m=f.sys_interval_m(1)
+        ),
         "lambda_abs_m": _r(ab.value_m, 3),
         "lambda_abs_err_m": _r(ab.err_m, 3),
         "lambda_abs_sys_err_m": _r(f.lambda_abs_sys_err_m, 3) if ab.measured else None,

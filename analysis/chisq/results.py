@@ -157,6 +157,15 @@ def cases_text(cases: tuple[str, ...] | list[str], most: int = 6) -> str:
     return f"{cases[0]} … {cases[-1]} ({len(cases)} refits)"
 
 
+def sys_text(up_m: float, down_m: float, digits: int = 2) -> str:
+    """A systematic error as text: "± 0.30" when both sides agree at ``digits``, else "+4.10/−0.90"
+    ("—" for a length the fit only bounds)."""
+    if not (math.isfinite(up_m) and math.isfinite(down_m)):
+        return "—"
+    u, d = f"{up_m:.{digits}f}", f"{down_m:.{digits}f}"
+    return f"± {u}" if u == d else f"+{u}/−{d}"
+
+
 def largest_shift(values: tuple[float, ...]) -> float:
     """The largest finite |shift| of a budget item (NaN when none is finite)."""
     finite = [abs(v) for v in values if math.isfinite(v)]
@@ -171,8 +180,12 @@ class SystematicShift:
     ``delta_chi2`` each case's χ² minimum less the reference's (positive: the
     data prefer the nominal). ``errors_m`` is the item's error on (λ_abs,
     λ_sca, λ_att): the largest |shift| unless ``note`` says how the data
-    narrowed it (`analysis.chisq.systematics`). A length the fit only bounds
-    gets NaN. ``profiled`` items are nuisances the fit already floats with a
+    narrowed it (`analysis.chisq.systematics`). ``errors_up_m`` and
+    ``errors_down_m``, where given, split that error by the shifts' sign:
+    how far the lengths may lie above and below the value (for the phase
+    function, whose refits move λ_abs up much further than down); without
+    them the error is symmetric. A length the fit only bounds gets NaN.
+    ``profiled`` items are nuisances the fit already floats with a
     prior (their error is inside the fit error): they are listed as impacts
     and not added to the systematic error again.
     """
@@ -187,6 +200,22 @@ class SystematicShift:
     errors_m: tuple[float, float, float]
     profiled: bool = False
     note: str = ""
+    errors_up_m: tuple[float, float, float] | None = None
+    errors_down_m: tuple[float, float, float] | None = None
+
+    @property
+    def up_m(self) -> tuple[float, float, float]:
+        """The error upward on (λ_abs, λ_sca, λ_att): how far above the value the lengths may lie."""
+        return self.errors_m if self.errors_up_m is None else self.errors_up_m
+
+    @property
+    def down_m(self) -> tuple[float, float, float]:
+        """The error downward on (λ_abs, λ_sca, λ_att)."""
+        return self.errors_m if self.errors_down_m is None else self.errors_down_m
+
+    @property
+    def asymmetric(self) -> bool:
+        return self.errors_up_m is not None
 
     @property
     def lambda_abs_m(self) -> float:
@@ -201,22 +230,37 @@ class SystematicShift:
         return self.errors_m[2]
 
 
+def _quadrature(vals: list[float]) -> float:
+    if not vals or any(math.isnan(v) for v in vals):
+        return float("nan")
+    return math.sqrt(sum(v * v for v in vals))
+
+
 @dataclass(frozen=True)
 class SystematicBudget:
     """The shifts of what the fit holds fixed, one at a time, and their sum in quadrature.
 
     The sums leave out the ``profiled`` items (already in the fit error);
-    NaN when the length is only bounded.
+    NaN when the length is only bounded. `sys_up_m` and `sys_down_m` sum
+    each side separately (a symmetric item counts on both), for a length
+    ``k`` (0 λ_abs, 1 λ_sca, 2 λ_att).
     """
 
     items: tuple[SystematicShift, ...]
     seconds: float
 
     def _sum(self, attr: str) -> float:
-        vals = [getattr(i, attr) for i in self.items if not i.profiled]
-        if not vals or any(math.isnan(v) for v in vals):
-            return float("nan")
-        return math.sqrt(sum(v * v for v in vals))
+        return _quadrature([getattr(i, attr) for i in self.items if not i.profiled])
+
+    def sys_up_m(self, k: int) -> float:
+        return _quadrature([i.up_m[k] for i in self.items if not i.profiled])
+
+    def sys_down_m(self, k: int) -> float:
+        return _quadrature([i.down_m[k] for i in self.items if not i.profiled])
+
+    @property
+    def asymmetric(self) -> bool:
+        return any(i.asymmetric for i in self.items if not i.profiled)
 
     @property
     def lambda_abs_sys_m(self) -> float:
@@ -303,6 +347,14 @@ class ChiSquareFit:
             lambda_sca_sys_err_m=budget.lambda_sca_sys_m,
             lambda_att_sys_err_m=budget.lambda_att_sys_m,
         )
+
+    def sys_interval_m(self, k: int) -> tuple[float, float]:
+        """The systematic error (down, up) of λ_abs (k=0), λ_sca (1) or λ_att (2): the budget's
+        one-sided sums, or the symmetric error when there is no budget."""
+        if self.systematics is not None:
+            return self.systematics.sys_down_m(k), self.systematics.sys_up_m(k)
+        sym = (self.lambda_abs_sys_err_m, self.lambda_sca_sys_err_m, self.lambda_att_sys_err_m)[k]
+        return sym, sym
 
     @property
     def has_result(self) -> bool:

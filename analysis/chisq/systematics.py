@@ -237,6 +237,7 @@ def _shift_item(
     *,
     profiled: bool = False,
     note: str = "",
+    sides: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> SystematicShift:
     return SystematicShift(
         name,
@@ -249,7 +250,13 @@ def _shift_item(
         (float(errors[0]), float(errors[1]), float(errors[2])),
         profiled=profiled,
         note=note,
+        errors_up_m=None if sides is None else _triple(sides[0]),
+        errors_down_m=None if sides is None else _triple(sides[1]),
     )
+
+
+def _triple(v: np.ndarray) -> tuple[float, float, float]:
+    return float(v[0]), float(v[1]), float(v[2])
 
 
 def _largest(d: np.ndarray) -> np.ndarray:
@@ -275,6 +282,8 @@ class Marginal:
     spread_m: np.ndarray
     mean: tuple[float, ...]
     sd: tuple[float, ...]
+    up_m: np.ndarray
+    down_m: np.ndarray
 
     @property
     def rms_m(self) -> np.ndarray:
@@ -305,7 +314,7 @@ def marginal_posterior(axes: Sequence[Sequence[float]], d: np.ndarray, error_sca
     keep = [k for k, ax in enumerate(axes) if len(ax) > 1]
     if not keep:  # nothing varied: no shift, no spread
         zero = np.zeros(3)
-        return Marginal(zero, zero, tuple(float(ax[0]) for ax in axes), tuple(0.0 for _ in axes))
+        return Marginal(zero, zero, tuple(float(ax[0]) for ax in axes), tuple(0.0 for _ in axes), zero, zero)
     bounded = [not np.all(np.isfinite(d[..., k])) for k in range(3)]
     vals = np.nan_to_num(d.reshape([len(axes[k]) for k in keep] + [4]))
     pts = [np.asarray(axes[k], dtype=float) for k in keep]
@@ -333,13 +342,15 @@ def marginal_posterior(axes: Sequence[Sequence[float]], d: np.ndarray, error_sca
     for k in range(len(pts)):  # the trapezoid rule along each axis
         w *= trapezoid.reshape([-1 if j == k else 1 for j in range(len(pts))])
     w /= w.sum()
-    shift, spread = np.empty(3), np.empty(3)
+    shift, spread, up, down = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     for k in range(3):
         if bounded[k]:
-            shift[k] = spread[k] = np.nan
+            shift[k] = spread[k] = up[k] = down[k] = np.nan
             continue
         shift[k] = float(np.sum(w * vals[..., k]))
         spread[k] = math.sqrt(max(float(np.sum(w * (vals[..., k] - shift[k]) ** 2)), 0.0))
+        up[k] = math.sqrt(float(np.sum(w * np.maximum(vals[..., k], 0.0) ** 2)))
+        down[k] = math.sqrt(float(np.sum(w * np.minimum(vals[..., k], 0.0) ** 2)))
     mean, sd = [], []
     it = iter(range(len(pts)))
     for k, ax in enumerate(axes):
@@ -351,7 +362,7 @@ def marginal_posterior(axes: Sequence[Sequence[float]], d: np.ndarray, error_sca
         m = float(np.sum(w * mesh[..., j]))
         mean.append(m)
         sd.append(math.sqrt(max(float(np.sum(w * (mesh[..., j] - m) ** 2)), 0.0)))
-    return Marginal(shift, spread, tuple(mean), tuple(sd))
+    return Marginal(shift, spread, tuple(mean), tuple(sd), up, down)
 
 
 def systematic_budget(
@@ -395,16 +406,20 @@ def systematic_budget(
         box_text = (
             f"⟨cos θ⟩ {gs[0]:g}-{gs[-1]:g} × Rayleigh share {rs[0]:g}-{rs[-1]:g} (nominal {g0:g}/{r0:g})"
         )
+        used = data if config.narrow_by_data else prior
         if config.narrow_by_data:
-            errors = data.rms_m
             note = f"error: RMS shift over the data's posterior on {box_text}; {said}"
         else:
-            errors = prior.rms_m
             note = f"error: RMS shift over a uniform prior on {box_text}; {said} (not used)"
+        note += "; up and down: the RMS of the upward and of the downward shifts"
         if refit.edge_hits > hits:
             note += EDGE_NOTE
         label = "phase function: Mie ⟨cos θ⟩ and Rayleigh share (jointly)"
-        items.append(_shift_item("phase_function", label, cases, d, errors, note=note))
+        items.append(
+            _shift_item(
+                "phase_function", label, cases, d, used.rms_m, note=note, sides=(used.up_m, used.down_m)
+            )
+        )
     cases = [
         (shape, {"grid": variations[f"emission={shape}"]})
         for shape in config.emission_shapes

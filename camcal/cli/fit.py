@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -268,8 +267,8 @@ def print_fits(result: FolderFit) -> None:
         scaled = f" [yellow](errors ×{f.error_scale:.2f})[/]" if f.error_scale > 1 else ""
         table.add_row(
             str(wl),
-            _length(f.lambda_abs, f.lambda_abs_sys_err_m, budget=f.systematics is not None),
-            _length(f.lambda_sca, f.lambda_sca_sys_err_m, budget=f.systematics is not None),
+            _length(f.lambda_abs, f.sys_interval_m(0), budget=f.systematics is not None),
+            _length(f.lambda_sca, f.sys_interval_m(1), budget=f.systematics is not None),
             f"{f.lambda_att_m:.2f} ± {chk.lambda_att_fit_err_m:.2f}",
             ic,
             verdict,
@@ -277,7 +276,8 @@ def print_fits(result: FolderFit) -> None:
         )
     console.print(table)
     console.print(
-        "errors: fit (statistical and floated nuisances, ×√(χ²/ndof) where that exceeds 1) ± systematic; "
+        "errors: fit (statistical and floated nuisances, ×√(χ²/ndof) where that exceeds 1) ± systematic "
+        "(+up/−down where the budget is one-sided); "
         "a length the data only bound is a one-sided 95 % CL limit",
         style="dim",
     )
@@ -293,17 +293,22 @@ def print_fits(result: FolderFit) -> None:
         console.print(f"[yellow]{wl} nm skipped:[/] {why}")
 
 
-def _length(e: Estimate, sys_err_m: float, *, budget: bool) -> str:
+def _length(e: Estimate, sys_down_up_m: tuple[float, float], *, budget: bool) -> str:
+    from analysis.chisq.results import sys_text
+
     if e.measured:
         if not budget:
             return f"{e.value_m:.2f} ± {e.err_m:.2f} (no budget)"
-        return f"{e.value_m:.2f} ± {e.err_m:.2f} ± {sys_err_m:.2f}"
+        return f"{e.value_m:.2f} ± {e.err_m:.2f} {sys_text(sys_down_up_m[1], sys_down_up_m[0])}"
     return e.text("").strip()
 
 
 def print_budget(f: ChiSquareFit) -> None:
     """One wavelength's systematic budget: each item's error on λ_abs, λ_sca, λ_att."""
-    from analysis.chisq.results import cases_text
+    from analysis.chisq.results import cases_text, sys_text
+
+    def err(up: float, down: float) -> str:
+        return sys_text(up, down, 3).removeprefix("± ")
 
     b = f.systematics
     assert b is not None
@@ -316,21 +321,13 @@ def print_budget(f: ChiSquareFit) -> None:
         table.add_row(
             i.label,
             cases_text(i.cases),
-            _num(i.lambda_abs_m),
-            _num(i.lambda_sca_m),
-            _num(i.lambda_att_m),
+            *(err(i.up_m[k], i.down_m[k]) for k in range(3)),
             ("floated in the fit: inside its error, not added. " if i.profiled else "") + i.note,
         )
     table.add_row(
         "[bold]sum in quadrature[/]",
         "",
-        _num(b.lambda_abs_sys_m),
-        _num(b.lambda_sca_sys_m),
-        _num(b.lambda_att_sys_m),
+        *(err(b.sys_up_m(k), b.sys_down_m(k)) for k in range(3)),
         f"{b.seconds:.1f} s",
     )
     console.print(table)
-
-
-def _num(x: float) -> str:
-    return "—" if not math.isfinite(x) else f"{x:.3f}"

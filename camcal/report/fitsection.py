@@ -138,6 +138,13 @@ def fit_section(d: ReportData) -> str:
 _FLOATED = "floated in the fit: inside the fit error, not added. "
 
 
+def _errors(item: dict[str, Any], *keys: str) -> list[str]:
+    """A budget line's errors on the three lengths: "0.300" or "+4.100/−0.900" (asymmetric)."""
+    if "errors_text" in item:
+        return [t.removeprefix("± ") for t in item["errors_text"]]
+    return [num(item[k], 3) for k in keys]
+
+
 def _two_lines(text: str) -> Raw:
     """A length's text with its systematic part (or "no budget") on a second line.
 
@@ -150,6 +157,9 @@ def _two_lines(text: str) -> Raw:
     parts = text.split(" ± ")
     if len(parts) == 3:
         return Raw(f'{esc(parts[0])} ± {esc(parts[1])}<br><span class="muted">± {esc(parts[2])}</span>')
+    if len(parts) == 2 and " +" in parts[1]:  # "39.20 ± 1.10 +4.10/−0.90 (sys) m"
+        err, sys = parts[1].split(" +", 1)
+        return Raw(f'{esc(parts[0])} ± {esc(err)}<br><span class="muted">+{esc(sys)}</span>')
     return Raw(esc(text))
 
 
@@ -165,9 +175,7 @@ def _budgets(fits: list[dict[str, Any]]) -> str:
                 i["label"],
                 cases_text(i["cases"]),
                 (_FLOATED if i["profiled"] else "") + i["note"],
-                num(i["lambda_abs_err_m"], 3),
-                num(i["lambda_sca_err_m"], 3),
-                num(i["lambda_att_err_m"], 3),
+                *_errors(i, "lambda_abs_err_m", "lambda_sca_err_m", "lambda_att_err_m"),
             )
             for i in b["items"]
         ]
@@ -176,21 +184,23 @@ def _budgets(fits: list[dict[str, Any]]) -> str:
                 Raw("<b>sum in quadrature</b>"),
                 "",
                 f"refits took {num(b['seconds'], 1)} s",
-                num(b["lambda_abs_sys_m"], 3),
-                num(b["lambda_sca_sys_m"], 3),
-                num(b["lambda_att_sys_m"], 3),
+                *(
+                    [t.removeprefix("± ") for t in b["sys_text"]]
+                    if "sys_text" in b
+                    else [num(b[k], 3) for k in ("lambda_abs_sys_m", "lambda_sca_sys_m", "lambda_att_sys_m")]
+                ),
             )
         )
         head = ["varied", "cases", "note", "λ_abs [m]", "λ_sca [m]", "λ_att [m]"]
         out += f"<h3>{f['wavelength_nm']} nm: systematic budget</h3>" + table(head, rows, text_cols=3)
     if out:
         out = (
-            "<p>What the fit holds fixed, varied: each line's error on the lengths (⟨cos θ⟩ and the "
-            "Rayleigh share, fitted jointly with the lengths under uniform priors: the values quoted "
-            "above are moved by the posterior's mean shift and the line's error is its spread, the "
-            "posterior being the priors times exp(-Δχ²/2s²) over a grid of refits; the emission shape: "
-            "the full shift). The sum in "
-            "quadrature is the systematic error "
+            "<p>What the fit holds fixed, varied: each line's error on the lengths. ⟨cos θ⟩ and the "
+            "Rayleigh share are varied together over a grid of refits, and their line's error is the "
+            "RMS shift over a uniform prior on that box, split into the RMS of the upward and of the "
+            "downward shifts (+up/−down: where λ_sca could fall to λ_att, λ_abs may lie far above the "
+            "value); the values quoted above stay at the nominal phase function. The emission shape: "
+            "the full shift. The sums in quadrature, each side on its own, are the systematic errors "
             "quoted above.</p>" + out
         )
     return out

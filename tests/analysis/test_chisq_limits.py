@@ -10,6 +10,7 @@ import pytest
 
 from analysis.chisq import LOWER_LIMIT, MEASURED, FitConfig, SettingProfiles, fit_wavelength
 from analysis.chisq.limits import error_scale, estimate
+from analysis.chisq.results import SystematicBudget, SystematicShift, sys_text
 from analysis.chisq.systematics import (
     SystematicsConfig,
     marginal_posterior,
@@ -120,11 +121,38 @@ def test_marginal_posterior_weighs_each_shift_by_what_the_data_allow() -> None:
     assert m.shift_m[1] == pytest.approx(50 * 0.02, rel=0.05)
     assert m.spread_m[1] == pytest.approx(50 * 0.005, rel=0.15)
     assert m.rms_m[1] == pytest.approx(math.hypot(m.shift_m[1], m.spread_m[1]))
+    # Upward and downward apart: their squares add up to the RMS's.
+    assert m.up_m[1] ** 2 + m.down_m[1] ** 2 == pytest.approx(m.rms_m[1] ** 2, rel=1e-6)
     # A length the fit only bounds gets no shift and no spread.
     bounded = rows(np.zeros(6))
     bounded[:, 0] = np.nan
     m = marginal_posterior([G], bounded, 1.0)
     assert math.isnan(m.shift_m[0]) and math.isnan(m.spread_m[0]) and np.isfinite(m.shift_m[1])
+
+
+def test_a_one_sided_runaway_gives_a_one_sided_systematic_error() -> None:
+    """Refits that push λ_abs far up at one end of the prior (λ_sca falling to λ_att there) and a
+    little down at the other: the budget says so as +up/−down instead of one symmetric spread."""
+    dx = np.array(G) - 0.93
+    shifts = np.where(dx < 0, 4000 * dx**2, -60 * dx)  # +10 m at 0.88; −1.8 m at 0.96
+    d = np.stack([shifts, 40 * dx, 0 * dx, np.zeros(6)], axis=1)
+    m = marginal_posterior([G], d, 1.0)
+    assert m.up_m[0] > 4 * m.down_m[0] > 0
+    assert m.up_m[0] ** 2 + m.down_m[0] ** 2 == pytest.approx(m.rms_m[0] ** 2, rel=1e-6)
+    # Uniform over 0.88-0.96, the downward part sees only 0.93-0.96 (60 m per unit): √(∫ (60x)²)/√0.08.
+    assert m.down_m[0] == pytest.approx(60 * math.sqrt(0.03**3 / 3 / 0.08), rel=0.03)
+    phase = SystematicShift(
+        "phase_function", "phase", ("a", "b"), (0.0, 0.0), (0.0, 0.0), (0.0, 0.0), (0.0, 0.0),
+        tuple(m.rms_m), errors_up_m=tuple(m.up_m), errors_down_m=tuple(m.down_m),
+    )  # fmt: skip
+    other = SystematicShift("emission", "e", ("h",), (1.0,), (0.1,), (0.2,), (0.0,), (1.0, 0.1, 0.2))
+    budget = SystematicBudget((phase, other), 0.0)
+    # Each side in quadrature on its own, a symmetric line counting on both.
+    assert budget.sys_up_m(0) == pytest.approx(math.hypot(m.up_m[0], 1.0))
+    assert budget.sys_down_m(0) == pytest.approx(math.hypot(m.down_m[0], 1.0))
+    assert budget.asymmetric and not SystematicBudget((other,), 0.0).asymmetric
+    assert sys_text(budget.sys_up_m(0), budget.sys_down_m(0)).startswith("+")
+    assert sys_text(0.304, 0.296) == "± 0.30" and sys_text(float("nan"), 1.0) == "—"
 
 
 def test_marginal_posterior_over_two_parameters_moves_them_together() -> None:

@@ -10,6 +10,7 @@ export function lengthText(f, key) {
   const e = f[key] || { status: "measured", value_m: f[`${key}_m`], err_m: f[`${key}_err_m`], sys_err_m: f[`${key}_sys_err_m`] };
   if (e.status === "measured" && e.value_m !== null && e.value_m !== undefined) {
     let sys = e.sys_err_m === null || e.sys_err_m === undefined ? "" : ` ± ${fmt(e.sys_err_m, 2)}`;
+    if (e.sys_err_up_m != null && e.sys_err_down_m != null) sys = ` ${sysText(e.sys_err_up_m, e.sys_err_down_m, 2)}`;
     if (e.systematics === "no budget") sys = " (no budget)";
     return `${fmt(e.value_m, 2)} ± ${fmt(e.err_m, 2)}${sys}`;
   }
@@ -17,6 +18,19 @@ export function lengthText(f, key) {
     return `${e.status === "lower_limit" ? ">" : "<"} ${Number(e.limit_m).toPrecision(3)} (${Math.round(100 * (e.cl || 0.95))} % CL)`;
   }
   return "unconstrained";
+}
+
+/** A systematic error: "± 0.30" when both sides agree at ``digits``, else "+4.10/−0.90" (as analysis.chisq.results.sys_text). */
+function sysText(up, down, digits) {
+  const u = fmt(up, digits);
+  const d = fmt(down, digits);
+  return u === d ? `± ${u}` : `+${u}/−${d}`;
+}
+
+/** A budget cell: the line's text when the document has one, else its symmetric error. */
+function errCell(text, value, bold) {
+  const style = bold ? { fontWeight: 700 } : {};
+  return el("td", { class: "r", style }, text ? text.replace(/^± /, "") : fmt(value, 3));
 }
 
 function checkCell(f) {
@@ -64,8 +78,17 @@ function budgetTable(f) {
   return el(
     "details",
     { class: "chisq-budget", "data-wl": f.wavelength_nm },
-    el("summary", {}, `${f.wavelength_nm} nm: systematic budget (λ_abs ± ${fmt(b.lambda_abs_sys_m, 2)} m, λ_sca ± ${fmt(b.lambda_sca_sys_m, 2)} m)`),
     el(
+      "summary",
+      {},
+      b.sys_up_m
+        ? `${f.wavelength_nm} nm: systematic budget (λ_abs ${sysText(b.sys_up_m[0], b.sys_down_m[0], 2)} m, λ_sca ${sysText(b.sys_up_m[1], b.sys_down_m[1], 2)} m)`
+        : `${f.wavelength_nm} nm: systematic budget (λ_abs ± ${fmt(b.lambda_abs_sys_m, 2)} m, λ_sca ± ${fmt(b.lambda_sca_sys_m, 2)} m)`,
+    ),
+    el(
+      "div",
+      { class: "table-wrap" },
+      el(
       "table",
       {},
       el("thead", {}, row(["varied", "cases", "λ_abs (m)", "λ_sca (m)", "λ_att (m)", "note"].map((h, i) => el("th", { class: i > 1 && i < 5 ? "r" : "" }, h)))),
@@ -74,25 +97,26 @@ function budgetTable(f) {
         {},
         ...b.items.map((i) =>
           row([
-            el("td", {}, i.label),
+            el("td", { class: "label" }, i.label),
             el("td", {}, i.cases_text ?? i.cases.join(", ")),
-            el("td", { class: "r" }, fmt(i.lambda_abs_err_m, 3)),
-            el("td", { class: "r" }, fmt(i.lambda_sca_err_m, 3)),
-            el("td", { class: "r" }, fmt(i.lambda_att_err_m, 3)),
-            el("td", { class: "muted", style: { whiteSpace: "normal" } }, (i.profiled ? "floated in the fit: inside the fit error, not added. " : "") + (i.note || "")),
+            errCell(i.errors_text?.[0], i.lambda_abs_err_m),
+            errCell(i.errors_text?.[1], i.lambda_sca_err_m),
+            errCell(i.errors_text?.[2], i.lambda_att_err_m),
+            el("td", { class: "muted note" }, (i.profiled ? "floated in the fit: inside the fit error, not added. " : "") + (i.note || "")),
           ]),
         ),
         row(
           [
             el("td", { style: { fontWeight: 700 } }, "sum in quadrature"),
             el("td", {}, ""),
-            el("td", { class: "r", style: { fontWeight: 700 } }, fmt(b.lambda_abs_sys_m, 3)),
-            el("td", { class: "r", style: { fontWeight: 700 } }, fmt(b.lambda_sca_sys_m, 3)),
-            el("td", { class: "r", style: { fontWeight: 700 } }, fmt(b.lambda_att_sys_m, 3)),
+            errCell(b.sys_text?.[0], b.lambda_abs_sys_m, true),
+            errCell(b.sys_text?.[1], b.lambda_sca_sys_m, true),
+            errCell(b.sys_text?.[2], b.lambda_att_sys_m, true),
             el("td", { class: "muted" }, `refits took ${fmt(b.seconds, 1)} s`),
           ],
         ),
       ),
+    ),
     ),
   );
 }
@@ -117,7 +141,7 @@ export async function showChisqFit(box, dive, runId) {
     el(
       "p",
       { class: "muted" },
-      `Fit ${fit.id} of run ${fit.run_id}'s inputs. Each length: value ± fit error (statistical and floated nuisances, ×√(χ²/ndof) where that exceeds 1) ± systematic, or a one-sided 95 % CL limit where the data only bound it.`,
+      `Fit ${fit.id} of run ${fit.run_id}'s inputs. Each length: value ± fit error (statistical and floated nuisances, ×√(χ²/ndof) where that exceeds 1) ± systematic (+up/−down where the budget is one-sided), or a one-sided 95 % CL limit where the data only bound it.`,
     ),
     el("div", { class: "table-wrap" }, fitsTable(fits)),
   ];

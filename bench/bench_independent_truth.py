@@ -46,7 +46,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from analysis import FrameRecord, Setting, analyze_frame, stack_by_setting
 from analysis.attenuation import EmissionRatio, Geometry
-from analysis.chisq import FitConfig, FitInputError, collect_settings, fit_wavelength
+from analysis.chisq import FitConfig, FitInputError, SettingProfiles, collect_settings, fit_wavelength
 from analysis.chisq.systematics import SystematicsConfig, systematic_budget, variation_settings
 from analysis.scattering import WaterOptics
 from analysis.transport.cache import TemplateCache
@@ -126,6 +126,21 @@ def choose_settings(rend: dict[str, FrameRenderer], wl: int) -> list[tuple[float
     return sorted((e, g) for _, e, g in ok[:3])
 
 
+def frame_profiles(
+    rend: dict[str, FrameRenderer], wl: int, settings: list[tuple[float, float]], seed: int
+) -> list[SettingProfiles]:
+    """``REPEATS`` frames per setting and camera (sensor noise and pointing jitter of ``seed``),
+    analysed and stacked into the fit's per-setting profiles."""
+    rng = np.random.default_rng([seed, wl])
+    records = []
+    for e, g in settings:
+        for _ in range(REPEATS):
+            for name, r in rend.items():
+                frame, _ = r.render(wl, e, g, rng=rng, offset_px=tuple(rng.normal(0, 1.5, 2)))
+                records.append(FrameRecord(name, Setting(wl, e, g), analyze_frame(frame)))
+    return collect_settings(stack_by_setting(records), wl, "A", "B")
+
+
 @dataclass
 class Job:
     water: str
@@ -176,15 +191,8 @@ def run_job(job: Job) -> dict[str, object]:
         if settings_used is None:
             settings_used = choose_settings(rend, job.wl)
             out["settings"] = settings_used
-        rng = np.random.default_rng([seed, job.wl])
-        records = []
-        for e, g in settings_used:
-            for _ in range(REPEATS):
-                for name, r in rend.items():
-                    frame, _ = r.render(job.wl, e, g, rng=rng, offset_px=tuple(rng.normal(0, 1.5, 2)))
-                    records.append(FrameRecord(name, Setting(job.wl, e, g), analyze_frame(frame)))
         try:
-            prof = collect_settings(stack_by_setting(records), job.wl, "A", "B")
+            prof = frame_profiles(rend, job.wl, settings_used, seed)
             t0 = time.perf_counter()
             fit = fit_wavelength(job.wl, prof, job.grid, GEOMETRY, RATIO[job.wl], config)
             t_fit = time.perf_counter() - t0

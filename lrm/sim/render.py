@@ -34,6 +34,7 @@ from analysis.transport.cache import TemplateCache
 from analysis.transport.disk import surface_path_m
 from analysis.transport.templates import EmissionProfile, TemplateGrid, camera_halo
 from lrm.sim.camera import CameraModel
+from lrm.sim.halotable import HaloTable
 from lrm.sim.scene import LEMModel, Placement, Water
 
 #: The coarse grid on which the wide halo is evaluated before upsampling.
@@ -56,6 +57,11 @@ class TransportHalo:
     camera and reach the frame's corner): simulation studies of the fit that
     want the simulator and the fit to share not only the physics but the
     same Monte Carlo sample, so that only the fit itself is tested.
+
+    ``table`` renders a halo another engine made (`lrm.sim.halotable`,
+    Mitsuba 3): frames whose scattered light camcal's transport never
+    touched. It holds one water and a uniform LEM; the renderer refuses
+    another water or an uneven LEM.
     """
 
     cache_dir: str | None = None
@@ -63,6 +69,7 @@ class TransportHalo:
     max_order: int = 6
     seed: int = 7
     grid: TemplateGrid | None = field(default=None, repr=False, compare=False)
+    table: HaloTable | None = field(default=None, repr=False, compare=False)
 
 
 @dataclass(frozen=True)
@@ -174,6 +181,13 @@ class FrameRenderer:
         opts = self.transport
         emission = EmissionProfile(float(self.lem.emission_ratio.get(wavelength_nm, 1.0)))
         side = -1 if self.placement.faces_far_side else 1
+        if opts.table is not None:
+            t = opts.table.water
+            if max(abs(t.lambda_abs_m - water.lambda_abs_m), abs(t.lambda_sca_m - water.lambda_sca_m)) > 1e-6:
+                raise ValueError(f"the halo table is of another water ({opts.table.describe()})")
+            if abs(self.emission_factor(wavelength_nm) - 1.0) > 1e-9 or emission.far_near_ratio != 1.0:
+                raise ValueError("a halo table is of a uniform LEM: give the LEM an emission ratio of 1")
+            return opts.table.at(self.placement.distance_m, self._psi_grid)
         if opts.grid is not None:
             grid = opts.grid
             if abs(grid.settings.focal_px - self.camera.focal_px) > 1e-6 * self.camera.focal_px:

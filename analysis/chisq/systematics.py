@@ -19,8 +19,14 @@ box, is computed and reported in the line's note, but narrows the error
 only with ``SystematicsConfig.narrow_by_data``: on independent frames it
 pointed away from the truth's phase function in about half the turbid sets
 (docs/transport.md). An alternative emission shape counts with its full
-shift. Their sum in quadrature, with the templates' own accuracy on λ_sca,
-is the systematic error quoted.
+shift. The templates' own Monte Carlo sample is varied too: the lengths
+refitted on ``template_samples`` grids of other seeds (same nodes and
+photons), its error √(mean shift²/2), since two independent samples differ
+by √2 of one's error (the higher orders of a node carry ~10 % noise at
+4·10⁵ photons, which a few heavy histories spread over many bands: the
+per-band template errors inside χ² do not describe it). Their sum in
+quadrature, with the templates' accuracy near the limb on λ_sca, is the
+systematic error quoted.
 
 The nuisances the fit already floats with a prior (I0'/I0, the PSF width,
 the two distances) are listed too, as *impacts*: the shift when the
@@ -66,7 +72,9 @@ class SystematicsConfig:
     (not yet trustworthy: see the module). ``emission_shapes``: the alternative
     angular emission shapes of the LEM
     (`analysis.transport.scene.EMISSION_SHAPES`), each counted with its full
-    shift.
+    shift. ``template_samples``: independently seeded template grids the
+    lengths are refitted on, to measure the templates' own Monte Carlo
+    error (0: none).
     """
 
     mie_g_range: tuple[float, float] = (0.88, 0.96)
@@ -75,6 +83,7 @@ class SystematicsConfig:
     phase_photon_factor: float = 4.0
     narrow_by_data: bool = False
     emission_shapes: tuple[str, ...] = ("hemispheres",)
+    template_samples: int = 3
 
     def __post_init__(self) -> None:
         lo, hi = self.mie_g_range
@@ -87,6 +96,8 @@ class SystematicsConfig:
             raise ValueError(f"rayleigh_range must be increasing inside [0, 1], got {self.rayleigh_range}")
         if not self.phase_photon_factor > 0:
             raise ValueError(f"phase_photon_factor must be > 0, got {self.phase_photon_factor}")
+        if self.template_samples < 0:
+            raise ValueError(f"template_samples must be >= 0, got {self.template_samples}")
 
     def mie_g_values(self, nominal: float) -> tuple[float, ...]:
         """The ⟨cos θ⟩ values refitted, the phase templates' nodes: evenly over the range, and the nominal."""
@@ -151,7 +162,8 @@ def variation_settings(
     (1 - g₀)/(1 - g)) and ``"emission=<shape>"`` (the nominal's nodes around
     the fitted lengths and its seed, so its Monte Carlo follows the same
     photons as the nominal templates and the shift is not buried in
-    independent noise).
+    independent noise), and ``"sample=<i>"`` (the nominal's nodes around the
+    fitted lengths, other seeds: the templates' own Monte Carlo error).
     """
     g0 = base.mie_g_nodes[0]
     gs = config.mie_g_values(g0)
@@ -171,7 +183,13 @@ def variation_settings(
     local = replace(base, lambda_sca_nodes_m=nodes_around(base.lambda_sca_nodes_m, lambda_sca_m))
     for shape in config.emission_shapes:
         out[f"emission={shape}"] = replace(local, emission_shape=shape)
+    for i in range(1, config.template_samples + 1):
+        out[f"sample={i}"] = replace(local, seed=base.seed + SAMPLE_SEED_STEP * i)
     return out
+
+
+#: How far apart the seeds of the template samples lie (the nodes' own seeds derive from them).
+SAMPLE_SEED_STEP = 7919
 
 
 class _Refitter:
@@ -431,6 +449,19 @@ def systematic_budget(
         label = "LEM angular emission shape (vs linear in cos θ)"
         note = EDGE_NOTE if refit.edge_hits > hits else ""
         items.append(_shift_item("emission_shape", label, cases, d, _largest(d), note=note))
+    cases = [
+        (f"seed +{SAMPLE_SEED_STEP * i}", {"grid": variations[f"sample={i}"]})
+        for i in range(1, config.template_samples + 1)
+        if f"sample={i}" in variations
+    ]
+    if cases:
+        hits = refit.edge_hits
+        d = refit.shifts(cases)
+        label = "templates' Monte Carlo sample (refitted on other seeds)"
+        note = "error: √(mean shift²/2), two samples differing by √2 of one's error"
+        note += EDGE_NOTE if refit.edge_hits > hits else ""
+        sample_err = np.sqrt(np.mean(d[:, :3] ** 2, axis=0) / 2.0)
+        items.append(_shift_item("template_sample", label, cases, d, sample_err, note=note))
     rel = cfg.lambda_sca_sys_rel
     acc = np.array(
         [[0.0, fit.lambda_sca_m * rel * refit.mask[1], fit.lambda_att_m**2 / fit.lambda_sca_m * rel, 0.0]]

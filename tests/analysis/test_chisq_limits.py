@@ -189,7 +189,14 @@ def test_variations_need_templates_only_near_the_fitted_scattering_lengths() -> 
         "phase:rayleigh=0.17",
         "phase:rayleigh=0.25",
         "emission=hemispheres",
+        "sample=1",
+        "sample=2",
+        "sample=3",
     }
+    # The template samples: the nominal's nodes around the fitted length, other seeds, same photons.
+    seeds = {v[f"sample={i}"].seed for i in (1, 2, 3)} | {base.seed}
+    assert len(seeds) == 4 and v["sample=1"].n_photons == base.n_photons
+    assert v["sample=1"].lambda_sca_nodes_m == v["emission=hemispheres"].lambda_sca_nodes_m
     phase = v["phase:rayleigh=0.1"]
     assert phase.mie_g_nodes == (0.88, 0.9, 0.92, 0.93, 0.94, 0.96)
     assert phase.rayleigh_fraction == 0.1 and v["phase:rayleigh=0.25"].rayleigh_fraction == 0.25

@@ -168,7 +168,13 @@ def test_fit_with_its_systematic_budget(
     (plain,) = json.loads((fitted[2] / "fit.json").read_text())["fits"]
     b = f["systematics"]
     names = [i["name"] for i in b["items"]]
-    assert names[:3] == ["phase_function", "emission_shape", "template_accuracy"]
+    assert names[:4] == ["phase_function", "emission_shape", "template_sample", "template_accuracy"]
+    # The templates' own Monte Carlo: refits on three other seeds, √(mean shift²/2).
+    sample = b["items"][2]
+    assert len(sample["cases"]) == 3 and sample["lambda_sca_err_m"] > 0
+    assert sample["lambda_sca_err_m"] == pytest.approx(
+        (sum(x * x for x in sample["lambda_sca_shift_m"]) / 6) ** 0.5, rel=1e-2, abs=2e-3
+    )
     assert {"emission_ratio", "psf_sigma", "distance_near", "distance_far"} <= set(names)
     held = [i for i in b["items"] if not i["profiled"]]
     for key in ("lambda_abs", "lambda_sca"):

@@ -94,7 +94,9 @@ class Objective:
             method="bounded",
             options={"xatol": 1e-4},
         )
-        return float(res.fun)
+        # The bounded search can miss a valley much narrower than its window (a well-measured
+        # λ_sca profiled along λ_abs): the best point's own value stays a candidate.
+        return min(float(res.fun), g(centre))
 
     def crossing(
         self, best: np.ndarray, k: int, direction: float, target: float, sigma: float
@@ -115,6 +117,10 @@ class Objective:
                 break
             x0 = x1
             step *= 1.6
+        if self.profiled(best, k, x0, width) >= target:
+            # The profile already reaches the target at the inner end (at the best point itself when
+            # the profiled minimum there sits above the 2-D one): the crossing is there, not a root.
+            return float(x0), False
         lo, hi = sorted((x0, x1))
         root = brentq(lambda v: self.profiled(best, k, v, width) - target, lo, hi, xtol=1e-4)
         return float(root), False

@@ -293,7 +293,9 @@ class Marginal:
     ``shift_m`` and ``spread_m``: posterior mean and standard deviation of
     the (λ_abs, λ_sca, λ_att) shifts from the reference (NaN for a length
     the fit only bounds); ``mean`` and ``sd``: each parameter's posterior
-    mean and standard deviation.
+    mean and standard deviation; ``up_m`` and ``down_m``: the RMS of the
+    upward and of the downward shifts, each over its own side of the
+    posterior (a symmetric spread gives both the RMS of the whole).
     """
 
     shift_m: np.ndarray
@@ -367,8 +369,8 @@ def marginal_posterior(axes: Sequence[Sequence[float]], d: np.ndarray, error_sca
             continue
         shift[k] = float(np.sum(w * vals[..., k]))
         spread[k] = math.sqrt(max(float(np.sum(w * (vals[..., k] - shift[k]) ** 2)), 0.0))
-        up[k] = math.sqrt(float(np.sum(w * np.maximum(vals[..., k], 0.0) ** 2)))
-        down[k] = math.sqrt(float(np.sum(w * np.minimum(vals[..., k], 0.0) ** 2)))
+        up[k] = _side_rms(w, vals[..., k] > 0, vals[..., k])
+        down[k] = _side_rms(w, vals[..., k] < 0, vals[..., k])
     mean, sd = [], []
     it = iter(range(len(pts)))
     for k, ax in enumerate(axes):
@@ -381,6 +383,16 @@ def marginal_posterior(axes: Sequence[Sequence[float]], d: np.ndarray, error_sca
         mean.append(m)
         sd.append(math.sqrt(max(float(np.sum(w * (mesh[..., j] - m) ** 2)), 0.0)))
     return Marginal(shift, spread, tuple(mean), tuple(sd), up, down)
+
+
+def _side_rms(w: np.ndarray, side: np.ndarray, shift: np.ndarray) -> float:
+    """√(E[Δλ² | Δλ on that side]): the RMS of the shifts on one side, 0 when there are none.
+
+    Conditional, so that a symmetric spread gives both sides the RMS of the
+    whole (pulls with the side toward the truth then keep an RMS of one).
+    """
+    p = float(np.sum(w[side]))
+    return math.sqrt(float(np.sum(w[side] * shift[side] ** 2)) / p) if p > 1e-12 else 0.0
 
 
 def systematic_budget(
@@ -429,7 +441,7 @@ def systematic_budget(
             note = f"error: RMS shift over the data's posterior on {box_text}; {said}"
         else:
             note = f"error: RMS shift over a uniform prior on {box_text}; {said} (not used)"
-        note += "; up and down: the RMS of the upward and of the downward shifts"
+        note += "; up and down: the RMS of the upward and of the downward shifts, each over its side"
         if refit.edge_hits > hits:
             note += EDGE_NOTE
         label = "phase function: Mie ⟨cos θ⟩ and Rayleigh share (jointly)"

@@ -20,7 +20,7 @@ import pytest
 from camcal.core import wire
 from tests.live.test_ingest import wait_for
 from tests.test_wire import CASES
-from tests.utils.live import make_agent
+from tests.utils.live import make_agent, stop_and_drain
 from tests.utils.rogue import IngestProbe, Rogue, invalid_json_events
 from tests.utils.wiremsgs import frame_parts, png_bytes, sensors_parts
 
@@ -187,8 +187,7 @@ def test_counters_add_up_events_are_json_and_nothing_of_the_good_module_is_lost(
     assert c["malformed"] == sum(h["malformed"].values())
     assert c["nacked"] == sum(h["nacked"].values())
     assert c["nacked"] >= c["malformed"] >= refused_here
-    agent.runner.stop()
-    assert agent.wait_drained(60), agent.outbox.pending_count()
+    assert stop_and_drain([agent]), agent.outbox.pending_count()
     stored = probe.rows("SELECT COUNT(*) FROM frames WHERE module_id='A'")[0][0]
     assert stored == agent.counters["frames_captured"] > 0 and agent.counters["nacked"] == 0
     assert list(invalid_json_events(probe)) == []

@@ -17,7 +17,7 @@ from camcal.core.frameset import read_manifest
 from storage.models import Event, Frame, FrameResult
 from storage.store import Store
 from tests.live.test_ingest import wait_for
-from tests.utils.live import make_agent, start_ingest
+from tests.utils.live import make_agent, start_ingest, stop_and_drain
 
 
 def free_port() -> int:
@@ -57,9 +57,7 @@ def test_sigkill_the_ingest_repeatedly_and_every_frame_is_stored_exactly_once(tm
             time.sleep(1.0)
             proc = start_ingest(data, port, events_port)
         assert wait_for(lambda: all(a.counters["frames_captured"] >= 30 for a in agents), 60)
-        for a in agents:
-            a.runner.stop()
-        assert all(a.wait_drained(60) for a in agents), [a.outbox.pending_count() for a in agents]
+        assert stop_and_drain(agents), [a.outbox.pending_count() for a in agents]
         store = Store.open(data, run_migrations=False)
         with store.read() as s:
             n_frames = s.scalar(select(func.count(Frame.id)))

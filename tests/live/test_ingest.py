@@ -13,7 +13,7 @@ from sqlalchemy import func, select
 from camcal.core import wire
 from ingest.service import IngestService
 from storage.models import AttenuationPoint, Event, Frame, FrameResult, SensorSample
-from tests.utils.live import TcpProxy, make_agent
+from tests.utils.live import TcpProxy, make_agent, stop_and_drain
 
 
 def wait_for(predicate, timeout: float, interval: float = 0.05) -> bool:
@@ -35,12 +35,6 @@ def count(svc: IngestService, model) -> int:
         return int(s.scalar(select(func.count(model.id))))
 
 
-def finish(agents) -> None:
-    for a in agents:
-        a.runner.stop()
-    time.sleep(0.3)
-
-
 def test_two_modules_every_frame_stored_once_analysed_with_attenuation(
     service: IngestService, tmp_path: Path
 ) -> None:
@@ -48,8 +42,7 @@ def test_two_modules_every_frame_stored_once_analysed_with_attenuation(
     for a in agents:
         a.start()
     assert wait_for(lambda: all(a.counters["frames_captured"] >= 12 for a in agents), 30)
-    finish(agents)
-    assert all(a.wait_drained(20) for a in agents)
+    assert stop_and_drain(agents, 20)
     for a in agents:
         keys = stored_keys(service, a.config.module)
         assert len(keys) == len(set(keys)) == a.counters["frames_captured"]
@@ -99,8 +92,7 @@ def test_malformed_messages_are_counted_dropped_and_the_good_stream_goes_on(
         "oversized",
     }
     assert wait_for(lambda: agent.counters["frames_captured"] >= 6, 20)
-    finish([agent])
-    assert agent.wait_drained(20)
+    assert stop_and_drain([agent], 20)
     assert len(stored_keys(service, "A")) == agent.counters["frames_captured"]
     rogue.close(0)
     agent.stop()
@@ -119,8 +111,7 @@ def test_a_cut_link_buffers_in_the_outbox_and_catches_up(service: IngestService,
     buffered = agent.outbox.pending_count()
     proxy.restore()
     assert wait_for(lambda: agent.linked.is_set(), 15)
-    finish([agent])
-    assert agent.wait_drained(30), f"{agent.outbox.pending_count()} of {buffered} still pending"
+    assert stop_and_drain([agent], 30), f"{agent.outbox.pending_count()} of {buffered} still pending"
     keys = stored_keys(service, "A")
     assert len(keys) == len(set(keys)) == agent.counters["frames_captured"]
     assert agent.counters["link_lost"] >= 1 and agent.counters["resends_queued"] >= 0

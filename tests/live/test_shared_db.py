@@ -23,8 +23,8 @@ from storage.models import AnalysisRun, AttenuationPoint, Dive, Frame, FrameResu
 from storage.store import Store
 from tests.live.conftest import ingest_config
 from tests.live.test_faults import free_port
-from tests.live.test_ingest import finish, stored_keys, wait_for
-from tests.utils.live import make_agent, start_ingest
+from tests.live.test_ingest import stored_keys, wait_for
+from tests.utils.live import make_agent, start_ingest, stop_and_drain
 
 
 def test_an_ingest_refuses_the_modules_it_does_not_serve(tmp_path: Path) -> None:
@@ -36,8 +36,8 @@ def test_an_ingest_refuses_the_modules_it_does_not_serve(tmp_path: Path) -> None
             a.start()
         a, b = agents
         assert wait_for(lambda: a.counters["acked"] >= 4 and svc.refused["B"] >= 2, 20)
-        finish(agents)
-        assert a.wait_drained(20)
+        b.runner.stop()  # B is refused: its frames stay in its outbox
+        assert stop_and_drain([a], 20)
         assert not b.linked.is_set() and b.counters["acked"] == 0
         assert b.outbox.pending_count() >= b.counters["frames_captured"] > 0, "B must keep its frames"
         assert stored_keys(svc, "B") == [] and len(stored_keys(svc, "A")) == a.counters["frames_captured"]
@@ -132,9 +132,7 @@ def test_two_ingests_share_a_database_and_one_survives_sigkill(tmp_path: Path, p
         procs["A"] = start_ingest_for(data, pg_empty_url, "A", *ports["A"])
         health_where(lambda h: h["status"] == "ok" and h["modules"]["A"]["link"] == "up", "A's ingest back")
         assert wait_for(lambda: all(a.counters["frames_captured"] >= 16 for a in agents.values()), 60)
-        for a in agents.values():
-            a.runner.stop()
-        assert all(a.wait_drained(60) for a in agents.values()), _logs(tmp_path)
+        assert stop_and_drain(list(agents.values())), _logs(tmp_path)
         n_frames = _count(store, Frame)
         assert wait_for(lambda: _count(store, FrameResult) == n_frames, 60), "frames left unanalysed"
     finally:

@@ -379,3 +379,24 @@ def start_ingest(
             stderr=out,
             start_new_session=True,
         )
+
+
+def stop_and_drain(agents: list[Agent], timeout: float = 60.0, quiet_s: float = 1.5) -> bool:
+    """Stop the agents' schedules, let a shot already being taken reach the outbox, then wait until
+    the ship has acknowledged everything.
+
+    A shot the runner began before ``stop`` still ends in the outbox (capture, PNG encoding) a moment
+    later; an outbox that is empty before it arrives is not drained. So the capture counts must stay
+    put for ``quiet_s`` first. True when all outboxes drained within ``timeout``.
+    """
+    for a in agents:
+        a.runner.stop()
+    end = time.monotonic() + timeout
+    last = [a.counters["frames_captured"] for a in agents]
+    still_since = time.monotonic()
+    while time.monotonic() - still_since < quiet_s and time.monotonic() < end:
+        time.sleep(0.1)
+        now = [a.counters["frames_captured"] for a in agents]
+        if now != last:
+            last, still_since = now, time.monotonic()
+    return all(a.wait_drained(max(end - time.monotonic(), 0.0)) for a in agents)

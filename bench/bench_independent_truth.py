@@ -203,6 +203,7 @@ def run_job(job: Job) -> dict[str, object]:
         # --narrow-by-data) belongs to each set's data.
         sys_config = SystematicsConfig(narrow_by_data=job.narrow)
         budget = systematic_budget(fit, prof, job.grid, job.variations, sys_config)
+        fit = fit.with_budget(budget)  # a limit loosened by the phase refits, as `camcal fit` quotes it
         line = next((i for i in budget.items if i.name == "phase_function"), None)
         if "budget" not in out:
             out["budget_seconds"] = budget.seconds

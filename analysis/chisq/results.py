@@ -248,6 +248,9 @@ class SystematicBudget:
 
     items: tuple[SystematicShift, ...]
     seconds: float
+    #: The limits (λ_abs, λ_sca) keep once the phase function is varied: for a length the nominal fit
+    #: only bounds, the loosest bound any phase refit reaches (None: no limit, or none looser).
+    limits_m: tuple[float | None, float | None] = (None, None)
 
     def _sum(self, attr: str) -> float:
         return _quadrature([getattr(i, attr) for i in self.items if not i.profiled])
@@ -339,10 +342,21 @@ class ChiSquareFit:
         return self.chi2 / self.ndof if self.ndof > 0 else float("nan")
 
     def with_budget(self, budget: SystematicBudget) -> ChiSquareFit:
-        """This fit with the systematic budget attached and its sums as the systematic errors."""
+        """This fit with the systematic budget attached and its sums as the systematic errors.
+
+        A limit is loosened to the budget's (`SystematicBudget.limits_m`): "λ_abs > 281 m" at the
+        nominal phase function becomes "> 24 m" when a refit at another ⟨cos θ⟩ reaches 24 m.
+        """
+        ab, sc = self.lambda_abs, self.lambda_sca
+        if budget.limits_m[0] is not None and ab.status in (LOWER_LIMIT, UPPER_LIMIT):
+            ab = replace(ab, limit_m=budget.limits_m[0])
+        if budget.limits_m[1] is not None and sc.status in (LOWER_LIMIT, UPPER_LIMIT):
+            sc = replace(sc, limit_m=budget.limits_m[1])
         return replace(
             self,
             systematics=budget,
+            lambda_abs=ab,
+            lambda_sca=sc,
             lambda_abs_sys_err_m=budget.lambda_abs_sys_m,
             lambda_sca_sys_err_m=budget.lambda_sca_sys_m,
             lambda_att_sys_err_m=budget.lambda_att_sys_m,

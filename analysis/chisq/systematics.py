@@ -52,7 +52,13 @@ import numpy as np
 
 from analysis.attenuation import EmissionRatio
 from analysis.chisq.data import SettingProfiles
-from analysis.chisq.results import ChiSquareFit, SystematicBudget, SystematicShift
+from analysis.chisq.results import (
+    LOWER_LIMIT,
+    UPPER_LIMIT,
+    ChiSquareFit,
+    SystematicBudget,
+    SystematicShift,
+)
 from analysis.chisq.wavelength import make_objective
 from analysis.transport.templates import TemplateGrid, TemplateSettings
 
@@ -385,6 +391,31 @@ def marginal_posterior(axes: Sequence[Sequence[float]], d: np.ndarray, error_sca
     return Marginal(shift, spread, tuple(mean), tuple(sd), up, down)
 
 
+def phase_limits(fit: ChiSquareFit, refits: Sequence[np.ndarray]) -> tuple[float | None, float | None]:
+    """For a length the nominal fit only bounds: the loosest bound the phase refits reach.
+
+    A lower limit at the nominal ⟨cos θ⟩ says nothing of the water when the
+    water's ⟨cos θ⟩ is another: a refit there may put the length's minimum far
+    below it (turbid water, a truth at ⟨cos θ⟩ 0.956: "λ_abs > 281 m" at the
+    nominal 0.93, 24 m at 0.96, truth 30 m). The quoted limit becomes the
+    smallest refitted position (the largest, for an upper limit) where that
+    is looser; None where the nominal's stands.
+    """
+    out: list[float | None] = []
+    for k, est in enumerate((fit.lambda_abs, fit.lambda_sca)):
+        found = [float(r[k]) for r in refits if math.isfinite(float(r[k]))]
+        lim = est.limit_m
+        if not found or lim is None:
+            out.append(None)
+        elif est.status == LOWER_LIMIT and min(found) < lim:
+            out.append(min(found))
+        elif est.status == UPPER_LIMIT and max(found) > lim:
+            out.append(max(found))
+        else:
+            out.append(None)
+    return out[0], out[1]
+
+
 def _side_rms(w: np.ndarray, side: np.ndarray, shift: np.ndarray) -> float:
     """√(E[Δλ² | Δλ on that side]): the RMS of the shifts on one side, 0 when there are none.
 
@@ -413,6 +444,7 @@ def systematic_budget(
     refit = _Refitter(fit, settings, grid)
     cfg = fit.config
     items: list[SystematicShift] = []
+    limits: tuple[float | None, float | None] = (None, None)
     g0, r0 = fit.mie_g, grid.settings.rayleigh_fraction
     gs, rs = config.mie_g_values(g0), config.rayleigh_values(r0)
     if all(f"phase:rayleigh={r:g}" in variations for r in rs):
@@ -444,6 +476,14 @@ def systematic_budget(
         note += "; up and down: the RMS of the upward and of the downward shifts, each over its side"
         if refit.edge_hits > hits:
             note += EDGE_NOTE
+        limits = phase_limits(fit, [refit.reference(**kw) for _, kw in cases])
+        for k, lim in enumerate(limits):
+            if lim is not None:
+                name = ("λ_abs", "λ_sca")[k]
+                note += (
+                    f"; {name} is only bounded at the nominal phase function; a refit reaches "
+                    f"{lim:.3g} m, so the limit quoted is that"
+                )
         label = "phase function: Mie ⟨cos θ⟩ and Rayleigh share (jointly)"
         items.append(
             _shift_item(
@@ -481,7 +521,7 @@ def systematic_budget(
     label = "templates' accuracy (quadrature near the limb, MC normalisation)"
     items.append(_shift_item("template_accuracy", label, [(f"±{100 * rel:g} %", {})], acc, _largest(acc)))
     items += _profiled_impacts(fit, refit)
-    return SystematicBudget(tuple(items), time.perf_counter() - t0)
+    return SystematicBudget(tuple(items), time.perf_counter() - t0, limits)
 
 
 def _profiled_impacts(fit: ChiSquareFit, refit: _Refitter) -> list[SystematicShift]:

@@ -16,6 +16,7 @@ from analysis.chisq.systematics import (
     marginal_posterior,
     nodes_around,
     nodes_covering,
+    phase_limits,
     variation_settings,
 )
 from analysis.chisq.wavelength import make_objective
@@ -46,6 +47,15 @@ def test_a_minimum_beyond_the_range_is_a_lower_limit_not_a_value(
     assert fit.lambda_sca.status == MEASURED and fit.has_result
     entry = {"lambda_abs": {"status": est.status, "limit_m": est.limit_m, "cl": est.cl}}
     assert estimate_text(entry, "lambda_abs") == f"> {est.limit_m:.3g} m (95 % CL)"
+    # Varying the phase function: a refit that reaches below the limit loosens it (the nominal's
+    # limit says nothing of a water with another ⟨cos θ⟩); one that stays above leaves it.
+    refits = [np.array([est.limit_m * 0.4, 140.0, 40.0, 0.0]), np.array([60.0, 150.0, 42.0, 0.0])]
+    assert phase_limits(fit, refits) == (pytest.approx(est.limit_m * 0.4), None)
+    assert phase_limits(fit, refits[1:]) == (None, None)
+    loose = fit.with_budget(SystematicBudget((), 0.0, (est.limit_m * 0.4, None)))
+    assert loose.lambda_abs.status == LOWER_LIMIT
+    assert loose.lambda_abs.limit_m == pytest.approx(est.limit_m * 0.4)
+    assert loose.lambda_sca == fit.lambda_sca
 
 
 def _shrink_errors(settings: list[SettingProfiles], factor: float) -> list[SettingProfiles]:

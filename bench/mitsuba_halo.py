@@ -38,7 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from analysis.transport.disk import disk_radius_px, surface_path_m
 from analysis.transport.scene import LEM_RADIUS_M
-from bench.mitsuba_scene import render_strip
+from bench.mitsuba_scene import MitsubaStrip, render_strip
 
 FOCAL_PX = 1224.0 / math.tan(math.radians(8.0))
 DISTANCES_M = (21.56, 41.62)
@@ -57,7 +57,7 @@ def halo_table(
         np.exp(-surface_path_m(np.minimum(strip.rho_px, r_disk), distance_m, LEM_RADIUS_M, FOCAL_PX) / att),
         0.0,
     )
-    scattered = type(strip)(strip.radiance - direct, strip.rho_px, strip.seconds)
+    scattered = MitsubaStrip(strip.radiance - direct, strip.rho_px, strip.seconds)
     inner = np.linspace(0.0, r_disk - 2.0, 5)
     outer = np.arange(math.ceil(r_disk + 2.0), reach_px - 4, 4.0)
     centres, values, errors = [], [], []

@@ -76,6 +76,7 @@ def estimate_entry(
         "sys_err_m": _r(sys_err_m, 3) if quoted else None,
         "sys_err_down_m": _r(down, 3) if quoted else None,
         "sys_err_up_m": _r(up, 3) if quoted else None,
+        "sys_text": sys_text(up, down) if quoted else None,  # "± 0.30" or "+4.10/−0.90", for pages
         "systematics": "budget" if budget else NO_BUDGET,
         "interval_m": [_r(v, 3) for v in e.interval_m] if e.interval_m else None,
         "limit_m": _r(e.limit_m, 3),

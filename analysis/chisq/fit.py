@@ -117,10 +117,6 @@ class Objective:
                 break
             x0 = x1
             step *= 1.6
-        if self.profiled(best, k, x0, width) >= target:
-            # The profile already reaches the target at the inner end (at the best point itself when
-            # the profiled minimum there sits above the 2-D one): the crossing is there, not a root.
-            return float(x0), False
         lo, hi = sorted((x0, x1))
         root = brentq(lambda v: self.profiled(best, k, v, width) - target, lo, hi, xtol=1e-4)
         return float(root), False

@@ -11,7 +11,6 @@ made these halos. The LEM is uniform (I0'/I0 = 1), as in Mitsuba's scene.
 from __future__ import annotations
 
 import math
-import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -22,14 +21,12 @@ from analysis.chisq import MEASURED, FitConfig, fit_wavelength
 from analysis.chisq.systematics import SystematicsConfig, systematic_budget, variation_settings
 from analysis.transport.cache import TemplateCache
 from analysis.transport.templates import build_template_grid
+from bench.bench_independent_truth import choose_settings, frame_profiles
 from lrm.sim import FrameRenderer
 from lrm.sim.halotable import HaloTable
 from lrm.sim.render import TransportHalo
 from lrm.sim.scene import TREX_PLACEMENTS, LEMModel, Water
 from tests.analysis.transport_cases import GEOMETRY, WAVELENGTH_NM, WaterCase, grid_settings, small_camera
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
-from bench_independent_truth import choose_settings, frame_profiles
 
 TABLES = Path(__file__).resolve().parents[1] / "data" / "mitsuba"
 #: Template nodes around each table's λ_sca.

@@ -10,7 +10,7 @@ export function lengthText(f, key) {
   const e = f[key] || { status: "measured", value_m: f[`${key}_m`], err_m: f[`${key}_err_m`], sys_err_m: f[`${key}_sys_err_m`] };
   if (e.status === "measured" && e.value_m !== null && e.value_m !== undefined) {
     let sys = e.sys_err_m === null || e.sys_err_m === undefined ? "" : ` ± ${fmt(e.sys_err_m, 2)}`;
-    if (e.sys_err_up_m != null && e.sys_err_down_m != null) sys = ` ${sysText(e.sys_err_up_m, e.sys_err_down_m, 2)}`;
+    if (e.sys_text) sys = ` ${e.sys_text}`; // "± 0.30" or "+4.10/−0.90" (camcal.fitdoc)
     if (e.systematics === "no budget") sys = " (no budget)";
     return `${fmt(e.value_m, 2)} ± ${fmt(e.err_m, 2)}${sys}`;
   }
@@ -18,13 +18,6 @@ export function lengthText(f, key) {
     return `${e.status === "lower_limit" ? ">" : "<"} ${Number(e.limit_m).toPrecision(3)} (${Math.round(100 * (e.cl || 0.95))} % CL)`;
   }
   return "unconstrained";
-}
-
-/** A systematic error: "± 0.30" when both sides agree at ``digits``, else "+4.10/−0.90" (as analysis.chisq.results.sys_text). */
-function sysText(up, down, digits) {
-  const u = fmt(up, digits);
-  const d = fmt(down, digits);
-  return u === d ? `± ${u}` : `+${u}/−${d}`;
 }
 
 /** A budget cell: the line's text when the document has one, else its symmetric error. */
@@ -81,8 +74,8 @@ function budgetTable(f) {
     el(
       "summary",
       {},
-      b.sys_up_m
-        ? `${f.wavelength_nm} nm: systematic budget (λ_abs ${sysText(b.sys_up_m[0], b.sys_down_m[0], 2)} m, λ_sca ${sysText(b.sys_up_m[1], b.sys_down_m[1], 2)} m)`
+      f.lambda_abs?.sys_text && f.lambda_sca?.sys_text
+        ? `${f.wavelength_nm} nm: systematic budget (λ_abs ${f.lambda_abs.sys_text} m, λ_sca ${f.lambda_sca.sys_text} m)`
         : `${f.wavelength_nm} nm: systematic budget (λ_abs ± ${fmt(b.lambda_abs_sys_m, 2)} m, λ_sca ± ${fmt(b.lambda_sca_sys_m, 2)} m)`,
     ),
     el(

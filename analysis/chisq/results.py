@@ -214,10 +214,6 @@ class SystematicShift:
         return self.errors_m if self.errors_down_m is None else self.errors_down_m
 
     @property
-    def asymmetric(self) -> bool:
-        return self.errors_up_m is not None
-
-    @property
     def lambda_abs_m(self) -> float:
         return self.errors_m[0]
 
@@ -260,10 +256,6 @@ class SystematicBudget:
 
     def sys_down_m(self, k: int) -> float:
         return _quadrature([i.down_m[k] for i in self.items if not i.profiled])
-
-    @property
-    def asymmetric(self) -> bool:
-        return any(i.asymmetric for i in self.items if not i.profiled)
 
     @property
     def lambda_abs_sys_m(self) -> float:

@@ -26,7 +26,7 @@ from analysis import (
 from camcal.core import __version__
 from camcal.core.frameset import FrameSetError, ManifestRow, Setup, read_manifest, read_setup
 from camcal.core.images import FrameReadError, read_frame
-from camcal.core.parallel import map_in_order
+from camcal.core.parallel import map_in_threads
 
 
 @dataclass(frozen=True)
@@ -170,7 +170,7 @@ def analyze_rows(
             if progress:
                 progress(finished, len(rows))
 
-        for out in map_in_order(_analyze_batch, batches, workers, count):
+        for out in map_in_threads(_analyze_batch, batches, workers, count):
             frames.extend(out)
 
     records = [

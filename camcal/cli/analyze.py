@@ -52,11 +52,6 @@ def analyze(
     if not folder.exists():
         raise fail(f"{folder}: no such frame-set folder or frame file")
     single = folder.is_file()
-    if not single and workers != 1:
-        from camcal.core.parallel import start_fork_server
-
-        start_fork_server()  # the workers' imports run while this process imports and reads the set
-
     from camcal.core.frameset import FrameSetError
     from camcal.pipeline import analyze_rows, load_frame_set, to_json
 

@@ -11,7 +11,8 @@ in ``pyproject.toml`` checks it. What lives here:
 * `camcal.core.schedule` — exposure schedules;
 * `camcal.core.settings` — typed settings from the environment and a config file;
 * `camcal.core.calibrations` — lab calibrations a frame set refers to;
-* `camcal.core.parallel` — the one worker pool (a fork server with the heavy modules loaded);
+* `camcal.core.parallel` — the one worker pool (a fork server with the heavy modules loaded), and
+  threads for the work that runs outside the interpreter's lock (a frame set's decoding and analysis);
 * `camcal.core.supervise`, `camcal.core.procinfo` — how a camcal process starts, reports and ends;
 * `camcal.core.logs` — structured logging.
 """

@@ -18,9 +18,8 @@ from __future__ import annotations
 import multiprocessing
 import os
 import signal
-import threading
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from typing import Any, TypeVar
 
 from camcal.core.supervise import exit_when_gone
@@ -41,20 +40,6 @@ def _get_context() -> Any:
         ctx.set_forkserver_preload(_PRELOAD)
         _context = ctx
     return _context
-
-
-def start_fork_server() -> None:
-    """Start the fork server now, so that its imports run beside this process's own work.
-
-    A pool made later forks its workers from it at once instead of waiting
-    for numpy, OpenCV and the analysis to load (the better part of a second).
-    Cheap to call twice; a process that never makes a pool only paid one idle
-    process.
-    """
-    from multiprocessing import forkserver
-
-    _get_context()  # sets the preload list
-    forkserver.ensure_running()
 
 
 def _init_worker(owner_pid: int, initializer: Callable[..., None] | None, initargs: tuple[Any, ...]) -> None:
@@ -80,43 +65,34 @@ def process_pool(
     )
 
 
-def _ready() -> None:
-    """Nothing: running it proves a worker process is up."""
-
-
-def map_in_order(
+def map_in_threads(
     fn: Callable[[T], R],
     items: Sequence[T],
     workers: int,
     done: Callable[[R], None] | None = None,
 ) -> list[R]:
-    """``[fn(x) for x in items]`` on a pool of ``workers`` processes; ``done`` is called on each result.
+    """``[fn(x) for x in items]`` on ``workers`` threads of this process, in order; ``done`` is called
+    on each result as it comes, in order.
 
-    Starting the pool takes the better part of a second (the fork server
-    imports numpy, OpenCV, SciPy before it forks a worker). Until it is up,
-    this process works through the list itself, so a short job does not
-    wait idle for the pool. ``fn`` must be picklable (module level).
+    For work that runs outside the interpreter's lock: inflating a PNG
+    (libdeflate), OpenCV, numpy's passes over whole frames. Two threads then
+    keep two cores busy without a single process to start (a pool of
+    processes costs the better part of a second before its first result,
+    more than a frame set of a few hundred frames takes). OpenCV's own
+    threads are held at one meanwhile: the threads here already fill the cores.
     """
+    import cv2
+
     results: list[R] = []
-    with process_pool(workers) as pool:
-        up = threading.Event()
-
-        def start() -> None:
-            try:
-                for warm in [pool.submit(_ready) for _ in range(workers)]:
-                    warm.result()
-            finally:
-                up.set()
-
-        starter = threading.Thread(target=start, name="pool-start", daemon=True)
-        starter.start()
-        while not up.is_set() and len(results) < len(items):
-            results.append(fn(items[len(results)]))
-            if done is not None:
-                done(results[-1])
-        starter.join()
-        for future in [pool.submit(fn, item) for item in items[len(results) :]]:
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="camcal-map")
+    try:
+        for future in [pool.submit(fn, item) for item in items]:
             results.append(future.result())
             if done is not None:
                 done(results[-1])
+    finally:  # an error or Ctrl-C: what has not started never starts
+        pool.shutdown(wait=True, cancel_futures=True)
+        cv2.setNumThreads(before)
     return results

@@ -1,27 +1,44 @@
-"""The process pool that the frame-set analysis maps over."""
+"""The threads that a frame set's decoding and analysis map over."""
 
 from __future__ import annotations
 
-import os
+import threading
 import time
 
-from camcal.core.parallel import map_in_order
+import cv2
+import pytest
+
+from camcal.core.parallel import map_in_threads
 
 
-def _square_and_pid(x: int) -> tuple[int, int]:
-    time.sleep(0.02)  # a frame's worth of work: the pool is up long before this process could finish
-    return x * x, os.getpid()
+def _square_and_thread(x: int) -> tuple[int, str, int]:
+    time.sleep(0.005)  # a frame's worth of waiting outside the interpreter's lock
+    return x * x, threading.current_thread().name, cv2.getNumThreads()
 
 
-def test_results_come_in_order_each_reported_once_and_the_pool_does_the_bulk() -> None:
+def test_results_come_in_order_each_reported_once_on_worker_threads() -> None:
     seen: list[int] = []
     items = list(range(200))
-    out = map_in_order(_square_and_pid, items, 2, lambda r: seen.append(r[0]))
+    before = cv2.getNumThreads()
+    out = map_in_threads(_square_and_thread, items, 2, lambda r: seen.append(r[0]))
     assert [r[0] for r in out] == [x * x for x in items]
-    assert sorted(seen) == sorted(x * x for x in items)
-    pids = {pid for _, pid in out}
-    assert len(pids - {os.getpid()}) >= 1  # worker processes took part
-    # this process only helps while the pool starts: the first items, in order
-    here = [i for i, (_, pid) in enumerate(out) if pid == os.getpid()]
-    assert here == list(range(len(here)))
-    assert len(here) < len(items)
+    assert seen == [x * x for x in items]  # reported as they come, in order
+    assert {name for _, name, _ in out} <= {"camcal-map_0", "camcal-map_1"}
+    assert len({name for _, name, _ in out}) == 2  # both threads took part
+    assert {n for _, _, n in out} == {1}  # OpenCV's own pool held at one thread meanwhile ...
+    assert cv2.getNumThreads() == before  # ... and given back afterwards
+
+
+def test_an_error_stops_the_map_and_what_had_not_started_never_runs() -> None:
+    ran: list[int] = []
+
+    def fail_on_three(x: int) -> int:
+        ran.append(x)
+        time.sleep(0.01)
+        if x == 3:
+            raise ValueError("frame 3 is bad")
+        return x
+
+    with pytest.raises(ValueError, match="frame 3"):
+        map_in_threads(fail_on_three, list(range(100)), 2)
+    assert len(ran) < 10

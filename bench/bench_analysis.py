@@ -7,7 +7,7 @@
    with camcal's decoder (``camcal.core.images.read_frame``: libdeflate for
    the unfiltered PNGs modules write); OpenCV's decoder is timed beside it.
    The same on 24 of the frames separates what each frame costs from what
-   does not depend on the set's size (starting Python, imports, the pool);
+   does not depend on the set's size (starting Python, imports, stacking, output);
 3. ``camcal analyze FILE`` on one frame of the set against decoding that frame
    (what is left is starting Python, the imports and the analysis).
 
@@ -120,7 +120,7 @@ def main() -> None:
         f"{per_frame * 1e3:.1f} ms | {per_decode * 1e3:.1f} ms | {per_frame / per_decode:.2f}x |  |"
     )
     print(
-        f"| `camcal analyze` on {len(small_paths)} frames (start, imports, pool, output) | "
+        f"| `camcal analyze` on {len(small_paths)} frames (start, imports, threads, output) | "
         f"{t_cli_small:.2f} s | {t_decode_small:.2f} s |  |  |"
     )
     print(

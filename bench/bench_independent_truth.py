@@ -205,6 +205,7 @@ def run_job(job: Job) -> dict[str, object]:
         budget = systematic_budget(fit, prof, job.grid, job.variations, sys_config)
         fit = fit.with_budget(budget)  # a limit loosened by the phase refits, as `camcal fit` quotes it
         line = next((i for i in budget.items if i.name == "phase_function"), None)
+        sample_line = next((i for i in budget.items if i.name == "template_sample"), None)
         if "budget" not in out:
             out["budget_seconds"] = budget.seconds
             out["fit_seconds"] = t_fit
@@ -237,6 +238,14 @@ def run_job(job: Job) -> dict[str, object]:
                     "sca": list(line.lambda_sca_shifts_m),
                     "dchi2": list(line.delta_chi2),
                     "note": line.note,
+                },
+                # The template-sample line's refits (one per other template seed): the mean over
+                # samples can be studied offline.
+                "samples": None
+                if sample_line is None
+                else {
+                    "abs": list(sample_line.lambda_abs_shifts_m),
+                    "sca": list(sample_line.lambda_sca_shifts_m),
                 },
                 "chi2_ndof": fit.chi2_ndof,
                 "error_scale": fit.error_scale,

@@ -143,6 +143,9 @@ def budget_entry(b: SystematicBudget) -> dict[str, Any]:
         "sys_up_m": [_r(b.sys_up_m(k), 3) for k in range(3)],
         "sys_down_m": [_r(b.sys_down_m(k), 3) for k in range(3)],
         "sys_text": [sys_text(b.sys_up_m(k), b.sys_down_m(k), 3) for k in range(3)],
+        # λ_abs, λ_sca, λ_att: how far the quoted values lie from the nominal templates' minimum
+        # (the mean over the template samples; see the template_sample item)
+        "sample_move_m": [_r(v, 3) for v in b.sample_move_m],
         "seconds": _r(b.seconds, 2),
     }
 

@@ -139,6 +139,14 @@ class Estimate:
     def measured(self) -> bool:
         return self.status == MEASURED
 
+    def moved(self, shift_m: float) -> Estimate:
+        """A measured value and its interval moved by ``shift_m`` (a limit or nothing stays as it is)."""
+        if not self.measured or self.value_m is None or shift_m == 0.0:
+            return self
+        iv = self.interval_m
+        moved = None if iv is None else (iv[0] + shift_m, iv[1] + shift_m)
+        return replace(self, value_m=self.value_m + shift_m, interval_m=moved)
+
     def text(self, symbol: str, digits: int = 2, sys_err_m: float | None = None) -> str:
         """``"λ_abs = 39.20 ± 1.10 m"``, ``"λ_abs > 180 m (95 % CL)"`` or ``"λ_abs unconstrained"``."""
         if self.status == MEASURED:
@@ -247,6 +255,10 @@ class SystematicBudget:
     #: The limits (λ_abs, λ_sca) keep once the phase function is varied: for a length the nominal fit
     #: only bounds, the loosest bound any phase refit reaches (None: no limit, or none looser).
     limits_m: tuple[float | None, float | None] = (None, None)
+    #: How far the values quoted move from the nominal templates' minimum (λ_abs, λ_sca, λ_att): to
+    #: the mean over the nominal and the template samples (the ``template_sample`` line), whose
+    #: error that line carries.
+    sample_move_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def _sum(self, attr: str) -> float:
         return _quadrature([getattr(i, attr) for i in self.items if not i.profiled])
@@ -344,11 +356,13 @@ class ChiSquareFit:
             ab = replace(ab, limit_m=budget.limits_m[0])
         if budget.limits_m[1] is not None and sc.status in (LOWER_LIMIT, UPPER_LIMIT):
             sc = replace(sc, limit_m=budget.limits_m[1])
+        ab, sc = ab.moved(budget.sample_move_m[0]), sc.moved(budget.sample_move_m[1])
         return replace(
             self,
             systematics=budget,
             lambda_abs=ab,
             lambda_sca=sc,
+            lambda_att_m=self.lambda_att_m + budget.sample_move_m[2],
             lambda_abs_sys_err_m=budget.lambda_abs_sys_m,
             lambda_sca_sys_err_m=budget.lambda_sca_sys_m,
             lambda_att_sys_err_m=budget.lambda_att_sys_m,

@@ -333,6 +333,7 @@ def systematic_budget(
     cfg = fit.config
     items: list[SystematicShift] = []
     limits: tuple[float | None, float | None] = (None, None)
+    move = (0.0, 0.0, 0.0)
     g0, r0 = fit.mie_g, grid.settings.rayleigh_fraction
     gs, rs = config.mie_g_values(g0), config.rayleigh_values(r0)
     if all(f"phase:rayleigh={r:g}" in variations for r in rs):
@@ -398,9 +399,16 @@ def systematic_budget(
         hits = refit.edge_hits
         d = refit.shifts(cases)
         label = "templates' Monte Carlo sample (refitted on other seeds)"
-        note = "error: √(mean shift²/2), two samples differing by √2 of one's error"
+        sample_err, sample_mean = _sample_mean(d[:, :3])
+        move = _triple(np.nan_to_num(sample_mean, nan=0.0))
+        if np.isfinite(sample_mean).any():
+            note = (
+                f"values quoted: the mean over the nominal templates and these {len(cases)} samples; "
+                f"error: that mean's, √(mean shift²/2)/√{len(cases) + 1}"
+            )
+        else:
+            note = "error: √(mean shift²/2), two samples differing by √2 of one's error"
         note += EDGE_NOTE if refit.edge_hits > hits else ""
-        sample_err = np.sqrt(np.mean(d[:, :3] ** 2, axis=0) / 2.0)
         items.append(_shift_item("template_sample", label, cases, d, sample_err, note=note))
     rel = cfg.lambda_sca_sys_rel
     acc = np.array(
@@ -409,7 +417,23 @@ def systematic_budget(
     label = "templates' accuracy (quadrature near the limb, MC normalisation)"
     items.append(_shift_item("template_accuracy", label, [(f"±{100 * rel:g} %", {})], acc, _largest(acc)))
     items += _profiled_impacts(fit, refit)
-    return SystematicBudget(tuple(items), time.perf_counter() - t0, limits)
+    return SystematicBudget(tuple(items), time.perf_counter() - t0, limits, move)
+
+
+def _sample_mean(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The template-sample line's error and the values' move, per length, from the refits' shifts ``d``
+    (samples × lengths, each against the nominal templates).
+
+    One sample's error is √(mean shift²/2) (two independent samples differ by √2 of it). Where every
+    refit moved, the value quoted is the mean over the nominal and the n samples (the nominal's
+    shift is 0: the move is Σ shift/(n+1)), and its error that of a mean, one sample's /√(n+1); a
+    length a refit lost (NaN) keeps the nominal value and one sample's error.
+    """
+    n = d.shape[0]
+    one = np.sqrt(np.mean(d**2, axis=0) / 2.0)
+    ok = np.isfinite(d).all(axis=0)
+    move = np.where(ok, d.sum(axis=0) / (n + 1), np.nan)
+    return np.where(ok, one / math.sqrt(n + 1), one), move
 
 
 def _profiled_impacts(fit: ChiSquareFit, refit: _Refitter) -> list[SystematicShift]:

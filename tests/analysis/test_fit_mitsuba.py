@@ -79,20 +79,30 @@ def test_the_fit_finds_the_water_of_frames_mitsuba_rendered(name: str, template_
     assert fit.lambda_sca.value_m == pytest.approx(s_true, rel=0.08)
     assert fit.lambda_abs.value_m == pytest.approx(a_true, rel=0.25)
     # The budget's line for the templates' own Monte Carlo (refits on three other seeds) is what
-    # covers those offsets: the truth lies within 3σ of the fit error and that line together.
+    # covers those offsets: the values quoted, the mean over the four samples, lie within 3σ of the
+    # truth with the fit error and that line (the mean's error) together.
     cfg = SystematicsConfig(emission_shapes=())
     samples = {
         k: build_template_grid(v, template_cache)
         for k, v in variation_settings(templates, [fit.lambda_sca_m], cfg).items()
         if k.startswith("sample=")
     }
-    line = next(
-        i for i in systematic_budget(fit, profiles, grid, samples, cfg).items if i.name == "template_sample"
+    budget = systematic_budget(fit, profiles, grid, samples, cfg)
+    line = next(i for i in budget.items if i.name == "template_sample")
+    quoted = fit.with_budget(budget)
+    ab, sc = quoted.lambda_abs, quoted.lambda_sca
+    print(
+        f"{name}: λ_abs {ab.value_m:.2f} ± {ab.err_m:.2f} ± {line.lambda_abs_m:.2f}, "
+        f"λ_sca {sc.value_m:.2f} ± {sc.err_m:.2f} ± {line.lambda_sca_m:.2f} "
+        f"(nominal templates: {fit.lambda_abs.value_m:.2f}, {fit.lambda_sca.value_m:.2f})"
     )
-    print(f"{name}: template sample ± {line.lambda_abs_m:.2f} (λ_abs), ± {line.lambda_sca_m:.2f} (λ_sca)")
+    # Averaged over four samples, the values meet the issue's aims: λ_sca within 5 %, λ_abs within
+    # 10 % (measured: deep-sea 50.6 and 65.6 m for 50 and 65; turbid 25.0 and 26.1 m for 25 and 25).
+    assert sc.value_m == pytest.approx(s_true, rel=0.05)
+    assert ab.value_m == pytest.approx(a_true, rel=0.10)
     for est, err, truth in (
-        (fit.lambda_abs, line.lambda_abs_m, a_true),
-        (fit.lambda_sca, line.lambda_sca_m, s_true),
+        (quoted.lambda_abs, line.lambda_abs_m, a_true),
+        (quoted.lambda_sca, line.lambda_sca_m, s_true),
     ):
         assert abs(est.value_m - truth) < 3.0 * math.hypot(est.err_m, err), (est, err, truth)
 

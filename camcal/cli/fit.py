@@ -276,6 +276,7 @@ def print_fits(result: FolderFit) -> None:
         )
     console.print(table)
     console.print(
+        "values: with a budget, the mean over the template samples its refits used; "
         "errors: fit (statistical and floated nuisances, ×√(χ²/ndof) where that exceeds 1) ± systematic "
         "(+up/−down where the budget is one-sided); "
         "a length the data only bound is a one-sided 95 % CL limit",

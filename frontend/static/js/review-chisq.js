@@ -134,7 +134,7 @@ export async function showChisqFit(box, dive, runId) {
     el(
       "p",
       { class: "muted" },
-      `Fit ${fit.id} of run ${fit.run_id}'s inputs. Each length: value ± fit error (statistical and floated nuisances, ×√(χ²/ndof) where that exceeds 1) ± systematic (+up/−down where the budget is one-sided), or a one-sided 95 % CL limit where the data only bound it.`,
+      `Fit ${fit.id} of run ${fit.run_id}'s inputs. Each length: value (with a budget, the mean over its template samples) ± fit error (statistical and floated nuisances, ×√(χ²/ndof) where that exceeds 1) ± systematic (+up/−down where the budget is one-sided), or a one-sided 95 % CL limit where the data only bound it.`,
     ),
     el("div", { class: "table-wrap" }, fitsTable(fits)),
   ];

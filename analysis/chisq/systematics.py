@@ -399,7 +399,8 @@ def systematic_budget(
         hits = refit.edge_hits
         d = refit.shifts(cases)
         label = "templates' Monte Carlo sample (refitted on other seeds)"
-        sample_err, sample_mean = _sample_mean(d[:, :3])
+        # a refit on the templates' edge gives only a bound on its shift: then the values stay
+        sample_err, sample_mean = template_sample_mean(d[:, :3], average=refit.edge_hits == hits)
         move = _triple(np.nan_to_num(sample_mean, nan=0.0))
         if np.isfinite(sample_mean).any():
             note = (
@@ -420,18 +421,19 @@ def systematic_budget(
     return SystematicBudget(tuple(items), time.perf_counter() - t0, limits, move)
 
 
-def _sample_mean(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def template_sample_mean(d: np.ndarray, *, average: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """The template-sample line's error and the values' move, per length, from the refits' shifts ``d``
     (samples × lengths, each against the nominal templates).
 
     One sample's error is √(mean shift²/2) (two independent samples differ by √2 of it). Where every
     refit moved, the value quoted is the mean over the nominal and the n samples (the nominal's
     shift is 0: the move is Σ shift/(n+1)), and its error that of a mean, one sample's /√(n+1); a
-    length a refit lost (NaN) keeps the nominal value and one sample's error.
+    length a refit lost (NaN), or every length when ``average`` is False, keeps the nominal value
+    and one sample's error.
     """
     n = d.shape[0]
     one = np.sqrt(np.mean(d**2, axis=0) / 2.0)
-    ok = np.isfinite(d).all(axis=0)
+    ok = np.isfinite(d).all(axis=0) & average
     move = np.where(ok, d.sum(axis=0) / (n + 1), np.nan)
     return np.where(ok, one / math.sqrt(n + 1), one), move
 

@@ -11,12 +11,13 @@ import pytest
 from analysis.chisq import LOWER_LIMIT, MEASURED, FitConfig, SettingProfiles, fit_wavelength
 from analysis.chisq.limits import error_scale, estimate
 from analysis.chisq.posterior import marginal_posterior
-from analysis.chisq.results import SystematicBudget, SystematicShift, sys_text
+from analysis.chisq.results import Estimate, SystematicBudget, SystematicShift, sys_text
 from analysis.chisq.systematics import (
     SystematicsConfig,
     nodes_around,
     nodes_covering,
     phase_limits,
+    template_sample_mean,
     variation_settings,
 )
 from analysis.chisq.wavelength import make_objective
@@ -268,3 +269,22 @@ def test_a_disagreement_beyond_three_sigma_is_flagged_with_what_to_do() -> None:
     near = AttenuationCheck(30.0, 1.0, 28.0, 0.8, 2.5)
     assert not near.flagged and not near.agrees and near.advice is None
     assert AttenuationCheck(30.0, 1.0, None, None, None).flagged is False
+
+
+def test_the_values_quoted_are_the_mean_over_the_template_samples() -> None:
+    """Three sample refits moved λ_abs by +4, +2, +6 m: the value moves to the mean over the four
+    samples (+3 m) and the line's error is that mean's; a length the fit only bounds (no shifts)
+    stays where it was."""
+    d = np.array([[4.0, 0.5, np.nan], [2.0, -0.5, np.nan], [6.0, 0.3, np.nan]])
+    err, move = template_sample_mean(d)
+    one = math.sqrt((16 + 4 + 36) / 3 / 2)
+    assert move[0] == pytest.approx(12.0 / 4) and move[1] == pytest.approx(0.3 / 4)
+    assert err[0] == pytest.approx(one / 2)
+    assert np.isnan(move[2]) and np.isnan(err[2])
+    # a refit on the templates' edge only bounds its shift: nothing moves, one sample's error
+    err, move = template_sample_mean(d, average=False)
+    assert np.isnan(move).all() and err[0] == pytest.approx(one)
+    measured = Estimate("λ_abs", MEASURED, 30.0, 2.0, (28.0, 32.5))
+    assert measured.moved(3.0) == Estimate("λ_abs", MEASURED, 33.0, 2.0, (31.0, 35.5))
+    bound = Estimate("λ_abs", LOWER_LIMIT, None, None, None, limit_m=180.0, cl=0.95)
+    assert bound.moved(3.0) is bound

@@ -21,10 +21,13 @@ pointed away from the truth's phase function in about half the turbid sets
 (docs/transport.md). An alternative emission shape counts with its full
 shift. The templates' own Monte Carlo sample is varied too: the lengths
 refitted on ``template_samples`` grids of other seeds (same nodes and
-photons), its error √(mean shift²/2), since two independent samples differ
-by √2 of one's error (the higher orders of a node carry ~10 % noise at
-4·10⁵ photons, which a few heavy histories spread over many bands: the
-per-band template errors inside χ² do not describe it). Their sum in
+photons); one sample's error is √(mean shift²/2), since two independent
+samples differ by √2 of it (the higher orders of a node carry ~10 % noise
+at 4·10⁵ photons, which a few heavy histories spread over many bands: the
+per-band template errors inside χ² do not describe it). The values quoted
+are then the mean over the nominal and those samples
+(`SystematicBudget.sample_move_m`, applied by `ChiSquareFit.with_budget`),
+and the line's error that mean's. Their sum in
 quadrature, with the templates' accuracy near the limb on λ_sca, is the
 systematic error quoted.
 

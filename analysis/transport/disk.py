@@ -112,7 +112,7 @@ class BandPixels:
         if valid is not None:
             keep &= valid
         d = dist[keep].astype(np.float64)
-        band = dist[keep].astype(np.int32)
+        band = dist[keep].astype(np.intp)  # np.bincount's own index type: no converted copy per call
         count = np.bincount(band, minlength=n_bands)[:n_bands]
         return cls(d, band, count, np.flatnonzero(keep.ravel()))
 

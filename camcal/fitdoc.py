@@ -156,7 +156,11 @@ def fit_entry(f: ChiSquareFit, chk: AttenuationCheck) -> dict[str, Any]:
     ``lambda_abs``/``lambda_sca`` hold what to quote (`estimate_entry`); the
     flat ``lambda_*_m`` keys repeat a measured value and are null for a
     limit, and ``best_fit_m`` is the χ² minimum's position (on the grid's
-    edge for a limit: for plots, not for quoting). Errors are the fit's
+    edge for a limit: for plots, not for quoting), the flat
+    ``lambda_*_interval_m`` the Δχ² crossings around it. With a budget the
+    quoted values (and each estimate's ``interval_m``) lie
+    ``systematics.sample_move_m`` from those (the mean over the template
+    samples); the contour plot keeps the χ² map's own. Errors are the fit's
     (statistical and the floated nuisances), already multiplied by
     ``error_scale``; ``*_sys_err_m`` the systematic errors.
     """

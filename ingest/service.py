@@ -41,7 +41,8 @@ import time
 import uuid
 from collections import deque
 from collections.abc import Callable
-from concurrent.futures import Future
+from concurrent.futures import CancelledError, Future
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -67,6 +68,13 @@ from storage.models import AnalysisRun, Dive
 from storage.store import Store
 
 log = logging.getLogger("camcal.ingest")
+
+
+#: Analyses handed to the pool per worker process at most: enough that a worker never waits for
+#: the store thread to come back for its next frame (at 2 per worker the pool idled ~25 % of a
+#: full-speed run, bench_ingest.py); the rest wait in the service's own queue, where a stop
+#: leaves them for the next start (`recover_unanalysed`).
+ANALYSES_QUEUED_PER_WORKER = 8
 
 
 @dataclass(frozen=True)
@@ -135,6 +143,8 @@ class IngestService:
         self.events = EventBus(self.store, None)  # publishes once `start` has bound its socket
         self._threads: list[threading.Thread] = []
         self._pool: Any = None
+        #: Set once every analysis process has started (imported the analysis): see `_warm_pool`.
+        self.analysis_ready = threading.Event()
         self._analysis_inflight = 0
         self._analysis_backlog: deque[tuple[int, str, dict[str, Any]]] = deque()
         self.latency_s: deque[float] = deque(maxlen=2000)
@@ -221,10 +231,12 @@ class IngestService:
 
     def _warm_pool(self) -> None:
         try:
-            for _ in range(self.config.n_workers):
-                self._pool.submit(warm_up)
-        except RuntimeError:  # stopped before the pool was up
-            pass
+            started = [self._pool.submit(warm_up) for _ in range(self.config.n_workers)]
+            for fut in started:
+                fut.result()
+        except (RuntimeError, CancelledError, BrokenProcessPool):  # stopped before the pool was up
+            return
+        self.analysis_ready.set()
 
     def _link_keys(self) -> wire.KeyPair | None:
         """The ship's key pair, or None for a plaintext link, which must be asked for explicitly."""
@@ -298,7 +310,7 @@ class IngestService:
         return self._analysis_inflight > 0 or bool(self._analysis_backlog)
 
     def feed_pool(self) -> None:
-        limit = 2 * self.config.n_workers
+        limit = 8 * self.config.n_workers
         while self._analysis_backlog and self._analysis_inflight < limit:
             frame_id, path, meta = self._analysis_backlog.popleft()
             config = self._analysis_config(meta["module"])
@@ -381,6 +393,7 @@ class IngestService:
                 "analysis_backlog": len(self._analysis_backlog),
                 "analysis_in_flight": self._analysis_inflight,
             },
+            "analysis_ready": self.analysis_ready.is_set(),
             "window": self.window,
             "counters": counts["counters"],
             "malformed": counts["malformed"],

@@ -291,6 +291,7 @@ def merge_health(payloads: list[dict[str, Any]]) -> dict[str, Any]:
     )
     security = {p.get("link_security") for p in payloads}
     out["link_security"] = "plaintext" if "plaintext" in security else next(iter(security), None)
+    out["analysis_ready"] = all(p.get("analysis_ready") is not False for p in payloads)
     out["dive"] = payloads[0].get("dive")
     out["window"] = payloads[0].get("window")
     disk = [p["disk_free_gb"] for p in payloads if p.get("disk_free_gb") is not None]

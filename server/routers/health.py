@@ -58,6 +58,7 @@ def health(hub: HubDep, store: StoreDep, settings: SettingsDep) -> dict[str, Any
         "ingest": ingest,
         "modules": out,
         "queues": (health or {}).get("queues"),
+        "analysis_ready": (health or {}).get("analysis_ready"),
         "counters": (health or {}).get("counters"),
         "malformed": (health or {}).get("malformed"),
         "nacked": (health or {}).get("nacked"),

@@ -38,6 +38,9 @@ def count(svc: IngestService, model) -> int:
 def test_two_modules_every_frame_stored_once_analysed_with_attenuation(
     service: IngestService, tmp_path: Path
 ) -> None:
+    # the analysis processes start with the ingest, before any frame (their imports take a second)
+    assert wait_for(service.analysis_ready.is_set, 60)
+    assert service.health()["analysis_ready"] is True
     agents = [make_agent(m, service.endpoint, tmp_path / f"outbox-{m}")[0] for m in ("A", "B")]
     for a in agents:
         a.start()

@@ -44,6 +44,7 @@ def beat(pub: zmq.Socket, ingest_id: str, module: str, stored: int) -> None:
             }
         },
         "queues": {"store": 1, "analysis_backlog": 2},
+        "analysis_ready": module == "A",  # B's analysis processes still starting
         "counters": {"frames_stored": stored},
         "served_modules": [module],
         "disk_free_gb": 100.0 if module == "A" else 40.0,
@@ -81,6 +82,7 @@ def test_modules_of_every_ingest_are_shown_and_a_silent_one_degrades_the_status(
         assert both["modules"]["A"]["link"] == both["modules"]["B"]["link"] == "up"
         assert both["counters"]["frames_stored"] == 17  # added up over the ingests
         assert both["queues"] == {"store": 2, "analysis_backlog": 4}
+        assert both["analysis_ready"] is False  # ready only when every ingest's analysis is
         metrics = client.get("/metrics").text  # the worst latency of the two
         assert 'camcal_result_latency_seconds{quantile="0.95"} 0.3' in metrics
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import pytest
 from fastapi.testclient import TestClient
@@ -154,6 +155,19 @@ def test_path_traversal_is_refused(client: TestClient, path: str) -> None:
     r = client.get(path)
     assert r.status_code in (400, 404)
     assert b"root:" not in r.content and b"create_app" not in r.content
+
+
+def test_every_sheet_of_the_stylesheet_index_is_served(client: TestClient) -> None:
+    """The pages link camcal.css, which imports the sheets: a sheet it names and the server lacks
+    would leave a page unstyled with no error anywhere but the browser's console."""
+    index = client.get("/static/css/camcal.css")
+    assert index.status_code == 200
+    sheets = re.findall(r'@import url\("([\w.-]+\.css)"\)', index.text)
+    assert len(sheets) >= 5 and "base.css" in sheets
+    for name in sheets:
+        r = client.get(f"/static/css/{name}")
+        assert r.status_code == 200 and r.headers["content-type"].startswith("text/css"), name
+        assert "{" in r.text and "@import" not in r.text, name  # rules, and no second level of imports
 
 
 def test_plotly_is_served_locally_and_compressed(client: TestClient) -> None:

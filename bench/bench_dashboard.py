@@ -21,57 +21,19 @@ Needs /usr/bin/chromium and playwright (Python) for parts 1-2 (skipped without t
 from __future__ import annotations
 
 import argparse
-import asyncio
-import json
 import math
-import os
 import random
-import signal
 import statistics
-import subprocess
-import sys
 import tempfile
 import time
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+import httpx
+from dashboard_ingest import bench_ingest
+from dashboard_procs import cli, pct, spawn, wait_http
 
-import cv2  # noqa: E402
-import httpx  # noqa: E402
-import numpy as np  # noqa: E402
-import zmq  # noqa: E402
-
-from camcal.core import wire  # noqa: E402
-from tests.utils.system import CHROMIUM, CHROMIUM_ARGS, camcal_up, free_ports, stop_system, wait_until  # noqa: E402
-
-
-def pct(values: list[float], q: float) -> float:
-    return float(np.percentile(values, q)) if values else math.nan
-
-
-def cli(*args: str) -> list[str]:
-    return [sys.executable, "-c", "from camcal.cli import main; main()", *args]
-
-
-def spawn(args: list[str], log: Path) -> subprocess.Popen[bytes]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("CAMCAL_")}
-    env["PYTHONPATH"] = str(REPO)
-    env["CAMCAL_HTTP_MAX_CONNECTIONS_PER_CLIENT"] = "64"  # the simulated browsers share one address
-    with log.open("ab") as fh:
-        return subprocess.Popen(args, stdout=fh, stderr=subprocess.STDOUT, env=env, cwd=log.parent)
-
-
-def wait_http(url: str, timeout_s: float = 60) -> None:
-    def up() -> bool:
-        try:
-            return httpx.get(url, timeout=2).status_code == 200
-        except httpx.HTTPError:
-            return False
-
-    wait_until(up, timeout_s, url, every_s=0.2)
+from tests.utils.system import CHROMIUM, CHROMIUM_ARGS, camcal_up, free_ports, stop_system, wait_until
 
 
 # ------------------------------------------------------------------ 1 + 2: the live view
@@ -123,6 +85,7 @@ def build_store(data: Path, n_frames: int = 3000) -> int:
     try:
         dive = store.create_dive("bench-3000", started_unix_s=1_800_000_000.0)
         run = store.analysis_run(dive.id, calibration={}, software_version="bench")
+        assert run is not None
         t0 = dive.started_unix_s
         exposures = (0.02, 0.05, 0.07, 0.11, 0.2, 0.5, 1.0)
         gains = (2.0, 8.0, 14.0, 20.0)
@@ -184,7 +147,7 @@ def build_store(data: Path, n_frames: int = 3000) -> int:
             )
         for k in range(0, len(results), 500):
             store.save_results(run.id, results[k : k + 500])
-        points = [
+        points: list[dict[str, Any]] = [
             {
                 "run_id": run.id,
                 "dive_id": dive.id,
@@ -248,289 +211,7 @@ def bench_api(repeats: int) -> dict[str, tuple[float, float]]:
     return out
 
 
-# ------------------------------------------------------------------ 4: ingest rate with browsers
-def encoded_frames() -> list[tuple[str, int, float, float, bytes]]:
-    """PNG frames of both modules (small sensor, T-REX plate scale), rendered once."""
-    from tests.utils.sim import SMALL_CAMERA, renderer
-
-    out = []
-    rng = np.random.default_rng(7)
-    for m, dist, far in (("A", 21.56, False), ("B", 41.62, True)):
-        r = renderer("trex", dist, far, SMALL_CAMERA, m)
-        for wl in (405, 460, 525):
-            for e, g in ((0.05, 8.0), (0.07, 8.0), (0.11, 2.0), (0.05, 14.0)):
-                frame, _ = r.render(wl, e, g, rng=rng)
-                _, buf = cv2.imencode(".png", frame)
-                out.append((m, wl, e, g, buf.tobytes()))
-    return out
-
-
-class Sender:
-    """A module that pushes pre-encoded frames as fast as the ship's window allows."""
-
-    def __init__(self, ctx: zmq.Context[Any], endpoint: str, module: str) -> None:
-        self.module = module
-        self.boot = f"bench{int(time.time() * 1000) % 10**9}{module}"
-        self.sock = wire.module_socket(ctx, endpoint, module)
-        self.window = 1
-        self.welcomed = False
-        self.in_flight: set[int] = set()
-        self.seq = 0
-        self.acked = 0
-
-    def hello(self) -> None:
-        self.sock.send_multipart(wire.encode(wire.Hello(module=self.module, boot=self.boot)))
-
-    def send(self, frame: tuple[str, int, float, float, bytes], shape: tuple[int, int]) -> None:
-        _, wl, e, g, png = frame
-        self.seq += 1
-        msg = wire.FrameMsg(
-            module=self.module,
-            boot=self.boot,
-            seq=self.seq,
-            captured_at=datetime.now(UTC),
-            camera=self.module,
-            wavelength_nm=wl,
-            exposure_s=e,
-            gain_db=g,
-            depth_m=3420.0,
-            width_px=shape[1],
-            height_px=shape[0],
-            size=len(png),
-            sha256=wire.sha256_hex(png),
-        )
-        self.sock.send_multipart(wire.encode(msg, png))
-        self.in_flight.add(self.seq)
-
-    def receive(self) -> bool:
-        got = False
-        while True:
-            try:
-                parts = self.sock.recv_multipart(zmq.NOBLOCK)
-            except zmq.Again:
-                return got
-            msg, _ = wire.decode(parts, allowed=wire.SHIP_TYPES)
-            got = True
-            if msg.type == "welcome":
-                self.window = msg.window
-                self.welcomed = True
-            elif msg.type in ("ack", "ship_heartbeat"):
-                self.window = msg.window
-                for _boot, a, b in getattr(msg, "ranges", ()):
-                    for q in range(a, b + 1):
-                        if q in self.in_flight:
-                            self.in_flight.discard(q)
-                            self.acked += 1
-            elif msg.type == "nack":
-                self.in_flight.discard(msg.seq)
-
-
-def analysed(base: str) -> int:
-    c = httpx.get(f"{base}/api/health", timeout=5).json().get("counters") or {}
-    return int(c.get("frames_analysed", 0))
-
-
-def push(endpoint: str, base: str, frames: list[Any], n: int) -> tuple[float, float]:
-    """Send ``n`` frames per module; frames/s stored (acked) and analysed (all results in)."""
-    shape = (512, 640)
-    ctx = zmq.Context()
-    senders = [Sender(ctx, endpoint, m) for m in ("A", "B")]
-    by_module = {m: [f for f in frames if f[0] == m] for m in ("A", "B")}
-    try:
-        for s in senders:
-            s.hello()
-        wait_until(
-            lambda: [s.receive() for s in senders] and all(s.welcomed for s in senders), 20, "welcome", 0.05
-        )
-        start_analysed = analysed(base)
-        t0 = time.perf_counter()
-        poller = zmq.Poller()
-        for s in senders:
-            poller.register(s.sock, zmq.POLLIN)
-        while any(s.acked < n for s in senders):
-            for s in senders:
-                while s.seq < n and len(s.in_flight) < s.window:
-                    s.send(by_module[s.module][s.seq % len(by_module[s.module])], shape)
-            poller.poll(50)
-            for s in senders:
-                s.receive()
-        stored_s = time.perf_counter() - t0
-        wait_until(lambda: analysed(base) - start_analysed >= 2 * n, 300, "every frame analysed", every_s=0.1)
-        analysed_s = time.perf_counter() - t0
-        return 2 * n / stored_s, 2 * n / analysed_s
-    finally:
-        for s in senders:
-            s.sock.close(0)
-        ctx.term()
-
-
-async def _client(url: str, base: str, stop: asyncio.Event, counts: dict[str, int]) -> None:
-    """One live view: parse every event; per module, load the newest thumbnail, one at a time and at
-    most one every 0.5 s (what static/js/live.js does)."""
-    import websockets
-
-    pending: dict[str, str] = {}
-    wake: dict[str, asyncio.Event] = {}
-
-    async def loader(http: httpx.AsyncClient, module: str) -> None:
-        while not stop.is_set():
-            await wake[module].wait()
-            wake[module].clear()
-            url = pending.pop(module, None)
-            if url is None:
-                continue
-            t = time.monotonic()
-            r = await http.get(url)
-            counts["thumbs"] += 1 if r.status_code == 200 else 0
-            await asyncio.sleep(max(0.0, 0.5 - (time.monotonic() - t)))
-            if module in pending:
-                wake[module].set()
-
-    async with (
-        httpx.AsyncClient(base_url=base, timeout=10) as http,
-        websockets.connect(url, max_size=None) as ws,
-    ):
-        loaders = []
-        await ws.send(json.dumps({"type": "batch"}))
-        queue: list[dict[str, Any]] = []
-        while not stop.is_set():
-            if not queue:
-                try:
-                    raw = await asyncio.wait_for(ws.recv(), timeout=1)
-                except TimeoutError:
-                    continue
-                got = json.loads(raw)
-                queue = got["messages"] if got.get("type") == "batch" else [got]
-            msg = queue.pop(0)
-            counts["messages"] += 1
-            if msg.get("type") == "missed":
-                counts["missed"] += sum(msg.get("dropped", {}).values())
-                if msg.get("resync"):
-                    await ws.send(json.dumps({"type": "resync"}))
-            if msg.get("kind") == "result" and msg["payload"].get("thumb"):
-                m = msg["module"]
-                if m not in wake:
-                    wake[m] = asyncio.Event()
-                    loaders.append(asyncio.create_task(loader(http, m)))
-                pending[m] = msg["payload"]["thumb"]
-                wake[m].set()
-        for t in loaders:
-            t.cancel()
-
-
-def run_clients(base: str, n: int, seconds: float) -> None:
-    """Child process: ``n`` live-view clients until SIGINT (or ``seconds``); prints what they received."""
-    url = base.replace("http://", "ws://") + "/ws/live"
-    counts = {"messages": 0, "thumbs": 0, "missed": 0}
-
-    async def main() -> None:
-        stop = asyncio.Event()
-        loop = asyncio.get_running_loop()
-        loop.add_signal_handler(signal.SIGINT, stop.set)
-        loop.call_later(seconds, stop.set)
-        await asyncio.gather(*(_client(url, base, stop, counts) for _ in range(n)))
-
-    asyncio.run(main())
-    print(json.dumps(counts), flush=True)
-
-
-def cpu_s(pid: int) -> float:
-    """CPU seconds (user + system) a process has used so far."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
-def bench_ingest(n_frames: int, n_clients: int, rounds: int) -> dict[str, Any]:
-    frames = encoded_frames()
-    with tempfile.TemporaryDirectory() as tmp:
-        data = Path(tmp) / "data"
-        port, ingest_port, events_port = free_ports(3)
-        endpoint = f"tcp://127.0.0.1:{ingest_port}"
-        events = f"tcp://127.0.0.1:{events_port}"
-        base = f"http://127.0.0.1:{port}"
-        from storage.store import Store
-
-        Store.open(data).close()  # create the database before either process opens it
-        procs = [
-            spawn(
-                # Plaintext: this bench measures what browsers cost the ship, not the link's encryption.
-                cli(
-                    "ingest",
-                    "--data",
-                    str(data),
-                    "--bind",
-                    endpoint,
-                    "--events",
-                    events,
-                    "--no-fsync",
-                    "--plaintext",
-                ),
-                Path(tmp) / "ingest.log",
-            )
-        ]
-        procs.append(
-            spawn(
-                cli("serve", "--data", str(data), "--port", str(port), "--events", events),
-                Path(tmp) / "serve.log",
-            )
-        )
-        try:
-            wait_http(f"{base}/api/health")
-            wait_until(
-                lambda: httpx.get(f"{base}/api/health", timeout=2).json()["ingest"]["up"], 30, "ingest up"
-            )
-            push(endpoint, base, frames, 20)  # warm-up: pool, caches, thumbnails folder
-            results: dict[str, list[tuple[float, float]]] = {"none": [], "clients": []}
-            server_cpu: dict[str, list[float]] = {"none": [], "clients": []}
-            client_cpu: list[float] = []
-            received = []
-            for _ in range(rounds):
-                c0 = cpu_s(procs[1].pid)
-                results["none"].append(push(endpoint, base, frames, n_frames))
-                server_cpu["none"].append(cpu_s(procs[1].pid) - c0)
-                # The clients stand in for tablets: niced, so they take only CPU the ship would not use.
-                child = subprocess.Popen(
-                    [
-                        "nice",
-                        "-n",
-                        "19",
-                        sys.executable,
-                        __file__,
-                        "--run-clients",
-                        base,
-                        str(n_clients),
-                        "600",
-                    ],
-                    stdout=subprocess.PIPE,
-                    env={**os.environ, "PYTHONPATH": str(REPO)},
-                )
-                wait_until(
-                    lambda: (
-                        httpx.get(f"{base}/api/health", timeout=2).json()["server"]["clients"] >= n_clients
-                    ),
-                    30,
-                    f"{n_clients} clients connected",
-                )
-                c0, k0 = cpu_s(procs[1].pid), cpu_s(child.pid)
-                results["clients"].append(push(endpoint, base, frames, n_frames))
-                server_cpu["clients"].append(cpu_s(procs[1].pid) - c0)
-                client_cpu.append(cpu_s(child.pid) - k0)
-                child.send_signal(signal.SIGINT)
-                try:
-                    out, _ = child.communicate(timeout=60)
-                    received.append(out.decode().strip())
-                except subprocess.TimeoutExpired:
-                    child.kill()
-        finally:
-            for p in reversed(procs):
-                stop_system(p)
-    return {"results": results, "received": received, "server_cpu": server_cpu, "client_cpu": client_cpu}
-
-
 def main() -> None:
-    if len(sys.argv) == 5 and sys.argv[1] == "--run-clients":
-        run_clients(sys.argv[2], int(sys.argv[3]), float(sys.argv[4]))
-        return
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--loads", type=int, default=5, help="page loads of the live view")
     parser.add_argument("--watch", type=float, default=40.0, help="seconds of live thumbnails to time")

@@ -30,6 +30,8 @@ class AlarmLimits:
     gap_age_s: float = 30.0
     disk_min_free_gb: float = 5.0
     conflict_hold_s: float = 900.0
+    analysis_crash_hold_s: float = 900.0
+    analysis_crash_major: int = 3
 
 
 @dataclass(frozen=True)
@@ -63,6 +65,7 @@ class AlarmEvaluator:
         self.limits = limits or AlarmLimits()
         self._m: dict[str, _ModuleState] = defaultdict(_ModuleState)
         self._disk_free_gb: float | None = None
+        self._analysis_crashes: list[tuple[float, str]] = []
 
     # -- observations ----------------------------------------------------
     def observe_link(
@@ -109,6 +112,10 @@ class AlarmEvaluator:
     def observe_disk(self, free_gb: float) -> None:
         self._disk_free_gb = free_gb
 
+    def observe_analysis_crashes(self, crashes: list[tuple[float, str]]) -> None:
+        """The ingest's analysis processes that died: (unix time, what happened), oldest first."""
+        self._analysis_crashes = crashes
+
     def observe_gaps(self, module: str, gaps: list[tuple[int, int, float]]) -> None:
         self._m[module].open_gaps = gaps
 
@@ -124,6 +131,18 @@ class AlarmEvaluator:
                 f"only {self._disk_free_gb:.1f} GB free in the data folder "
                 f"(limit {lim.disk_min_free_gb:g} GB): "
                 "export and remove old dives, or set a retention",
+                None,
+            )
+
+        died = [c for c in self._analysis_crashes if now_unix_s - c[0] <= lim.analysis_crash_hold_s]
+        if died:
+            out["analysis_crash:ship"] = Condition(
+                "analysis_crash:ship",
+                "analysis_crash",
+                "MAJOR" if len(died) >= lim.analysis_crash_major else "MINOR",
+                f"{len(died)} analysis process(es) died since {_hms(died[0][0])} UTC (latest: "
+                f"{died[-1][1]}) and were replaced; every frame is kept and analysed again. If it "
+                "repeats, check the ship computer's memory (`dmesg` for the OOM killer)",
                 None,
             )
 

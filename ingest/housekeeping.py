@@ -162,6 +162,8 @@ class Housekeeping:
         if mono - self.last_housekeeping >= 30.0:
             self.last_housekeeping = mono
             g("disk", self._disk, now)
+        crashes = list(self.svc.analysis.crashes)
+        g("analysis crashes", self.st.alarms.observe_analysis_crashes, crashes)
         g("alarms", self._apply_alarms, self.st.alarms.evaluate(now))
         g("linearity", self.st.results.update_linearity)
         g("visits", self.st.results.close_idle_visits)

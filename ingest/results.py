@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import time
 from collections import defaultdict
+from concurrent.futures.process import BrokenProcessPool
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -19,6 +20,12 @@ if TYPE_CHECKING:
     from ingest.storeloop import StoreState
 
 log = logging.getLogger("camcal.ingest")
+
+#: A frame's result when it killed an analysis process on its own (`ingest.analysis_pool`).
+CRASHED = (
+    "the analysis process died while analysing this frame alone (after dying with it among "
+    "others): the frame file is stored; run `camcal analyze` on it to see why"
+)
 
 
 class Results:
@@ -46,9 +53,14 @@ class Results:
         done = []
         for it in items:
             frame_id, meta, fut = it.msg
+            if self.svc.analysis.crashed(fut):  # its process died: analysed again, alone
+                continue
             try:
                 row = fut.result()
-            except Exception as exc:  # the worker died or raised: record it, keep going
+            except BrokenProcessPool:  # analysed alone, and its process died again
+                log.error("frame %s killed an analysis process on its own: stored as rejected", frame_id)
+                row = {"status": "rejected", "reason": "analysis_crashed", "detail": CRASHED}
+            except Exception as exc:  # the analysis raised: record it, keep going
                 log.exception("analysis of frame %s failed", frame_id)
                 row = {"status": "rejected", "reason": "analysis_error", "detail": str(exc)[:500]}
             analysis_s = row.pop("analysis_s", None)
@@ -56,6 +68,8 @@ class Results:
             row.pop("height_px", None)
             rows.append({**row, "frame_id": frame_id, "analysed_unix_s": time.time()})
             done.append((frame_id, meta, row, analysis_s))
+        if not done:  # all of them are to be analysed again
+            return
         now_mono = time.monotonic()
         samples: list[Sample] = []
         events: list[Event] = []

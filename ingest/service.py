@@ -13,8 +13,9 @@ Three kinds of worker, each owning what it touches:
   analysis results, the rolling λ_att and linearity (`ingest.results`), and
   runs the once-a-second work (`ingest.housekeeping`: attitude, alarms,
   commands, counters);
-* a **process pool** (one process per core) decodes and analyses frames off
-  the receive loop.
+* a **process pool** (one process per core, `ingest.analysis_pool`) decodes
+  and analyses frames off the receive loop; a process that dies is replaced
+  and its frames analysed again.
 
 No message can stop a thread: each is handled inside a guard that counts,
 logs (rate-limited) and answers a failure.
@@ -41,8 +42,7 @@ import time
 import uuid
 from collections import deque
 from collections.abc import Callable
-from concurrent.futures import CancelledError, Future
-from concurrent.futures.process import BrokenProcessPool
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -54,27 +54,19 @@ from analysis import FrameConfig
 from camcal.core import __version__, wire
 from camcal.core.calibrations import setup_of
 from camcal.core.frameset import Setup
-from camcal.core.parallel import process_pool
 from ingest.alarms import AlarmLimits
+from ingest.analysis_pool import AnalysisPool, Job
 from ingest.commit import frame_meta_from_row
 from ingest.counters import Counters
 from ingest.events import EventBus
 from ingest.gatekeeper import Gatekeeper
 from ingest.network import Incoming, Link, Network
 from ingest.storeloop import run_store_loop
-from ingest.worker import analyse_stored_frame, warm_up
 from storage import queries
 from storage.models import AnalysisRun, Dive
 from storage.store import Store
 
 log = logging.getLogger("camcal.ingest")
-
-
-#: Analyses handed to the pool per worker process at most: enough that a worker never waits for
-#: the store thread to come back for its next frame (at 2 per worker the pool idled ~25 % of a
-#: full-speed run, bench_ingest.py); the rest wait in the service's own queue, where a stop
-#: leaves them for the next start (`recover_unanalysed`).
-ANALYSES_QUEUED_PER_WORKER = 8
 
 
 @dataclass(frozen=True)
@@ -142,11 +134,17 @@ class IngestService:
         self.push: Any = None
         self.events = EventBus(self.store, None)  # publishes once `start` has bound its socket
         self._threads: list[threading.Thread] = []
-        self._pool: Any = None
-        #: Set once every analysis process has started (imported the analysis): see `_warm_pool`.
-        self.analysis_ready = threading.Event()
-        self._analysis_inflight = 0
-        self._analysis_backlog: deque[tuple[int, str, dict[str, Any]]] = deque()
+        thumbs = self.store.files.root / "thumbs"
+        self.analysis = AnalysisPool(
+            config.n_workers,
+            frame_config=lambda module: FrameConfig(**self.config.setup.frame_settings(module)),
+            file_of=lambda path: str(self.store.files.resolve(path)),
+            thumb_of=lambda frame_id: str(thumbs / f"{frame_id}.jpg") if config.thumbnails else None,
+            deliver=self._deliver_result,
+            count=self.counters.inc,
+        )
+        #: Set once every analysis process has started (imported the analysis).
+        self.analysis_ready = self.analysis.ready
         self.latency_s: deque[float] = deque(maxlen=2000)
         self.started = threading.Event()
         self.error: BaseException | None = None
@@ -206,12 +204,7 @@ class IngestService:
         self.run: AnalysisRun = run
         if calibration is not None and self.run.calibration_id != calibration["id"]:
             self.store.use_calibration(self.dive.id, self.run.id, calibration["id"], actor="ingest")
-        self._pool = process_pool(self.config.n_workers)
-        # Start the fork server and the workers now: started by the first frame, they would make
-        # the first results of a dive wait a second or more (the fork server imports the analysis).
-        # In a thread: each start waits for the fork server's imports, and the ingest is ready
-        # (bound, storing) without them.
-        threading.Thread(target=self._warm_pool, name="ingest-pool-start", daemon=True).start()
+        self.analysis.start()
         self.network = Network(self, router, pull, self._q, self.gatekeeper)
         threads: list[tuple[str, Callable[[], None]]] = [
             ("ingest-net", lambda: self.network.run(self._stop, self.started)),  # type: ignore[union-attr]
@@ -228,15 +221,6 @@ class IngestService:
             self.events_endpoint,
             self.dive.name,
         )
-
-    def _warm_pool(self) -> None:
-        try:
-            started = [self._pool.submit(warm_up) for _ in range(self.config.n_workers)]
-            for fut in started:
-                fut.result()
-        except (RuntimeError, CancelledError, BrokenProcessPool):  # stopped before the pool was up
-            return
-        self.analysis_ready.set()
 
     def _link_keys(self) -> wire.KeyPair | None:
         """The ship's key pair, or None for a plaintext link, which must be asked for explicitly."""
@@ -270,8 +254,7 @@ class IngestService:
         self._stop.set()
         for t in self._threads:
             t.join(timeout)
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
+        self.analysis.stop()
         if self.gatekeeper is not None:
             self._sockets[0].disable_monitor()
             self.gatekeeper.close()
@@ -293,41 +276,26 @@ class IngestService:
         self.push.send_multipart([module.encode(), *wire.encode(msg)])
 
     def backlog(self) -> int:
-        return self._q.qsize() + len(self._analysis_backlog)
+        return self._q.qsize() + len(self.analysis.backlog) + len(self.analysis.suspects)
 
     # -- analysis pool ---------------------------------------------------
-    def _analysis_config(self, module: str) -> FrameConfig:
-        return FrameConfig(**self.config.setup.frame_settings(module))
-
     def queue_analysis(self, frame_id: int, path: str, meta: dict[str, Any]) -> None:
-        self._analysis_backlog.append((frame_id, path, meta))
+        self.analysis.queue(Job(frame_id, path, meta))
 
     def analysis_done(self, n: int) -> None:
-        self._analysis_inflight -= n
+        self.analysis.done(n)
 
     def analysis_busy(self) -> bool:
         """Whether analyses are running or waiting (more results are on their way)."""
-        return self._analysis_inflight > 0 or bool(self._analysis_backlog)
+        return self.analysis.busy()
 
     def feed_pool(self) -> None:
-        limit = 8 * self.config.n_workers
-        while self._analysis_backlog and self._analysis_inflight < limit:
-            frame_id, path, meta = self._analysis_backlog.popleft()
-            config = self._analysis_config(meta["module"])
-            thumb = None
-            if self.config.thumbnails:
-                thumb = str(self.store.files.root / "thumbs" / f"{frame_id}.jpg")
-            fut = self._pool.submit(analyse_stored_frame, str(self.store.files.resolve(path)), config, thumb)
-            self._analysis_inflight += 1
-            fut.add_done_callback(self._result_callback(frame_id, meta))
+        self.analysis.feed()
 
-    def _result_callback(self, frame_id: int, meta: dict[str, Any]) -> Callable[[Future[Any]], None]:
-        def done(fut: Future[Any]) -> None:
-            self._q.put(
-                Incoming("result", meta["module"], (frame_id, meta, fut), None, time.time(), time.monotonic())
-            )
-
-        return done
+    def _deliver_result(self, job: Job, fut: Future[Any]) -> None:
+        """In the pool's thread: a finished analysis goes to the store thread's queue."""
+        item = (job.frame_id, job.meta, fut)
+        self._q.put(Incoming("result", job.meta["module"], item, None, time.time(), time.monotonic()))
 
     def recover_unanalysed(self) -> None:
         """Frames committed before a crash but never analysed go back in the queue."""
@@ -390,8 +358,8 @@ class IngestService:
             "modules": modules,
             "queues": {
                 "store": self._q.qsize(),
-                "analysis_backlog": len(self._analysis_backlog),
-                "analysis_in_flight": self._analysis_inflight,
+                "analysis_backlog": len(self.analysis.backlog) + len(self.analysis.suspects),
+                "analysis_in_flight": self.analysis.in_flight,
             },
             "analysis_ready": self.analysis_ready.is_set(),
             "window": self.window,

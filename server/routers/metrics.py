@@ -48,6 +48,11 @@ class _Snapshot:
             ),
             ("camcal_acks", "acks_sent", "acknowledgements sent"),
             ("camcal_sensor_batches_received", "sensor_batches_received", "sensor messages received"),
+            (
+                "camcal_analysis_restarts",
+                "analysis_restarts",
+                "analysis process pools replaced after a process died",
+            ),
         ):
             yield CounterMetricFamily(name, doc, value=float(counters.get(key, 0)))
         rejected = CounterMetricFamily(

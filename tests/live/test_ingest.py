@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import os
+import signal
 import time
 from pathlib import Path
 
@@ -12,7 +14,7 @@ from sqlalchemy import func, select
 
 from camcal.core import wire
 from ingest.service import IngestService
-from storage.models import AttenuationPoint, Event, Frame, FrameResult, SensorSample
+from storage.models import Alarm, AttenuationPoint, Event, Frame, FrameResult, SensorSample
 from tests.utils.live import TcpProxy, make_agent, stop_and_drain
 
 
@@ -123,3 +125,29 @@ def test_a_cut_link_buffers_in_the_outbox_and_catches_up(service: IngestService,
     assert states[:3] == ["up", "down", "up"]
     agent.stop()
     proxy.close()
+
+
+def test_a_killed_analysis_process_is_replaced_and_every_frame_still_analysed(
+    service: IngestService, tmp_path: Path
+) -> None:
+    """SIGKILL (the OOM killer's signal) to the analysis process while a module streams: Python's
+    pool is broken by it; the ingest starts a new one, analyses every frame, and raises an alarm."""
+    assert wait_for(service.analysis_ready.is_set, 60)
+    agent = make_agent("A", service.endpoint, tmp_path / "outbox")[0]
+    agent.start()
+    assert wait_for(lambda: count(service, FrameResult) >= 5, 30)
+    for pid in list(service.analysis.pool._processes):
+        os.kill(pid, signal.SIGKILL)
+    analysed = count(service, FrameResult)
+    assert wait_for(lambda: count(service, FrameResult) >= analysed + 10, 60), "no result after the kill"
+    assert stop_and_drain([agent], 20)
+    n_frames = count(service, Frame)
+    assert wait_for(lambda: count(service, FrameResult) == n_frames, 60)
+    with service.store.read() as s:
+        statuses = set(s.scalars(select(FrameResult.status)))
+        alarms = list(s.scalars(select(Alarm).where(Alarm.kind == "analysis_crash")))
+    assert statuses == {"ok"}  # the frames of the killed pool were analysed again, not rejected
+    assert service.health()["counters"]["analysis_restarts"] == 1
+    assert len(alarms) == 1 and alarms[0].severity == "MINOR" and "replaced" in alarms[0].message
+    assert service.analysis_ready.is_set()
+    agent.stop()

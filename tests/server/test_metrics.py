@@ -33,6 +33,7 @@ def test_metrics_in_prometheus_format(tmp_path) -> None:
                     "result_ok": 80,
                     "result_saturated": 12,
                     "result_too_dark": 3,
+                    "analysis_restarts": 1,
                 },
                 "malformed": {"bad_header": 2},
                 "latency_p50_s": 0.08,
@@ -49,6 +50,7 @@ def test_metrics_in_prometheus_format(tmp_path) -> None:
     assert samples[("camcal_ingest_up", ())] == 1
     assert samples[("camcal_frames_stored_total", ())] == 98
     assert samples[("camcal_resends_total", ())] == 4
+    assert samples[("camcal_analysis_restarts_total", ())] == 1
     assert samples[("camcal_frames_rejected_total", (("reason", "saturated"),))] == 12
     assert samples[("camcal_malformed_messages_total", (("kind", "bad_header"),))] == 2
     assert samples[("camcal_queue_depth", (("queue", "analysis_backlog"),))] == 5

@@ -45,6 +45,9 @@ log = logging.getLogger("camcal.ingest")
 ANALYSES_QUEUED_PER_WORKER = 8
 #: Crashes kept for the alarm (the newest).
 CRASHES_KEPT = 100
+#: A pool that dies within a minute of the last death is started again only this long after it
+#: (processes that cannot start at all would otherwise be started again and again at once).
+RESTART_PAUSE_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -68,6 +71,7 @@ class AnalysisPool:
         deliver: Callable[[Job, Future[Any]], None],
         count: Callable[[str], None],
         analyse: Callable[..., dict[str, Any]] = analyse_stored_frame,
+        restart_pause_s: float = RESTART_PAUSE_S,
     ) -> None:
         self.n_workers = n_workers
         self._analyse = analyse  # run in a worker process: (file, FrameConfig, thumbnail path) -> result
@@ -84,6 +88,8 @@ class AnalysisPool:
         self.in_flight = 0
         self._running: dict[Future[Any], tuple[Job, bool, Any]] = {}  # future -> job, alone, its pool
         self.crashes: deque[tuple[float, str]] = deque(maxlen=CRASHES_KEPT)  # (unix time, what died)
+        self._restart_pause_s = restart_pause_s
+        self._start_at = 0.0  # monotonic time after which a dead pool is replaced
 
     # -- lifecycle ---------------------------------------------------------
     def start(self) -> None:
@@ -123,6 +129,10 @@ class AnalysisPool:
 
     def feed(self) -> None:
         """Hand waiting frames to the processes: the suspects of a crash alone, then the backlog."""
+        if self.pool is None:  # died: replaced once its pause is over
+            if time.monotonic() < self._start_at:
+                return
+            self.start()
         if self.suspects:
             if self.in_flight == 0:
                 self._submit(self.suspects[0], alone=True)
@@ -165,16 +175,25 @@ class AnalysisPool:
         return True
 
     def _restart(self, broken: Any, why: str) -> None:
-        if broken is not self.pool:  # that pool was already replaced
+        """Replace the pool ``broken`` (unless it was already): at once, or after a pause when the
+        last death was less than a minute ago."""
+        if broken is not self.pool:
             return
-        self.crashes.append((time.time(), why))
+        now, mono = time.time(), time.monotonic()
+        again = bool(self.crashes) and now - self.crashes[-1][0] < 60.0
+        self.crashes.append((now, why))
         self._count("analysis_restarts")
         log.error(
-            "ingest: %s; starting new analysis processes. Every frame is kept: the ones in the dead "
+            "ingest: %s; starting new analysis processes%s. Every frame is kept: the ones in the dead "
             "pool are analysed again one at a time, and one that kills a process alone is stored as "
             "rejected (analysis_crashed). If this repeats, look for the OOM killer (`dmesg`) and run "
             "`camcal analyze` on a rejected frame's file",
             why,
+            f" in {self._restart_pause_s:g} s" if again else "",
         )
         broken.shutdown(wait=False, cancel_futures=True)
-        self.start()
+        self.pool = None
+        self.ready.clear()
+        self._start_at = mono + (self._restart_pause_s if again else 0.0)
+        if not again:
+            self.start()

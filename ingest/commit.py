@@ -10,7 +10,11 @@ message gets exactly one answer:
   copy is kept, its file never overwritten) and an alarm;
 * the batch fails -> each message is tried alone; one that fails alone gets
   ``internal_error`` (resend later), and the second time it fails while
-  others were stored it is quarantined (`ingest.quarantine`).
+  others were stored it is quarantined (`ingest.quarantine`) -- unless the
+  failure is the ship's own (`ships_fault`: a full or read-only disk, a
+  locked or unreachable database), which no message can cause and which
+  must never cost a module its frames: those are refused ``internal_error``
+  every time, and the module resends them once the ship recovers.
 
 Nothing that happens after the commit (gaps, events, analysis queue) can
 turn a stored message into a refused one: those steps are guarded apart.
@@ -26,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 from camcal.core import wire
 from camcal.core.events import Event, EventKind
 from ingest.counters import RateLimitedLog
+from ingest.faults import ships_fault
 from ingest.network import Incoming, nack
 from ingest.quarantine import Quarantine
 from storage import queries
@@ -188,7 +193,14 @@ class Committer:
             exc,
             exc_info=True,
         )
-        if len(fails) >= 2 and self.stored > fails[0]:
+        if ships_fault(exc):  # never the message's: not held against it
+            del self.failures[key]
+            self._refuse(
+                it,
+                "internal_error",
+                f"the ship cannot store now ({type(exc).__name__}: {str(exc)[:200]}); resend later",
+            )
+        elif len(fails) >= 2 and self.stored > fails[0]:
             header = it.msg.model_dump(mode="json")
             payload = (
                 bytes(it.payload)

@@ -165,6 +165,7 @@ class Housekeeping:
         crashes = list(self.svc.analysis.crashes)
         g("analysis crashes", self.st.alarms.observe_analysis_crashes, crashes)
         g("alarms", self._apply_alarms, self.st.alarms.evaluate(now))
+        g("unsaved results", self.st.results.store_unsaved)
         g("linearity", self.st.results.update_linearity)
         g("visits", self.st.results.close_idle_visits)
         g("commands", self.deliver_commands)

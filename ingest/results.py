@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections import defaultdict
+from collections import defaultdict, deque
 from concurrent.futures.process import BrokenProcessPool
 from typing import TYPE_CHECKING, Any
 
@@ -12,6 +12,7 @@ import numpy as np
 
 from camcal.core.events import Event, EventKind, ResultPayload
 from ingest.derived import linearity_rows
+from ingest.faults import ships_fault
 from ingest.network import Incoming
 from ingest.rolling import Changes, Sample, VisitSeries
 from storage import queries
@@ -21,6 +22,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("camcal.ingest")
 
+#: How long kept results wait before the next try to store them (`Results.store_unsaved`).
+UNSAVED_RETRY_S = 2.0
 #: A frame's result when it killed an analysis process on its own (`ingest.analysis_pool`).
 CRASHED = (
     "the analysis process died while analysing this frame alone (after dying with it among "
@@ -33,6 +36,9 @@ class Results:
         self.st = state
         self.svc = state.svc
         self.store = state.store
+        #: Commits the ship could not store yet (`store_unsaved`), oldest first.
+        self.unsaved: deque[tuple[list[dict[str, Any]], list[Event], Changes | None]] = deque()
+        self.unsaved_retry_mono = 0.0
         self.series: VisitSeries | None = None
         self.last_result_mono = time.monotonic()
         try:
@@ -150,7 +156,42 @@ class Results:
             self._commit([], [], changes)
 
     def _commit(self, rows: list[dict[str, Any]], events: list[Event], changes: Changes | None) -> None:
-        """Results, the visits they changed and all their events in one transaction; then published."""
+        """Results, the visits they changed and all their events in one transaction; then published.
+
+        When the ship cannot store (`ships_fault`: a full disk, a locked database) they are kept,
+        in order, and stored by `store_unsaved` once it can: what is taken in (counts, the λ_att
+        series in memory) is never taken in twice, and a later commit never overtakes an earlier
+        one (a visit's newer values must win).
+        """
+        self.unsaved.append((rows, events, changes))
+        self.store_unsaved()
+
+    def store_unsaved(self) -> None:
+        """Store the kept commits, oldest first, until one fails again (then try later)."""
+        if not self.unsaved or time.monotonic() < self.unsaved_retry_mono:
+            return
+        while self.unsaved:
+            try:
+                self._commit_now(*self.unsaved[0])
+            except Exception as exc:
+                if not ships_fault(exc):
+                    self.unsaved.popleft()  # its own fault: retrying cannot help
+                    raise
+                self.unsaved_retry_mono = time.monotonic() + UNSAVED_RETRY_S
+                self.st.warn(
+                    logging.ERROR,
+                    "results unsaved",
+                    "ingest: cannot store analysis results now (%s: %s); %d commit(s) kept, retried every "
+                    "%g s",
+                    type(exc).__name__,
+                    exc,
+                    len(self.unsaved),
+                    UNSAVED_RETRY_S,
+                )
+                return
+            self.unsaved.popleft()
+
+    def _commit_now(self, rows: list[dict[str, Any]], events: list[Event], changes: Changes | None) -> None:
         svc = self.svc
         upserts = (
             [{**r, "run_id": svc.run.id, "dive_id": svc.dive.id} for r in changes.upserts] if changes else []

@@ -46,7 +46,8 @@ def new_boot_id(now: datetime | None = None) -> str:
     return f"{t}-{secrets.token_hex(3)}"
 
 
-#: Resends of a message the ship refused with ``retry``, before the module gives up on it.
+#: Resends of a message the ship refused with ``retry``, before the module gives up on it (not for
+#: a reason that is the ship's own state, ``until_it_works``: those are resent until they are stored).
 MAX_RESENDS = 5
 
 
@@ -430,8 +431,11 @@ class Agent(CommandHandling):
         """The ship refused a message: resend later if that can help, else settle it as refused.
 
         A resend backs off (1, 2, 4 ... 30 s) and gives up after `MAX_RESENDS`
-        tries: an SD copy that is damaged would otherwise be sent for ever.
-        A refused entry stays on the card (``refused.jsonl`` says why).
+        tries: an SD copy that is damaged would otherwise be sent for ever. A
+        reason that is the ship's own state (a full disk, a database being
+        restarted: ``internal_error``) is resent every 30 s at most until it is
+        stored, however long the ship needs. A refused entry stays on the card
+        (``refused.jsonl`` says why).
         """
         self.counters["nacked"] += 1
         self.counters[f"nacked_{msg.reason}"] += 1
@@ -445,7 +449,9 @@ class Agent(CommandHandling):
         key = (msg.boot, msg.seq)
         in_flight.pop(key, None)
         tries[key] += 1
-        if msg.retry and tries[key] <= MAX_RESENDS:
+        reason = wire.REASONS.get(msg.reason)
+        until_it_works = reason is not None and reason.until_it_works
+        if msg.retry and (tries[key] <= MAX_RESENDS or until_it_works):
             retry_at[key] = time.monotonic() + min(2.0 ** (tries[key] - 1), 30.0)
             return
         log.error("ship refused %s/%d for good: %s: %s (kept on the card)", *key, msg.reason, msg.detail)

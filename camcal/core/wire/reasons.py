@@ -14,6 +14,9 @@ class Reason:
     name: str
     retry: bool  # can sending the same message again succeed?
     meaning: str
+    #: The ship's own state, not the message: resend for as long as it takes (a full disk, a
+    #: database being restarted), not a limited number of times like a damaged copy.
+    until_it_works: bool = False
 
 
 _ALL = (
@@ -49,13 +52,20 @@ _ALL = (
         True,
         "this ingest does not serve the module (several ingests share a ship): keep everything in "
         "the outbox and look for the right one",
+        until_it_works=True,
     ),
     Reason(
         "conflict",
         False,
         "this (module, boot, seq) is stored with other content; the ship keeps the first and raises an alarm",
     ),
-    Reason("internal_error", True, "the ship failed to store it; resend later"),
+    Reason(
+        "internal_error",
+        True,
+        "the ship failed to store it (its disk or database, not the message): resend later, for as "
+        "long as it takes",
+        until_it_works=True,
+    ),
     Reason(
         "quarantined",
         False,

@@ -19,7 +19,7 @@ from camcal.core.wire.reasons import REASONS
 from camcal.core.wire.sensors import SENSOR_SPEC
 
 #: Version of the schema document: the protocol version, then a revision for additions that keep it.
-SCHEMA_VERSION = "1.2"
+SCHEMA_VERSION = "1.3"
 
 
 def protocol_schema() -> dict[str, Any]:
@@ -35,7 +35,10 @@ def protocol_schema() -> dict[str, Any]:
         "See docs/protocol.md."
     )
     schema["x-camcal-version"] = SCHEMA_VERSION
-    schema["x-nack-reasons"] = {r.name: {"retry": r.retry, "meaning": r.meaning} for r in REASONS.values()}
+    schema["x-nack-reasons"] = {
+        r.name: {"retry": r.retry, "until_it_works": r.until_it_works, "meaning": r.meaning}
+        for r in REASONS.values()
+    }
     schema["x-sensor-columns"] = [
         {"name": c.name, "unit": c.unit, "min": c.lo, "max": c.hi, "meaning": c.meaning} for c in SENSOR_SPEC
     ]

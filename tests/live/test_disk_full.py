@@ -1,0 +1,83 @@
+"""The ship's data disk fills up while a module streams, then space is freed: nothing is refused for
+good, and every frame the module took is stored and analysed once the disk has room again.
+
+A real full file system: a small tmpfs mounted for the test (needs root; skipped otherwise), the
+ingest's data folder on it, and a file that takes all but ~1 MB of it.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from sqlalchemy import func, select
+
+from ingest.service import IngestService
+from lrm.agent import MAX_RESENDS
+from storage.models import Frame, FrameResult
+from tests.live.conftest import ingest_config
+from tests.utils.live import make_agent, stop_and_drain
+
+
+@pytest.fixture
+def small_disk(tmp_path: Path) -> Iterator[Path]:
+    where = tmp_path / "disk"
+    where.mkdir()
+    mount = ["mount", "-t", "tmpfs", "-o", "size=200m", "tmpfs", str(where)]
+    done = subprocess.run(mount, capture_output=True)
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a small tmpfs (needs root): {done.stderr.decode().strip()}")
+    try:
+        yield where
+    finally:
+        subprocess.run(["umount", "-l", str(where)], check=False)
+
+
+def count(svc: IngestService, model: type) -> int:
+    with svc.store.read() as s:
+        return int(s.scalar(select(func.count(model.id))) or 0)  # type: ignore[attr-defined]
+
+
+def wait_for(predicate, timeout: float) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(0.1)
+    return predicate()
+
+
+def test_a_full_disk_refuses_nothing_for_good_and_every_frame_arrives_once_freed(
+    small_disk: Path, tmp_path: Path
+) -> None:
+    svc = IngestService(ingest_config(small_disk / "data", workers=1))
+    svc.start()
+    agent = make_agent("A", svc.endpoint, tmp_path / "outbox")[0]
+    try:
+        agent.start()
+        assert wait_for(lambda: count(svc, FrameResult) >= 5, 30)
+        filler = small_disk / "filler"
+        # all but ~1 MB (written, not sparse): a few frames more fit, then nothing
+        filler.write_bytes(bytes(shutil.disk_usage(small_disk).free - 1_000_000))
+        # Longer than a module's limited resends (1 + 2 + 4 + 8 + 16 s for MAX_RESENDS = 5): a
+        # message refused for a reason that is the ship's own must be resent until it works.
+        time.sleep(sum(2.0**k for k in range(MAX_RESENDS)) + 4.0)
+        assert agent.counters["nacked_internal_error"] > 0, "the disk never filled"
+        assert agent.outbox.pending_count() > 20
+        assert agent.counters["refused"] == 0
+        filler.unlink()
+        assert stop_and_drain([agent], 90), f"{agent.outbox.pending_count()} still pending"
+        stored = count(svc, Frame)
+        assert stored == agent.counters["frames_captured"]
+        assert wait_for(lambda: count(svc, FrameResult) == stored, 60)
+        with svc.store.read() as s:
+            assert set(s.scalars(select(FrameResult.status))) == {"ok"}
+        assert svc.health()["counters"].get("quarantined", 0) == 0
+        assert agent.counters["refused"] == 0 and not list((small_disk / "data").glob("quarantine/*"))
+    finally:
+        agent.stop()
+        svc.stop()

@@ -14,16 +14,21 @@ from pathlib import Path
 def write_atomic(path: Path, data: bytes | memoryview, *, fsync: bool = True) -> None:
     """Write ``data`` to a temporary name, fsync, then rename over ``path``.
 
-    A reader (or a crash) never sees a half-written file under ``path``.
+    A reader (or a crash) never sees a half-written file under ``path``. A write that fails (a
+    full disk) removes its temporary file: what did fit must not hold the space others need.
     """
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}-{threading.get_native_id()}")
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-        if fsync:
-            fh.flush()
-            os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+            if fsync:
+                fh.flush()
+                os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def fsync_dir(path: Path) -> None:

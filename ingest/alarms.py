@@ -31,6 +31,7 @@ class AlarmLimits:
     disk_min_free_gb: float = 5.0
     conflict_hold_s: float = 900.0
     analysis_crash_hold_s: float = 900.0
+    card_hold_s: float = 120.0
     analysis_crash_major: int = 3
 
 
@@ -56,6 +57,8 @@ class _ModuleState:
     outcomes: deque[str] = field(default_factory=deque)
     near_edge: deque[bool] = field(default_factory=lambda: deque(maxlen=10))
     open_gaps: list[tuple[int, int, float]] = field(default_factory=list)
+    card: tuple[str, int, str | None] = ("", 0, None)  # boot, messages not kept, the card's error
+    card_rose_unix_s: float | None = None  # when that count last rose
 
 
 class AlarmEvaluator:
@@ -115,6 +118,13 @@ class AlarmEvaluator:
     def observe_analysis_crashes(self, crashes: list[tuple[float, str]]) -> None:
         """The ingest's analysis processes that died: (unix time, what happened), oldest first."""
         self._analysis_crashes = crashes
+
+    def observe_card(self, module: str, boot: str, skipped: int, error: str | None) -> None:
+        """What the module's heartbeat says of its SD card: messages it could not keep this boot."""
+        st = self._m[module]
+        if skipped and (boot != st.card[0] or skipped > st.card[1]):
+            st.card_rose_unix_s = time.time()
+        st.card = (boot, skipped, error)
 
     def observe_gaps(self, module: str, gaps: list[tuple[int, int, float]]) -> None:
         self._m[module].open_gaps = gaps
@@ -235,6 +245,17 @@ class AlarmEvaluator:
                             "MINOR",
                             f"module {module}: {100 * frac:.0f} % of the last {n} frames {what}; {advice}",
                         )
+            if st.card_rose_unix_s is not None and now_unix_s - st.card_rose_unix_s <= lim.card_hold_s:
+                _, skipped, error = st.card
+                add(
+                    "card",
+                    module,
+                    "MAJOR",
+                    f"module {module}: its SD card cannot keep what it takes ({error or 'write failed'}); "
+                    f"{skipped} frame(s) and sensor message(s) not taken since its boot, the last at "
+                    f"{_hms(st.card_rose_unix_s)} UTC: free or swap the card at the next recovery "
+                    "(everything on it is kept)",
+                )
             old = [g for g in st.open_gaps if now_unix_s - g[2] >= lim.gap_age_s]
             if old:
                 missing = sum(b - a + 1 for a, b, _ in old)

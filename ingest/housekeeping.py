@@ -214,6 +214,7 @@ class Housekeeping:
             self.st.alarms.observe_link(
                 link.module, age_up, link.last_seen_unix_s or None, signed_off=link.down_reason == "bye"
             )
+            self.st.alarms.observe_card(link.module, link.boot, link.card_skipped, link.card_error)
 
     def _observe_gaps(self) -> None:
         svc = self.svc

@@ -51,6 +51,8 @@ class Link:
     outbox_pending: int = 0
     in_flight: int = 0
     last_seq: int = 0  # the highest sequence number of ``boot`` the module says it has produced
+    card_skipped: int = 0  # messages the module could not keep on its SD card (not taken) this boot
+    card_error: str | None = None
     frames: deque[float] = field(default_factory=lambda: deque(maxlen=2000))
     last_frame_unix_s: float | None = None
     last_heartbeat_sent: float = 0.0
@@ -256,6 +258,7 @@ class Network:
             link.schedule = msg.schedule.model_dump()
             link.outbox_pending, link.in_flight, link.boot = msg.outbox_pending, msg.in_flight, msg.boot
             link.last_seq = msg.last_seq
+            link.card_skipped, link.card_error = msg.card_skipped, msg.card_error
             if not link.welcomed:  # the ship restarted under a running module: greet it again
                 self._welcome(link)
             self.q.put(Incoming("heartbeat", module, msg, None, t_unix, t_mono))

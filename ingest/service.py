@@ -345,6 +345,7 @@ class IngestService:
                 "boot": link.boot,
                 "schedule": link.schedule,
                 "outbox_pending": link.outbox_pending,
+                "card_skipped": link.card_skipped,
                 "in_flight": link.in_flight,
                 "clock_offset_s": round(link.clock_offset_s, 3) if link.clock_offset_s is not None else None,
                 "last_seq": link.last_seq,

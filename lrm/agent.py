@@ -106,7 +106,9 @@ class Agent(CommandHandling):
         self.boot = new_boot_id()
         self.outbox = Outbox(config.outbox, config.module, fsync=config.fsync)
         self._seq = 0
-        self._seq_lock = threading.Lock()
+        self._seq_lock = threading.RLock()
+        self.card_error: str | None = None  # the SD card's last failure, for the heartbeat
+        self._card_logged = -1e9
         self._new: queue.SimpleQueue[tuple[str, int]] = queue.SimpleQueue()
         self._stop = threading.Event()
         self._produce_stop = threading.Event()
@@ -195,6 +197,24 @@ class Agent(CommandHandling):
             self._seq += 1
             return self._seq
 
+    def _card_failed(self, what: str, exc: OSError) -> None:
+        """The SD card could not keep a frame or sensor message (held under ``_seq_lock``): it is
+        not taken, its number is given back (the ship sees no gap), the heartbeat says so."""
+        self._seq -= 1
+        self.counters["card_skipped"] += 1
+        self.card_error = f"{what}: {exc.strerror or exc}"[:200]
+        now = time.monotonic()
+        if now - self._card_logged >= 10.0:
+            self._card_logged = now
+            log.error(
+                "module %s: the SD card cannot keep a %s (%s); %d not taken so far: free or swap the "
+                "card (everything on it is kept)",
+                self.config.module,
+                what,
+                exc,
+                self.counters["card_skipped"],
+            )
+
     # ------------------------------------------------------------ capture
     def _capture_loop(self) -> None:
         while not self._produce_stop.is_set():
@@ -203,20 +223,25 @@ class Agent(CommandHandling):
                 return
             f = cap.frame
             png = f.png if getattr(f, "png", None) else encode_png(f.pixels)
-            seq = self._next_seq()
             depth = f.depth_m if f.depth_m is not None else (self.depth() if self.depth else None)
-            self.outbox.add_frame(
-                self.boot,
-                seq,
-                png,
-                captured_at=f.captured_at,
-                camera=f.camera or self.config.module,
-                wavelength_nm=cap.wavelength_nm,
-                exposure_s=f.exposure_s,
-                gain_db=f.gain_db,
-                depth_m=depth,
-                schedule_version=cap.schedule_version,
-            )
+            with self._seq_lock:  # a number is used only once the card holds the frame: no gap
+                seq = self._next_seq()
+                try:
+                    self.outbox.add_frame(
+                        self.boot,
+                        seq,
+                        png,
+                        captured_at=f.captured_at,
+                        camera=f.camera or self.config.module,
+                        wavelength_nm=cap.wavelength_nm,
+                        exposure_s=f.exposure_s,
+                        gain_db=f.gain_db,
+                        depth_m=depth,
+                        schedule_version=cap.schedule_version,
+                    )
+                except OSError as exc:
+                    self._card_failed("frame", exc)
+                    continue
             self.counters["frames_captured"] += 1
             self._new.put((self.boot, seq))
 
@@ -246,10 +271,16 @@ class Agent(CommandHandling):
                 ]
             )
             if self.clock.monotonic() - batch_start >= self.config.sensor_batch_s:
-                seq = self._next_seq()
-                self.outbox.add_sensors(self.boot, seq, rows)
-                self.counters["sensor_batches"] += 1
-                self._new.put((self.boot, seq))
+                with self._seq_lock:
+                    seq = self._next_seq()
+                    try:
+                        self.outbox.add_sensors(self.boot, seq, rows)
+                    except OSError as exc:
+                        self._card_failed("sensors", exc)
+                        seq = 0
+                if seq:
+                    self.counters["sensor_batches"] += 1
+                    self._new.put((self.boot, seq))
                 rows, batch_start = [], self.clock.monotonic()
             next_t += period
             wait = next_t - self.clock.monotonic()
@@ -375,6 +406,8 @@ class Agent(CommandHandling):
                             outbox_pending=self.outbox.pending_count(),
                             in_flight=len(in_flight),
                             last_seq=self._seq,
+                            card_skipped=self.counters["card_skipped"],
+                            card_error=self.card_error,
                             **dive,
                         ),
                     )

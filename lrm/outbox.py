@@ -18,6 +18,7 @@ what the ship does not have.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import struct
@@ -178,13 +179,33 @@ class Outbox:
     def add_sensors(self, boot: str, seq: int, rows: list[list[float | None]]) -> Entry:
         obj = {"boot": boot, "seq": seq, "columns": list(wire.SENSOR_COLUMNS), "rows": rows}
         with self._lock:
-            self._sensors.write(json.dumps(obj, separators=(",", ":")) + "\n")
-            self._sensors.flush()
-            if self.fsync:
-                os.fsync(self._sensors.fileno())
+            try:
+                self._sensors.write(json.dumps(obj, separators=(",", ":")) + "\n")
+                self._sensors.flush()
+                if self.fsync:
+                    os.fsync(self._sensors.fileno())
+            except OSError:
+                self._reopen_sensors()
+                raise
             e = Entry("sensors", boot, seq, obj)
             self._index(e)
             return e
+
+    def _reopen_sensors(self) -> None:
+        """After a failed write (a full card): drop what the file handle still buffers, so that the
+        line that failed never lands on the card later, and end a cut line."""
+        with contextlib.suppress(OSError):
+            self._sensors.close()  # closes the file even when its last flush fails
+        path = self.root / "sensors.jsonl"
+        self._sensors = path.open("a", encoding="utf-8")
+        try:
+            with path.open("rb") as fh:
+                cut = fh.seek(0, os.SEEK_END) > 0 and fh.seek(-1, os.SEEK_END) >= 0 and fh.read(1) != b"\n"
+            if cut:
+                self._sensors.write("\n")
+                self._sensors.flush()
+        except OSError:
+            pass  # still full: the next write ends the cut line first, or fails again
 
     def ack(self, boot: str, first: int, last: int) -> int:
         """Record an acknowledged range; returns how many pending entries it settled."""

@@ -8,7 +8,6 @@ ingest's data folder on it, and a file that takes all but ~1 MB of it.
 from __future__ import annotations
 
 import shutil
-import subprocess
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -21,20 +20,13 @@ from lrm.agent import MAX_RESENDS
 from storage.models import Frame, FrameResult
 from tests.live.conftest import ingest_config
 from tests.utils.live import make_agent, stop_and_drain
+from tests.utils.tmpfs import small_tmpfs
 
 
 @pytest.fixture
 def small_disk(tmp_path: Path) -> Iterator[Path]:
-    where = tmp_path / "disk"
-    where.mkdir()
-    mount = ["mount", "-t", "tmpfs", "-o", "size=200m", "tmpfs", str(where)]
-    done = subprocess.run(mount, capture_output=True)
-    if done.returncode != 0:
-        pytest.skip(f"cannot mount a small tmpfs (needs root): {done.stderr.decode().strip()}")
-    try:
+    with small_tmpfs(tmp_path / "disk", 200) as where:
         yield where
-    finally:
-        subprocess.run(["umount", "-l", str(where)], check=False)
 
 
 def count(svc: IngestService, model: type) -> int:

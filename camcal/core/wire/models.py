@@ -165,6 +165,10 @@ class ModuleHeartbeat(_ModuleHeader):
     outbox_pending: Count = 0
     in_flight: Count = 0
     last_seq: Count = 0
+    #: Frames and sensor messages not taken since the boot because the SD card could not keep them
+    #: (full, failing): nothing is sent that is not on the card first.
+    card_skipped: Count = 0
+    card_error: Annotated[str, Strict(), Field(max_length=200)] | None = None
 
 
 class CommandStatus(_ModuleHeader):

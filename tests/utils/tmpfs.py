@@ -1,0 +1,25 @@
+"""A small file system of its own for a test that needs a disk to run full (a tmpfs; needs root)."""
+
+from __future__ import annotations
+
+import subprocess
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+
+
+@contextmanager
+def small_tmpfs(where: Path, size_mb: int) -> Iterator[Path]:
+    """Mount a tmpfs of ``size_mb`` at ``where`` (created); skip the test where mounting is not
+    allowed (not root). Unmounted afterwards, whatever still uses it."""
+    where.mkdir(parents=True, exist_ok=True)
+    mount = ["mount", "-t", "tmpfs", "-o", f"size={size_mb}m", "tmpfs", str(where)]
+    done = subprocess.run(mount, capture_output=True)
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a small tmpfs (needs root): {done.stderr.decode().strip()}")
+    try:
+        yield where
+    finally:
+        subprocess.run(["umount", "-l", str(where)], check=False)

@@ -8,7 +8,6 @@ otherwise), filled by a file that takes all but ~0.5 MB of it.
 from __future__ import annotations
 
 import shutil
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -18,7 +17,7 @@ from sqlalchemy import func, select
 from ingest.service import IngestService
 from storage import queries
 from storage.models import Alarm, Frame
-from tests.utils.live import make_agent, stop_and_drain
+from tests.utils.live import make_agent, stop_and_drain, wait_for
 from tests.utils.tmpfs import small_tmpfs
 
 
@@ -26,15 +25,6 @@ from tests.utils.tmpfs import small_tmpfs
 def card(tmp_path: Path) -> Iterator[Path]:
     with small_tmpfs(tmp_path / "card", 60) as where:
         yield where
-
-
-def wait_for(predicate, timeout: float) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        time.sleep(0.1)
-    return predicate()
 
 
 def test_a_full_card_keeps_the_module_up_alarms_and_capture_resumes_when_freed(

@@ -19,7 +19,7 @@ from ingest.service import IngestService
 from lrm.agent import MAX_RESENDS
 from storage.models import Frame, FrameResult
 from tests.live.conftest import ingest_config
-from tests.utils.live import make_agent, stop_and_drain
+from tests.utils.live import make_agent, stop_and_drain, wait_for
 from tests.utils.tmpfs import small_tmpfs
 
 
@@ -32,15 +32,6 @@ def small_disk(tmp_path: Path) -> Iterator[Path]:
 def count(svc: IngestService, model: type) -> int:
     with svc.store.read() as s:
         return int(s.scalar(select(func.count(model.id))) or 0)  # type: ignore[attr-defined]
-
-
-def wait_for(predicate, timeout: float) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        time.sleep(0.1)
-    return predicate()
 
 
 def test_a_full_disk_refuses_nothing_for_good_and_every_frame_arrives_once_freed(

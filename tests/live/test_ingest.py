@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import time
 from pathlib import Path
 
 import pytest
@@ -15,16 +14,7 @@ from sqlalchemy import func, select
 from camcal.core import wire
 from ingest.service import IngestService
 from storage.models import Alarm, AttenuationPoint, Event, Frame, FrameResult, SensorSample
-from tests.utils.live import TcpProxy, make_agent, stop_and_drain
-
-
-def wait_for(predicate, timeout: float, interval: float = 0.05) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        time.sleep(interval)
-    return predicate()
+from tests.utils.live import TcpProxy, make_agent, stop_and_drain, wait_for
 
 
 def stored_keys(svc: IngestService, module: str) -> list[tuple[str, int]]:

@@ -64,6 +64,8 @@ class AgentConfig:
     sensor_batch_s: float = 1.0
     initial_window: int = 2
     fsync: bool = True
+    #: Resends of a message refused with ``retry`` before giving up on it (`MAX_RESENDS`).
+    max_resends: int = MAX_RESENDS
     #: The dive this module is started for: it refuses an ingest of another dive (None: any).
     dive: str | None = None
     #: The link's CURVE keys (`camcal.core.wire.keys`); without them the link is plaintext, which must
@@ -463,7 +465,7 @@ class Agent(CommandHandling):
     ) -> None:
         """The ship refused a message: resend later if that can help, else settle it as refused.
 
-        A resend backs off (1, 2, 4 ... 30 s) and gives up after `MAX_RESENDS`
+        A resend backs off (1, 2, 4 ... 30 s) and gives up after ``max_resends``
         tries: an SD copy that is damaged would otherwise be sent for ever. A
         reason that is the ship's own state (a full disk, a database being
         restarted: ``internal_error``) is resent every 30 s at most until it is
@@ -484,7 +486,7 @@ class Agent(CommandHandling):
         tries[key] += 1
         reason = wire.REASONS.get(msg.reason)
         until_it_works = reason is not None and reason.until_it_works
-        if msg.retry and (tries[key] <= MAX_RESENDS or until_it_works):
+        if msg.retry and (tries[key] <= self.config.max_resends or until_it_works):
             retry_at[key] = time.monotonic() + min(2.0 ** (tries[key] - 1), 30.0)
             return
         log.error("ship refused %s/%d for good: %s: %s (kept on the card)", *key, msg.reason, msg.detail)

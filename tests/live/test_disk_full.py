@@ -16,7 +16,6 @@ import pytest
 from sqlalchemy import func, select
 
 from ingest.service import IngestService
-from lrm.agent import MAX_RESENDS
 from storage.models import Frame, FrameResult
 from tests.live.conftest import ingest_config
 from tests.utils.live import make_agent, stop_and_drain, wait_for
@@ -39,16 +38,17 @@ def test_a_full_disk_refuses_nothing_for_good_and_every_frame_arrives_once_freed
 ) -> None:
     svc = IngestService(ingest_config(small_disk / "data", workers=1))
     svc.start()
-    agent = make_agent("A", svc.endpoint, tmp_path / "outbox")[0]
+    resends = 2  # a module that gives up sooner than the default, so that the outage can be short
+    agent = make_agent("A", svc.endpoint, tmp_path / "outbox", max_resends=resends)[0]
     try:
         agent.start()
         assert wait_for(lambda: count(svc, FrameResult) >= 5, 30)
         filler = small_disk / "filler"
         # all but ~1 MB (written, not sparse): a few frames more fit, then nothing
         filler.write_bytes(bytes(shutil.disk_usage(small_disk).free - 1_000_000))
-        # Longer than a module's limited resends (1 + 2 + 4 + 8 + 16 s for MAX_RESENDS = 5): a
-        # message refused for a reason that is the ship's own must be resent until it works.
-        time.sleep(sum(2.0**k for k in range(MAX_RESENDS)) + 4.0)
+        # Longer than the module's limited resends (1 + 2 + 4 s for three tries): a message refused
+        # for a reason that is the ship's own must be resent until it works.
+        time.sleep(sum(2.0**k for k in range(resends + 1)) + 4.0)
         assert agent.counters["nacked_internal_error"] > 0, "the disk never filled"
         assert agent.outbox.pending_count() > 20
         assert agent.counters["refused"] == 0

@@ -17,6 +17,7 @@ from sqlalchemy import func, select
 from ingest.service import IngestService
 from storage import queries
 from storage.models import Alarm, Frame
+from tests.live.conftest import ingest_config
 from tests.utils.live import make_agent, stop_and_drain, wait_for
 from tests.utils.tmpfs import small_tmpfs
 
@@ -25,6 +26,16 @@ from tests.utils.tmpfs import small_tmpfs
 def card(tmp_path: Path) -> Iterator[Path]:
     with small_tmpfs(tmp_path / "card", 60) as where:
         yield where
+
+
+@pytest.fixture
+def service(tmp_path: Path) -> Iterator[IngestService]:
+    """An ingest on SQLite: what is tested is the module's card (the live fixture's PostgreSQL
+    variant would test nothing more)."""
+    svc = IngestService(ingest_config(tmp_path / "data"))
+    svc.start()
+    yield svc
+    svc.stop()
 
 
 def test_a_full_card_keeps_the_module_up_alarms_and_capture_resumes_when_freed(

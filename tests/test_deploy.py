@@ -214,6 +214,24 @@ def test_doctor_checks_the_module_link(tmp_path: Path, monkeypatch: pytest.Monke
     assert "PLAINTEXT: no encryption" in link()
 
 
+def test_doctor_says_when_a_modules_sd_card_could_not_keep_frames() -> None:
+    from camcal.cli.doctor import OK, WARN, check_modules
+
+    s = Settings()
+    first = s.modules[0].id
+    health = {
+        "modules": {
+            m.id: {"link": "up", "frames_per_s": 2.0, "clock_offset_s": 0.1, "card_skipped": 0}
+            for m in s.modules
+        }
+    }
+    health["modules"][first]["card_skipped"] = 7
+    rows = check_modules(s, health)
+    assert [r[1] for r in rows if r[0] == f"module {first}"] == [OK, WARN]
+    assert "SD card could not keep 7" in next(r[2] for r in rows if r[1] == WARN)
+    assert all(r[1] == OK for r in rows if r[0] != f"module {first}")
+
+
 def test_operator_tokens_come_from_a_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     as_json = tmp_path / "tokens.json"
     as_json.write_text('{"alice": "secret-token-123"}')

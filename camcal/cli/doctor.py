@@ -127,6 +127,17 @@ def check_ingest(s: Settings, wait_s: float) -> tuple[list[tuple[str, str, str]]
     else:
         q = health.get("queues", {})
         out.append(("ingest events", OK, f"heartbeat received; queues {q}"))
+        restarts = (health.get("counters") or {}).get("analysis_restarts", 0)
+        if health.get("analysis_ready") is False or restarts:
+            state = "starting" if health.get("analysis_ready") is False else "running"
+            out.append(
+                (
+                    "ingest analysis",
+                    WARN,
+                    f"analysis processes {state}; replaced {restarts} time(s) after one died: if this "
+                    "repeats, look for the OOM killer (`dmesg`); frames are kept and analysed again",
+                )
+            )
     return out, health
 
 
@@ -203,6 +214,15 @@ def check_modules(s: Settings, health: dict[str, Any] | None) -> list[tuple[str,
         else:
             extra = f", clock offset {off:+.2f} s" if off is not None else ""
             out.append((f"module {m.id}", OK, f"link up, {h['frames_per_s']} frames/s{extra}"))
+        if h.get("card_skipped"):
+            out.append(
+                (
+                    f"module {m.id}",
+                    WARN,
+                    f"its SD card could not keep {h['card_skipped']} frame(s) or sensor message(s) this "
+                    "boot (full?): free or swap the card at the next recovery",
+                )
+            )
     return out
 
 

@@ -46,6 +46,7 @@ def health(hub: HubDep, store: StoreDep, settings: SettingsDep) -> dict[str, Any
             "last_frame_age_s": h.get("last_frame_age_s") if h else None,
             "schedule": h["schedule"] if h else m["schedule"],
             "outbox_pending": h.get("outbox_pending") if h else None,
+            "card_skipped": h.get("card_skipped") if h else None,
             "boot": h["boot"] if h else m["boot"],
             "distance_m": m["distance_m"],
             "phase": hub.phase(m["id"]),

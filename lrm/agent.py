@@ -2,7 +2,8 @@
 
 Three threads: **capture** (the schedule runner on the camera backend, or a
 replayed frame set), **sensors** (samples at 10 Hz or more, one message a
-second), and **comm**, which alone owns the ZeroMQ DEALER socket. Every
+second), both in `lrm.producing`, and **comm**, which alone owns the ZeroMQ
+DEALER socket. Every
 frame and sensor packet goes to the outbox (SD card) first and is sent
 afterwards; it stays pending until the ship acknowledges it, and everything
 pending is sent again after a reconnect or when its acknowledgement is late.
@@ -30,10 +31,10 @@ import zmq
 from pydantic import ValidationError
 
 from camcal.core import __version__, wire
-from camcal.core.images import encode_png
 from camcal.core.schedule import CameraLimits, Schedule
 from lrm.commands import CommandHandling
 from lrm.outbox import Outbox
+from lrm.producing import Producing
 from lrm.runner import Capture, ScheduleRunner
 from lrm.shipcheck import ShipCheck
 
@@ -74,7 +75,7 @@ class AgentConfig:
     plaintext: bool = False
 
 
-class Agent(CommandHandling):
+class Agent(CommandHandling, Producing):
     """One module's agent. `start` runs it in background threads; `stop` ends it cleanly."""
 
     def __init__(
@@ -191,105 +192,6 @@ class Agent(CommandHandling):
                 return True
             time.sleep(0.05)
         return self.outbox.pending_count() == 0
-
-    def _next_seq(self) -> int:
-        with self._seq_lock:
-            if self._seq == 0:
-                self._seq = self.outbox.last_seq(self.boot)
-            self._seq += 1
-            return self._seq
-
-    def _card_failed(self, what: str, exc: OSError) -> None:
-        """The SD card could not keep a frame or sensor message (held under ``_seq_lock``): it is
-        not taken, its number is given back (the ship sees no gap), the heartbeat says so."""
-        self._seq -= 1
-        self.counters["card_skipped"] += 1
-        self.card_error = f"{what}: {exc.strerror or exc}"[:200]
-        now = time.monotonic()
-        if now - self._card_logged >= 10.0:
-            self._card_logged = now
-            log.error(
-                "module %s: the SD card cannot keep a %s (%s); %d not taken so far: free or swap the "
-                "card (everything on it is kept)",
-                self.config.module,
-                what,
-                exc,
-                self.counters["card_skipped"],
-            )
-
-    # ------------------------------------------------------------ capture
-    def _capture_loop(self) -> None:
-        while not self._produce_stop.is_set():
-            cap = self._source(self._produce_stop)
-            if cap is None:
-                return
-            f = cap.frame
-            png = f.png if getattr(f, "png", None) else encode_png(f.pixels)
-            depth = f.depth_m if f.depth_m is not None else (self.depth() if self.depth else None)
-            with self._seq_lock:  # a number is used only once the card holds the frame: no gap
-                seq = self._next_seq()
-                try:
-                    self.outbox.add_frame(
-                        self.boot,
-                        seq,
-                        png,
-                        captured_at=f.captured_at,
-                        camera=f.camera or self.config.module,
-                        wavelength_nm=cap.wavelength_nm,
-                        exposure_s=f.exposure_s,
-                        gain_db=f.gain_db,
-                        depth_m=depth,
-                        schedule_version=cap.schedule_version,
-                    )
-                except OSError as exc:
-                    self._card_failed("frame", exc)
-                    continue
-            self.counters["frames_captured"] += 1
-            self._new.put((self.boot, seq))
-
-    # ------------------------------------------------------------ sensors
-    def _sensor_loop(self) -> None:
-        period = 1.0 / self.config.sensor_rate_hz
-        rows: list[list[float | None]] = []
-        batch_start = self.clock.monotonic()
-        next_t = self.clock.monotonic()
-        sensors = self.sensors
-        assert sensors is not None  # this loop runs only for a module with sensors
-        while not self._produce_stop.is_set():
-            s = sensors.read()
-            acc, gyro = s.acc_m_s2, s.gyro_dps
-            rows.append(
-                [
-                    s.t.timestamp(),
-                    s.temperature_c,
-                    s.humidity_pct,
-                    acc[0],
-                    acc[1],
-                    acc[2],
-                    gyro[0],
-                    gyro[1],
-                    gyro[2],
-                    s.depth_m,
-                ]
-            )
-            if self.clock.monotonic() - batch_start >= self.config.sensor_batch_s:
-                with self._seq_lock:
-                    seq = self._next_seq()
-                    try:
-                        self.outbox.add_sensors(self.boot, seq, rows)
-                    except OSError as exc:
-                        self._card_failed("sensors", exc)
-                        seq = 0
-                if seq:
-                    self.counters["sensor_batches"] += 1
-                    self._new.put((self.boot, seq))
-                rows, batch_start = [], self.clock.monotonic()
-            next_t += period
-            wait = next_t - self.clock.monotonic()
-            if wait > 0:
-                self.clock.sleep(wait)
-            else:
-                next_t = self.clock.monotonic()
 
     # ------------------------------------------------------------ comm
     def _comm_loop(self) -> None:

@@ -1,0 +1,140 @@
+"""What a module takes, into its SD card first: the frame and sensor half of `lrm.agent.Agent`.
+
+Every frame and sensor message is numbered and written to the outbox before
+it is offered to the ship. A number is used only once the card holds the
+message (`Producing._keep`): a message the card cannot keep (full, failing)
+is not taken and gives its number back, so the ship sees no gap, and the
+module goes on (the heartbeat says how many it could not keep).
+`Producing` is mixed into the agent, whose state it uses.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable
+from typing import Any
+
+from camcal.core.images import encode_png
+from lrm.outbox import Outbox
+from lrm.runner import Capture
+
+log = logging.getLogger("camcal.lrm")
+
+
+class Producing:
+    """The capture and sensor threads of a module agent (mixed into `lrm.agent.Agent`)."""
+
+    config: Any
+    boot: str
+    outbox: Outbox
+    counters: Counter[str]
+    clock: Any
+    sensors: Any | None
+    depth: Callable[[], float | None] | None
+    card_error: str | None  # the SD card's last failure, for the heartbeat
+    _source: Callable[[threading.Event], Capture | None]
+    _produce_stop: threading.Event
+    _new: queue.SimpleQueue[tuple[str, int]]
+    _seq: int
+    _seq_lock: threading.RLock
+    _card_logged: float
+
+    def _next_seq(self) -> int:
+        with self._seq_lock:
+            if self._seq == 0:
+                self._seq = self.outbox.last_seq(self.boot)
+            self._seq += 1
+            return self._seq
+
+    def _keep(self, what: str, count: str, write: Callable[..., object], *args: Any, **kwargs: Any) -> None:
+        """Number a message, write it to the card (``write(boot, seq, *args, **kwargs)``, an outbox
+        method), count it (``counters[count]``) and offer it to the ship; when the card cannot keep
+        it, give the number back and say so."""
+        with self._seq_lock:
+            seq = self._next_seq()
+            try:
+                write(self.boot, seq, *args, **kwargs)
+            except OSError as exc:
+                self._seq -= 1
+                self._card_failed(what, exc)
+                return
+        self.counters[count] += 1
+        self._new.put((self.boot, seq))
+
+    def _card_failed(self, what: str, exc: OSError) -> None:
+        self.counters["card_skipped"] += 1
+        self.card_error = f"{what}: {exc.strerror or exc}"[:200]
+        now = time.monotonic()
+        if now - self._card_logged >= 10.0:
+            self._card_logged = now
+            log.error(
+                "module %s: the SD card cannot keep a %s (%s); %d not taken so far: free or swap the "
+                "card (everything on it is kept)",
+                self.config.module,
+                what,
+                exc,
+                self.counters["card_skipped"],
+            )
+
+    # ------------------------------------------------------------ capture
+    def _capture_loop(self) -> None:
+        while not self._produce_stop.is_set():
+            cap = self._source(self._produce_stop)
+            if cap is None:
+                return
+            f = cap.frame
+            png = f.png if getattr(f, "png", None) else encode_png(f.pixels)
+            depth = f.depth_m if f.depth_m is not None else (self.depth() if self.depth else None)
+
+            self._keep(
+                "frame",
+                "frames_captured",
+                self.outbox.add_frame,
+                png,
+                captured_at=f.captured_at,
+                camera=f.camera or self.config.module,
+                wavelength_nm=cap.wavelength_nm,
+                exposure_s=f.exposure_s,
+                gain_db=f.gain_db,
+                depth_m=depth,
+                schedule_version=cap.schedule_version,
+            )
+
+    # ------------------------------------------------------------ sensors
+    def _sensor_loop(self) -> None:
+        period = 1.0 / self.config.sensor_rate_hz
+        rows: list[list[float | None]] = []
+        batch_start = self.clock.monotonic()
+        next_t = self.clock.monotonic()
+        sensors = self.sensors
+        assert sensors is not None  # this loop runs only for a module with sensors
+        while not self._produce_stop.is_set():
+            s = sensors.read()
+            acc, gyro = s.acc_m_s2, s.gyro_dps
+            rows.append(
+                [
+                    s.t.timestamp(),
+                    s.temperature_c,
+                    s.humidity_pct,
+                    acc[0],
+                    acc[1],
+                    acc[2],
+                    gyro[0],
+                    gyro[1],
+                    gyro[2],
+                    s.depth_m,
+                ]
+            )
+            if self.clock.monotonic() - batch_start >= self.config.sensor_batch_s:
+                self._keep("sensors", "sensor_batches", self.outbox.add_sensors, rows)
+                rows, batch_start = [], self.clock.monotonic()
+            next_t += period
+            wait = next_t - self.clock.monotonic()
+            if wait > 0:
+                self.clock.sleep(wait)
+            else:
+                next_t = self.clock.monotonic()

@@ -24,6 +24,8 @@ log = logging.getLogger("camcal.ingest")
 
 #: How long kept results wait before the next try to store them (`Results.store_unsaved`).
 UNSAVED_RETRY_S = 2.0
+#: One transaction of results: their rows, their events, the λ_att visits they changed.
+Commit = tuple[list[dict[str, Any]], list[Event], Changes | None]
 #: A frame's result when it killed an analysis process on its own (`ingest.analysis_pool`).
 CRASHED = (
     "the analysis process died while analysing this frame alone (after dying with it among "
@@ -37,7 +39,7 @@ class Results:
         self.svc = state.svc
         self.store = state.store
         #: Commits the ship could not store yet (`store_unsaved`), oldest first.
-        self.unsaved: deque[tuple[list[dict[str, Any]], list[Event], Changes | None]] = deque()
+        self.unsaved: deque[Commit] = deque()
         self.unsaved_retry_mono = 0.0
         self.series: VisitSeries | None = None
         self.last_result_mono = time.monotonic()
@@ -174,9 +176,21 @@ class Results:
             try:
                 self._commit_now(*self.unsaved[0])
             except Exception as exc:
-                if not ships_fault(exc):
-                    self.unsaved.popleft()  # its own fault: retrying cannot help
-                    raise
+                if not ships_fault(exc):  # its own fault: retrying it whole cannot help
+                    failed = self.unsaved.popleft()
+                    parts = split_commit(*failed)  # each result alone: one bad result costs one
+                    if len(parts) == 1:  # one result: stored as rejected (a replacement, visits: lost)
+                        parts = unstorable(*failed, exc)
+                        if not parts:
+                            raise
+                        self.svc.counters.inc("handler_errors")
+                        log.error(
+                            "a result could not be stored, stored as rejected: %s: %s",
+                            type(exc).__name__,
+                            exc,
+                        )
+                    self.unsaved.extendleft(reversed(parts))
+                    continue
                 self.unsaved_retry_mono = time.monotonic() + UNSAVED_RETRY_S
                 self.st.warn(
                     logging.ERROR,
@@ -235,3 +249,44 @@ class Results:
             ]
         self.store.upsert_linearity(rows)  # one transaction (one fsync) for all of them
         self.linearity_dirty.clear()
+
+
+def split_commit(rows: list[dict[str, Any]], events: list[Event], changes: Changes | None) -> list[Commit]:
+    """A commit that failed for its own reason, as one commit per result (with that frame's events)
+    and one for the λ_att visits and any other events: what is good is stored, the bad part alone
+    fails. Nothing is taken in again (counts, alarms, linearity and the series saw each result once).
+    """
+    by_frame: dict[Any, list[Event]] = defaultdict(list)
+    for e in events:
+        by_frame[e.payload.get("frame_id")].append(e)
+    parts: list[Commit] = [([r], by_frame.pop(r["frame_id"], []), None) for r in rows]
+    rest = [e for es in by_frame.values() for e in es]
+    if changes or rest or not parts:
+        parts.append(([], rest, changes))
+    return parts
+
+
+#: The start of the detail of a result that replaced one the database refused (`unstorable`).
+UNSTORABLE = "its analysis result could not be stored"
+
+
+def unstorable(
+    rows: list[dict[str, Any]], events: list[Event], changes: Changes | None, exc: Exception
+) -> list[Commit]:
+    """One result the database refused for its own reason (not the ship's: a value it cannot take),
+    as a rejected result of that frame, so that the frame is not left unanalysed (and analysed again
+    at every start); nothing if ``rows`` is not one result, or already such a replacement."""
+    if len(rows) != 1 or changes or str(rows[0].get("detail") or "").startswith(UNSTORABLE):
+        return []
+    row = rows[0]
+    why = (str(exc).splitlines() or [""])[0]
+    detail = f"{UNSTORABLE} ({type(exc).__name__}: {why}); run `camcal analyze` on the frame"
+    kept = {"frame_id": row["frame_id"], "analysed_unix_s": row.get("analysed_unix_s"), "status": "rejected"}
+    kept |= {"reason": "analysis_error", "detail": detail[:500]}
+    shown = [
+        Event(
+            e.kind, {**e.payload, "status": "rejected", "reason": "analysis_error"}, e.t, e.module, e.dive_id
+        )
+        for e in events
+    ]
+    return [([kept], shown, None)]

@@ -120,9 +120,7 @@ class StoreState:
         ):
             return
         self.pending_results = []
-        if not self.guarded("results", self.results.handle, pending) and len(pending) > 1:
-            for r in pending:  # the batch failed: each result alone, so one bad result costs one
-                self.guarded("result", self.results.handle, [r])
+        self.guarded("results", self.results.handle, pending)  # a bad result costs only itself
 
     # -- sensor samples --------------------------------------------------
     def sensor_samples(self, b: SensorBatchRow) -> None:

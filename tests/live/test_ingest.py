@@ -6,6 +6,7 @@ import json
 import os
 import signal
 from pathlib import Path
+from typing import Any
 
 import pytest
 import zmq
@@ -13,7 +14,9 @@ from sqlalchemy import func, select
 
 from camcal.core import wire
 from ingest.service import IngestService
+from ingest.worker import analyse_stored_frame
 from storage.models import Alarm, AttenuationPoint, Event, Frame, FrameResult, SensorSample
+from tests.live.conftest import ingest_config
 from tests.utils.live import TcpProxy, make_agent, stop_and_drain, wait_for
 
 
@@ -141,3 +144,51 @@ def test_a_killed_analysis_process_is_replaced_and_every_frame_still_analysed(
     assert len(alarms) == 1 and alarms[0].severity == "MINOR" and "replaced" in alarms[0].message
     assert service.analysis_ready.is_set()
     agent.stop()
+
+
+def analyse_with_an_unstorable_value(path: str, config: Any, thumb: str | None) -> dict[str, Any]:
+    """In the analysis process: the real analysis, but every third frame's result carries a value the
+    database has no column for (as a worker of another version would send): refused for its own sake."""
+    row = analyse_stored_frame(path, config, thumb)
+    if int(Path(path).stem) % 3 == 0:
+        row["no_such_column"] = 1.0
+    return row
+
+
+def test_a_result_the_database_refuses_costs_only_itself_and_is_counted_once(
+    tmp_path: Path, db_url: str | None
+) -> None:
+    """Results are stored in batches; a batch with a result the database refuses is stored result
+    by result: the good ones as they are, the refused one as a rejected result of its frame (so the
+    frame is not left unanalysed), and every result taken in (counted, alarms, λ_att) once."""
+    svc = IngestService(ingest_config(tmp_path / "data", db_url=db_url))
+    svc.analysis._analyse = analyse_with_an_unstorable_value  # the one stand-in: a worker's bad value
+    svc.start()
+    try:
+        assert wait_for(svc.analysis_ready.is_set, 60)
+        agent = make_agent("A", svc.endpoint, tmp_path / "outbox")[0]
+        agent.start()
+        assert wait_for(lambda: agent.counters["frames_captured"] >= 15, 30)
+        assert stop_and_drain([agent], 20)
+        n_frames = count(svc, Frame)
+        assert wait_for(lambda: count(svc, FrameResult) == n_frames, 30), "a frame was left without result"
+        with svc.store.read() as s:
+            outcome = {
+                seq: (status, reason, detail)
+                for seq, status, reason, detail in s.execute(
+                    select(Frame.seq, FrameResult.status, FrameResult.reason, FrameResult.detail).join(
+                        FrameResult, FrameResult.frame_id == Frame.id
+                    )
+                )
+            }
+            result_events = [e.payload for e in s.scalars(select(Event).where(Event.kind == "result"))]
+        refused = {q for q, (_, reason, detail) in outcome.items() if reason == "analysis_error"}
+        assert refused == {q for q in outcome if q % 3 == 0} and refused
+        assert all("could not be stored" in (outcome[q][2] or "") for q in refused)
+        assert all(outcome[q][0] == "ok" for q in outcome if q not in refused)
+        assert sorted(e["seq"] for e in result_events) == sorted(outcome)  # one event each
+        assert {e["seq"] for e in result_events if e["status"] == "rejected"} == refused
+        assert svc.health()["counters"]["frames_analysed"] == n_frames  # each result taken in once
+        agent.stop()
+    finally:
+        svc.stop()

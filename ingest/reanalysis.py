@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -20,7 +21,9 @@ from analysis import FrameConfig
 from camcal.core import __version__
 from camcal.core.calibrations import setup_of
 from camcal.core.frameset import FrameSetError, Setup, parse_setup
+from camcal.core.parallel import process_pool
 from ingest.derived import linearity_rows, mean_gray_by_setting, result_row
+from ingest.results import CRASHED
 from ingest.rolling import Sample, series_rows
 from ingest.runners import BatchRunner, LocalRunner
 from ingest.worker import analyse_batch
@@ -222,15 +225,24 @@ def analyse_into_run(
     options: ReanalysisOptions,
     runner: BatchRunner,
     progress: Callable[[float], None] | None = None,
+    analyse: Callable[..., list[tuple[int, dict[str, Any]]]] = analyse_batch,
 ) -> int:
     """Analyse frames ``(frame_id, URL or path[, module])`` in batches on ``runner`` (with ``config``,
     or its module's when it maps modules to configs, see `analyse_batch`); store each batch's
-    results as it completes. Returns the number of results stored."""
+    results as it completes. Returns the number of results stored.
+
+    When an analysis process dies (the OOM killer, a decoder crash), the frames not yet done are
+    analysed one at a time, as the live ingest does (`one_at_a_time`): a run is not lost to it.
+    ``analyse`` is `ingest.worker.analyse_batch` (another only in tests: a frame that kills).
+    """
     size = max(1, options.batch_size)
     batches = [tasks[i : i + size] for i in range(0, len(tasks), size)]
     stored = done = 0
     storage_options = dict(options.storage_options)
-    for out in runner.map(analyse_batch, batches, config=config, storage_options=storage_options):
+    finished: set[int] = set()
+
+    def keep(out: list[tuple[int, dict[str, Any]]]) -> None:
+        nonlocal stored, done
         t = time.time()
         rows = []
         for fid, row in out:
@@ -239,9 +251,54 @@ def analyse_into_run(
             rows.append({**row, "frame_id": fid, "analysed_unix_s": t})
         stored += store.save_results(run_id, rows)
         done += len(rows)
+        finished.update(fid for fid, _ in out)
         if progress:
             progress(done / max(1, len(tasks)))
+
+    try:
+        for out in runner.map(analyse, batches, config=config, storage_options=storage_options):
+            keep(out)
+    except Exception as exc:
+        if not worker_died(exc):
+            raise
+        rest = [t for t in tasks if t[0] not in finished]
+        log.error(
+            "re-analysis run %s: an analysis process died (%s); its %d frames still to do are analysed "
+            "one at a time, and a frame that kills its process alone is stored as rejected",
+            run_id,
+            type(exc).__name__,
+            len(rest),
+        )
+        one_at_a_time(rest, config, storage_options, keep, analyse)
     return stored
+
+
+def worker_died(exc: BaseException) -> bool:
+    """Whether ``exc`` says a worker process died (a local pool, or Dask's ``KilledWorker``)."""
+    return isinstance(exc, BrokenProcessPool) or type(exc).__name__ == "KilledWorker"
+
+
+def one_at_a_time(
+    tasks: Sequence[tuple[int, str] | tuple[int, str, str]],
+    config: FrameConfig | Mapping[str, FrameConfig],
+    storage_options: dict[str, Any],
+    keep: Callable[[list[tuple[int, dict[str, Any]]]], None],
+    analyse: Callable[..., list[tuple[int, dict[str, Any]]]] = analyse_batch,
+) -> None:
+    """Analyse ``tasks`` one at a time in a process of their own (replaced when it dies, as the
+    live ingest does): a frame that kills it is the cause for certain, stored as ``analysis_crashed``."""
+    pool = process_pool(1)
+    try:
+        for task in tasks:
+            try:
+                keep(pool.submit(analyse, [task], config, storage_options).result())
+            except BrokenProcessPool:
+                log.error("frame %s killed an analysis process on its own: stored as rejected", task[0])
+                keep([(task[0], {"status": "rejected", "reason": "analysis_crashed", "detail": CRASHED})])
+                pool.shutdown(wait=False)
+                pool = process_pool(1)
+    finally:
+        pool.shutdown(wait=False, cancel_futures=True)
 
 
 def derive_run(store: Store, dive_id: int, run_id: int, setup: Setup, options: ReanalysisOptions) -> None:

@@ -166,3 +166,46 @@ def test_the_api_still_starts_a_reanalysis(replayed: dict[str, Any]) -> None:
             time.sleep(0.1)
     assert run["status"] == "done" and run["n_frames"] == 72
     assert points(store, run_id)
+
+
+def analyse_or_die(tasks: list[Any], config: Any, storage_options: Any = None) -> list[Any]:
+    """In a worker process: the real analysis, but a batch with the poisoned frame kills the process
+    (as a decoder crash or the OOM killer would; the one stand-in, a real crash cannot be had on demand)."""
+    import os
+
+    from ingest.worker import analyse_batch
+
+    if any(str(t[1]).endswith("poison.png") for t in tasks):
+        os._exit(3)
+    return analyse_batch(tasks, config, storage_options)
+
+
+def test_a_frame_that_kills_its_analysis_process_costs_the_run_only_that_frame(
+    replayed: dict[str, Any],
+) -> None:
+    """On a local pool a dead process breaks every batch still running; the frames not done are
+    analysed one at a time, and only the one that kills a process on its own is rejected."""
+    from analysis import FrameConfig
+    from ingest.reanalysis import analyse_into_run
+    from ingest.runners import LocalRunner
+    from storage import queries
+
+    store, dive_id, live_id = replayed["store"], replayed["dive_id"], replayed["run_id"]
+    run_id = start_run(store, dive_id, replayed["setup"], "a poisoned frame")
+    tasks = [(fid, str(store.files.resolve(path))) for fid, path in store.call(queries.dive_frames, dive_id)]
+    poison = tasks[len(tasks) // 3][0]
+    tasks = [(fid, "/nowhere/poison.png" if fid == poison else url) for fid, url in tasks]
+    n = analyse_into_run(
+        store,
+        run_id,
+        tasks,
+        FrameConfig(**replayed["setup"].frame_settings(None)),
+        ReanalysisOptions(batch_size=4),
+        LocalRunner(2),
+        analyse=analyse_or_die,
+    )
+    live, again = results(store, live_id), results(store, run_id)
+    assert n == len(tasks) and set(again) == {fid for fid, _ in tasks}  # every frame has its result
+    assert again[poison].status == "rejected" and again[poison].reason == "analysis_crashed"
+    others = [fid for fid, _ in tasks if fid != poison]
+    assert [again[f].i_center_gray for f in others] == [live[f].i_center_gray for f in others]

@@ -16,6 +16,8 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from storage.db import database_unavailable
+
 log = logging.getLogger("camcal.server")
 
 
@@ -105,6 +107,12 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(Exception)
     async def unexpected(_: Request, exc: Exception) -> JSONResponse:
+        message = database_unavailable(exc)
+        if message is not None:  # the database, not the request: 503, and what to do
+            log.warning("database unavailable: %s", message)
+            return JSONResponse(
+                error_body("database_unavailable", message), status_code=503, headers={"Retry-After": "5"}
+            )
         log.exception("unexpected error")
         return JSONResponse(
             error_body("internal", "internal error; the server log has the details"), status_code=500

@@ -370,8 +370,12 @@ class Preview(BaseModel):
 class Health(Open):
     """Per-module link state and the ingest's heartbeat (its queues, counters, refusals)."""
 
-    status: str = Field(description="ok, or degraded without a recent heartbeat from every ingest")
+    status: str = Field(
+        description="ok, or degraded without a recent heartbeat from every ingest or when the database "
+        "cannot be used"
+    )
     server: dict[str, Any]
+    database: dict[str, Any] = Field(description="``ok``, and ``error``: what to do when it cannot be used")
     ingest: dict[str, Any]
     modules: dict[str, dict[str, Any]]
 

@@ -115,3 +115,22 @@ def current_revision(engine: Engine) -> str | None:
 
 def head_revision() -> str | None:
     return ScriptDirectory.from_config(alembic_config()).get_current_head()
+
+
+def database_unavailable(exc: BaseException) -> str | None:
+    """What to tell a person when ``exc`` says the database cannot be used now (not running,
+    unreachable, locked, its disk full, no connection free), else None (a fault of the request)."""
+    from sqlalchemy.exc import DBAPIError, InterfaceError, OperationalError
+    from sqlalchemy.exc import TimeoutError as PoolTimeout
+
+    unusable = isinstance(exc, OperationalError | InterfaceError | PoolTimeout) or (
+        isinstance(exc, DBAPIError) and exc.connection_invalidated
+    )
+    if not unusable:
+        return None
+    why = (str(getattr(exc, "orig", None) or exc).strip().splitlines() or [type(exc).__name__])[0][:200]
+    return (
+        f"the database cannot be used now ({why}). Nothing is lost: the modules keep their frames "
+        "and the ingest its results until it can store them. Check that the database is running "
+        "(`camcal doctor`); this page retries by itself."
+    )

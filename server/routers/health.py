@@ -13,6 +13,7 @@ from camcal.core import __version__
 from server.deps import HubDep, SettingsDep, StoreDep
 from server.schemas import Health, Healthz
 from storage import queries
+from storage.db import database_unavailable
 
 router = APIRouter(tags=["health"])
 
@@ -28,9 +29,18 @@ def health(hub: HubDep, store: StoreDep, settings: SettingsDep) -> dict[str, Any
     """Per-module link state, last packet age, frames/s and queue depths, from the ingest's heartbeat.
 
     Without a recent heartbeat from the ingest the modules' state is unknown
-    (``link: "unknown"``) and ``ingest.up`` is false.
+    (``link: "unknown"``) and ``ingest.up`` is false. A database that cannot be used makes the
+    status ``degraded`` with ``database.error`` saying what to do (the modules then as the ingest
+    reports them).
     """
-    known = store.call(queries.modules)
+    database: dict[str, Any] = {"ok": True, "error": None}
+    try:
+        known = store.call(queries.modules)
+    except Exception as exc:  # the database is down: say so, with what the ingest still reports
+        message = database_unavailable(exc)
+        if message is None:
+            raise
+        known, database = [], {"ok": False, "error": message}
     ingest = hub.ingest_state(settings.stale_after_s)
     health = hub.live_health(settings.stale_after_s)
     live = (health or {}).get("modules", {})
@@ -54,8 +64,9 @@ def health(hub: HubDep, store: StoreDep, settings: SettingsDep) -> dict[str, Any
     for mid, h in live.items():
         out.setdefault(mid, {**h, "distance_m": None, "phase": hub.phase(mid)})
     return {
-        "status": "ok" if ingest["up"] else "degraded",
+        "status": "ok" if ingest["up"] and database["ok"] else "degraded",
         "server": {"version": __version__, "time_unix_s": now, "clients": len(hub.clients)},
+        "database": database,
         "ingest": ingest,
         "modules": out,
         "queues": (health or {}).get("queues"),

@@ -17,6 +17,7 @@ from server.relay import LiveHub, encode_for
 from server.schemas import LiveSnapshot
 from server.settings import ServerSettings
 from storage import queries
+from storage.db import database_unavailable
 from storage.store import Store
 
 router = APIRouter(tags=["live"])
@@ -25,6 +26,8 @@ BATCH_WINDOW_S = 0.05
 BATCH_MAX = 200
 #: A connection gets at most one snapshot per this many seconds, however often it asks.
 RESYNC_EVERY_S = 1.0
+#: A snapshot the database could not give is tried again after this many seconds.
+DATABASE_RETRY_S = 5.0
 #: WebSocket close codes: a message too big, too many connections of one address.
 CLOSE_TOO_BIG, CLOSE_POLICY = 1009, 1008
 
@@ -123,6 +126,10 @@ async def live(ws: WebSocket) -> None:
     closes the connection (1009); an address holds at most
     ``max_websockets_per_client`` connections (more are closed, 1008).
 
+    While the database cannot be used, the snapshot is replaced by ``{"type": "error", "code":
+    "database_unavailable", "message": ...}`` (what to do) and tried again every
+    `DATABASE_RETRY_S`; events from the ingest keep coming meanwhile.
+
     A browser that sends ``{"type": "batch"}`` gets the events that arrive
     within ``BATCH_WINDOW_S`` of each other in one WebSocket message,
     ``{"type": "batch", "messages": [...]}`` (each with its own ``seq``): one
@@ -143,7 +150,25 @@ async def live(ws: WebSocket) -> None:
     sending = asyncio.Lock()  # one sender at a time on the socket
 
     async def send_snapshot() -> None:
-        data = await run_in_threadpool(build_snapshot, store, hub, settings)
+        try:
+            data = await run_in_threadpool(build_snapshot, store, hub, settings)
+        except Exception as exc:  # a database that cannot be used: said, and asked again later
+            message = database_unavailable(exc)
+            if message is None:
+                raise
+            async with sending:
+                await ws.send_text(
+                    json.dumps(
+                        {
+                            "type": "error",
+                            "seq": client.next_seq(),
+                            "code": "database_unavailable",
+                            "message": message,
+                        }
+                    )
+                )
+            asyncio.get_running_loop().call_later(DATABASE_RETRY_S, wanted.set)  # then again
+            return
         async with sending:
             await ws.send_text(
                 json.dumps({"type": "snapshot", "seq": client.next_seq(), "data": data}, default=str)

@@ -99,7 +99,7 @@ def dive_with_data(system: System) -> dict[str, Any]:
 
 #: The order of the browser files: those with a system of their own first, then the shared
 #: system's tests that need no data (its dive meanwhile reaches the test stop), then the rest.
-FILE_ORDER = ("test_cold_start", "test_control", "test_security", "test_file_routes")
+FILE_ORDER = ("test_cold_start", "test_database_down", "test_control", "test_security", "test_file_routes")
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

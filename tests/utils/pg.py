@@ -14,6 +14,7 @@ import time
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import TYPE_CHECKING
 
 from sqlalchemy import Engine, create_engine, text
 from sqlalchemy.engine import make_url
@@ -21,6 +22,9 @@ from sqlalchemy.exc import OperationalError
 from sqlalchemy.pool import NullPool
 
 from storage.db import make_engine, migrate, normalise_url
+
+if TYPE_CHECKING:
+    from tests.utils.live import TcpProxy
 
 PG_ENV = "CAMCAL_TEST_PG_URL"
 SKIP_REASON = (
@@ -98,3 +102,17 @@ def migrated_template(admin_url: str) -> Iterator[str]:
         finally:
             engine.dispose()
         yield make_url(url).database or ""
+
+
+@contextmanager
+def relayed(url: str) -> Iterator[tuple[str, TcpProxy]]:
+    """``url`` reached through a TCP relay the test can cut (a failed database host or network) and
+    restore: yields the relayed URL and the relay."""
+    from tests.utils.live import TcpProxy
+
+    real = make_url(url)
+    proxy = TcpProxy(real.port or 5432)
+    try:
+        yield real.set(host="127.0.0.1", port=proxy.port).render_as_string(hide_password=False), proxy
+    finally:
+        proxy.close()

@@ -30,6 +30,7 @@ const state = {
   conn: "connecting",
   connInfo: {},
   lastLiveAt: null,
+  serverError: null, // what the server said it cannot do now (its database is down), until a snapshot
 };
 
 /** Figures for tests and bench/bench_dashboard.py. */
@@ -79,6 +80,7 @@ function onSnapshot(d) {
   const now = performance.now();
   stats.snapshots += 1;
   stats.snapshotAt ??= now;
+  state.serverError = null;
   state.dive = d.dive;
   state.runId = d.run_id;
   state.staleAfter = d.stale_after_s ?? 5;
@@ -296,6 +298,11 @@ function onMissed(msg) {
   for (const [k, n] of Object.entries(msg.dropped || {})) stats.missed[k] = (stats.missed[k] || 0) + n;
 }
 
+function onServerError(msg) {
+  state.serverError = msg.message || "the server cannot give the live state now";
+  requestRender();
+}
+
 function onConn(s, info) {
   state.conn = s;
   state.connInfo = info;
@@ -385,13 +392,24 @@ function renderHeader(now) {
       );
     }
   }
+  if (state.serverError && state.conn !== "reconnecting") {
+    // Connected, but the server cannot read its database: say so (not "connection lost").
+    banner.hidden = false;
+    banner.className = "banner major";
+    setText(banner, `The ship server cannot show the live state: ${state.serverError}`);
+  }
   const ingestAge = state.healthAt === null ? null : (now - state.healthAt) / 1000;
   const ingestUp = ingestAge !== null && ingestAge <= state.staleAfter;
-  if (state.conn === "live") {
+  if (state.conn === "live" && !state.serverError) {
     if (!ingestUp && stats.snapshotAt !== null) {
       banner.hidden = false;
       banner.className = "banner major";
-      setText(banner, `The ingest has not reported for ${fmtAge(ingestAge)}: no new data is arriving from the modules.`);
+      setText(
+        banner,
+        ingestAge === null
+          ? "The ingest has not reported to this server: no data is arriving from the modules (is it running? `camcal doctor` says)."
+          : `The ingest has not reported for ${fmtAge(ingestAge)}: no new data is arriving from the modules.`,
+      );
     } else {
       banner.hidden = true;
     }
@@ -447,4 +465,4 @@ window.addEventListener("camcal:theme", () => {
   render();
 });
 setInterval(render, 500); // ages tick and stale data fades even when nothing arrives
-new LiveSocket({ onSnapshot, onEvent, onMissed, onState: onConn }).start();
+new LiveSocket({ onSnapshot, onEvent, onMissed, onServerError, onState: onConn }).start();

@@ -101,6 +101,12 @@ export class LiveSocket {
       // Messages in between never arrived: only a snapshot restores the state.
       this.resync();
     }
+    if (msg.type === "error") {
+      // The server answers but cannot give a snapshot (its database is down): it says what to do
+      // and tries again by itself; the socket stays open.
+      this.handlers.onServerError?.(msg);
+      return;
+    }
     if (msg.type === "missed") {
       this.handlers.onMissed?.(msg);
       if (msg.resync) this.resync();

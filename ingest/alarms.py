@@ -33,6 +33,8 @@ class AlarmLimits:
     analysis_crash_hold_s: float = 900.0
     card_hold_s: float = 120.0
     analysis_crash_major: int = 3
+    clock_minor_s: float = 2.0
+    clock_major_s: float = 10.0
 
 
 @dataclass(frozen=True)
@@ -59,6 +61,8 @@ class _ModuleState:
     open_gaps: list[tuple[int, int, float]] = field(default_factory=list)
     card: tuple[str, int, str | None] = ("", 0, None)  # boot, messages not kept, the card's error
     card_rose_unix_s: float | None = None  # when that count last rose
+    clock_offset_s: float | None = None  # its clock minus the ship's, from its heartbeats
+    clock_shown: tuple[str, float] | None = None  # the clock alarm's severity and the offset it names
 
 
 class AlarmEvaluator:
@@ -125,6 +129,10 @@ class AlarmEvaluator:
         if skipped and (boot != st.card[0] or skipped > st.card[1]):
             st.card_rose_unix_s = time.time()
         st.card = (boot, skipped, error)
+
+    def observe_clock(self, module: str, offset_s: float | None) -> None:
+        """The module's clock minus the ship's, as its heartbeats say (None: not known yet)."""
+        self._m[module].clock_offset_s = offset_s
 
     def observe_gaps(self, module: str, gaps: list[tuple[int, int, float]]) -> None:
         self._m[module].open_gaps = gaps
@@ -256,6 +264,17 @@ class AlarmEvaluator:
                     f"{_hms(st.card_rose_unix_s)} UTC: free or swap the card at the next recovery "
                     "(everything on it is kept)",
                 )
+            clock = self._clock(st)
+            if clock is not None:
+                severity, off = clock
+                side = "ahead of" if off > 0 else "behind"
+                message = f"module {module}: its clock is {abs(off):.0f} s {side} the ship's; sync it (NTP)"
+                if severity == "MAJOR":
+                    message += (
+                        ": λ_att pairs the two cameras' frames by their times, and frames this far apart "
+                        "are paired with the wrong moments or not at all"
+                    )
+                add("clock", module, severity, message)
             old = [g for g in st.open_gaps if now_unix_s - g[2] >= lim.gap_age_s]
             if old:
                 missing = sum(b - a + 1 for a, b, _ in old)
@@ -267,6 +286,19 @@ class AlarmEvaluator:
                     "they will arrive when the link recovers, or import the SD card",
                 )
         return out
+
+    def _clock(self, st: _ModuleState) -> tuple[str, float] | None:
+        """The clock alarm of a linked module: its severity and the offset its message names (the
+        one when it began or changed severity, so that the message does not change every beat)."""
+        off, lim = st.clock_offset_s, self.limits
+        severity = None
+        if st.linked and off is not None and abs(off) >= lim.clock_minor_s:
+            severity = "MAJOR" if abs(off) >= lim.clock_major_s else "MINOR"
+        if severity is None:
+            st.clock_shown = None
+        elif st.clock_shown is None or st.clock_shown[0] != severity:
+            st.clock_shown = (severity, off)  # type: ignore[assignment]
+        return st.clock_shown
 
 
 def _hms(t_unix_s: float) -> str:

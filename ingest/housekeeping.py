@@ -215,6 +215,7 @@ class Housekeeping:
                 link.module, age_up, link.last_seen_unix_s or None, signed_off=link.down_reason == "bye"
             )
             self.st.alarms.observe_card(link.module, link.boot, link.card_skipped, link.card_error)
+            self.st.alarms.observe_clock(link.module, link.clock_offset_s)
 
     def _observe_gaps(self) -> None:
         svc = self.svc

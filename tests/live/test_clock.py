@@ -1,0 +1,71 @@
+"""A module whose clock is off: the ship measures the offset from its heartbeats and says so.
+
+λ_att pairs the near and far cameras' frames by their capture times (`ingest.rolling`), so a
+module clock a minute off pairs the wrong moments or none at all (measured: 10 s leaves the
+points within 1 %, 30 s moves them by up to 1.5 %, 90 s leaves no point). The crew must see it.
+"""
+
+from __future__ import annotations
+
+from datetime import timedelta
+from pathlib import Path
+from typing import Any
+
+from sqlalchemy import select
+
+from ingest.service import IngestService
+from storage.models import Alarm, Event
+from tests.utils.live import make_agent, wait_for
+
+AHEAD_S = 60.0
+DRIFT_S = 0.7
+
+
+def clock_alarms(svc: IngestService) -> list[Alarm]:
+    with svc.store.read() as s:
+        return list(s.scalars(select(Alarm).where(Alarm.kind == "clock")))
+
+
+def clock_events(svc: IngestService) -> int:
+    with svc.store.read() as s:
+        return sum(
+            e.payload["kind"] == "clock" for e in s.scalars(select(Event).where(Event.kind == "alarm"))
+        )
+
+
+def test_a_module_clock_a_minute_ahead_raises_a_major_alarm_that_says_what_to_do(
+    service: IngestService, tmp_path: Path
+) -> None:
+    good = make_agent("A", service.endpoint, tmp_path / "outbox-A")[0]
+    ahead = make_agent("B", service.endpoint, tmp_path / "outbox-B")[0]
+    send = ahead._send
+
+    beats = []
+
+    def sent_from_a_clock_ahead(sock: Any, msg: Any) -> None:  # the one stand-in: a module's RTC,
+        if getattr(msg, "sent_at", None) is not None:  # a minute ahead and drifting 0.7 s a beat
+            beats.append(msg)
+            ahead_s = AHEAD_S + DRIFT_S * len(beats)
+            msg = msg.model_copy(update={"sent_at": msg.sent_at + timedelta(seconds=ahead_s)})
+        send(sock, msg)
+
+    ahead._send = sent_from_a_clock_ahead  # type: ignore[method-assign]
+    for a in (good, ahead):
+        a.start()
+    try:
+        assert wait_for(lambda: clock_alarms(service), 20), "no clock alarm"
+        (alarm,) = clock_alarms(service)
+        assert alarm.module_id == "B" and alarm.severity == "MAJOR" and alarm.active
+        assert "s ahead of the ship" in alarm.message and "NTP" in alarm.message
+        named = float(alarm.message.split("its clock is ")[1].split(" s ")[0])
+        assert AHEAD_S <= named <= AHEAD_S + 10 * DRIFT_S
+        offsets = {m: h["clock_offset_s"] for m, h in service.health()["modules"].items()}
+        assert offsets["B"] > AHEAD_S and abs(offsets["A"]) < 1.0
+        # Raised once: its message names the offset it began with, not each beat's (no event a beat).
+        assert not wait_for(lambda: clock_events(service) > 1, 4)
+        assert good.counters["frames_captured"] > 0 and "A" not in {
+            a.module_id for a in clock_alarms(service)
+        }
+    finally:
+        for a in (good, ahead):
+            a.stop()

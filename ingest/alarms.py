@@ -31,7 +31,7 @@ class AlarmLimits:
     disk_min_free_gb: float = 5.0
     conflict_hold_s: float = 900.0
     analysis_crash_hold_s: float = 900.0
-    card_hold_s: float = 120.0
+    card_hold_s: float = 120.0  # how long a card, camera or sensor failure stays an alarm
     analysis_crash_major: int = 3
     clock_minor_s: float = 2.0
     clock_major_s: float = 10.0
@@ -59,8 +59,9 @@ class _ModuleState:
     outcomes: deque[str] = field(default_factory=deque)
     near_edge: deque[bool] = field(default_factory=lambda: deque(maxlen=10))
     open_gaps: list[tuple[int, int, float]] = field(default_factory=list)
-    card: tuple[str, int, str | None] = ("", 0, None)  # boot, messages not kept, the card's error
-    card_rose_unix_s: float | None = None  # when that count last rose
+    #: Per device (``card``, ``camera``, ``sensors``): boot, failures this boot, the last error, and
+    #: when that count last rose (`AlarmEvaluator.observe_failures`).
+    failures: dict[str, tuple[str, int, str | None, float | None]] = field(default_factory=dict)
     clock_offset_s: float | None = None  # its clock minus the ship's, from its heartbeats
     clock_shown: tuple[str, float] | None = None  # the clock alarm's severity and the offset it names
 
@@ -123,12 +124,14 @@ class AlarmEvaluator:
         """The ingest's analysis processes that died: (unix time, what happened), oldest first."""
         self._analysis_crashes = crashes
 
-    def observe_card(self, module: str, boot: str, skipped: int, error: str | None) -> None:
-        """What the module's heartbeat says of its SD card: messages it could not keep this boot."""
+    def observe_failures(self, device: str, module: str, boot: str, count: int, error: str | None) -> None:
+        """What the module's heartbeat says of a device: its SD card (messages it could not keep),
+        its camera (captures that failed) or its sensors (reads that failed), this boot."""
         st = self._m[module]
-        if skipped and (boot != st.card[0] or skipped > st.card[1]):
-            st.card_rose_unix_s = time.time()
-        st.card = (boot, skipped, error)
+        last_boot, last_count, _, rose = st.failures.get(device, ("", 0, None, None))
+        if count and (boot != last_boot or count > last_count):
+            rose = time.time()
+        st.failures[device] = (boot, count, error, rose)
 
     def observe_clock(self, module: str, offset_s: float | None) -> None:
         """The module's clock minus the ship's, as its heartbeats say (None: not known yet)."""
@@ -253,17 +256,10 @@ class AlarmEvaluator:
                             "MINOR",
                             f"module {module}: {100 * frac:.0f} % of the last {n} frames {what}; {advice}",
                         )
-            if st.card_rose_unix_s is not None and now_unix_s - st.card_rose_unix_s <= lim.card_hold_s:
-                _, skipped, error = st.card
-                add(
-                    "card",
-                    module,
-                    "MAJOR",
-                    f"module {module}: its SD card cannot keep what it takes ({error or 'write failed'}); "
-                    f"{skipped} frame(s) and sensor message(s) not taken since its boot, the last at "
-                    f"{_hms(st.card_rose_unix_s)} UTC: free or swap the card at the next recovery "
-                    "(everything on it is kept)",
-                )
+            for device, (_, count, error, rose) in st.failures.items():
+                if rose is not None and now_unix_s - rose <= lim.card_hold_s:
+                    severity, message = _failure_message(device, module, count, error, _hms(rose))
+                    add(device, module, severity, message)
             clock = self._clock(st)
             if clock is not None:
                 severity, off = clock
@@ -299,6 +295,27 @@ class AlarmEvaluator:
         elif st.clock_shown is None or st.clock_shown[0] != severity:
             st.clock_shown = (severity, off)  # type: ignore[assignment]
         return st.clock_shown
+
+
+def _failure_message(device: str, module: str, count: int, error: str | None, at: str) -> tuple[str, str]:
+    """The alarm of a device whose failures rose within ``card_hold_s``: severity and message."""
+    if device == "card":
+        return "MAJOR", (
+            f"module {module}: its SD card cannot keep what it takes ({error or 'write failed'}); "
+            f"{count} frame(s) and sensor message(s) not taken since its boot, the last at {at} UTC: "
+            "free or swap the card at the next recovery (everything on it is kept)"
+        )
+    if device == "camera":
+        return "MAJOR", (
+            f"module {module}: its camera failed {count} time(s) since its boot, the last at {at} UTC "
+            f"({error or 'no frame'}); the module retries by itself: if no frames come, check the "
+            "camera's cable and power"
+        )
+    return "MAJOR", (
+        f"module {module}: its sensors failed {count} time(s) since its boot, the last at {at} UTC "
+        f"({error or 'read failed'}); the humidity (leak) and tilt alarms are blind while they fail: "
+        "the module retries by itself, check the sensor board"
+    )
 
 
 def _hms(t_unix_s: float) -> str:

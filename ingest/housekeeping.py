@@ -214,7 +214,10 @@ class Housekeeping:
             self.st.alarms.observe_link(
                 link.module, age_up, link.last_seen_unix_s or None, signed_off=link.down_reason == "bye"
             )
-            self.st.alarms.observe_card(link.module, link.boot, link.card_skipped, link.card_error)
+            alarms = self.st.alarms
+            alarms.observe_failures("card", link.module, link.boot, link.card_skipped, link.card_error)
+            alarms.observe_failures("camera", link.module, link.boot, link.capture_errors, link.camera_error)
+            alarms.observe_failures("sensors", link.module, link.boot, link.sensor_errors, link.sensor_error)
             self.st.alarms.observe_clock(link.module, link.clock_offset_s)
 
     def _observe_gaps(self) -> None:

@@ -53,6 +53,10 @@ class Link:
     last_seq: int = 0  # the highest sequence number of ``boot`` the module says it has produced
     card_skipped: int = 0  # messages the module could not keep on its SD card (not taken) this boot
     card_error: str | None = None
+    capture_errors: int = 0  # camera captures that failed this boot (the module retries them)
+    camera_error: str | None = None
+    sensor_errors: int = 0  # sensor reads that failed this boot
+    sensor_error: str | None = None
     frames: deque[float] = field(default_factory=lambda: deque(maxlen=2000))
     last_frame_unix_s: float | None = None
     last_heartbeat_sent: float = 0.0
@@ -259,6 +263,8 @@ class Network:
             link.outbox_pending, link.in_flight, link.boot = msg.outbox_pending, msg.in_flight, msg.boot
             link.last_seq = msg.last_seq
             link.card_skipped, link.card_error = msg.card_skipped, msg.card_error
+            link.capture_errors, link.camera_error = msg.capture_errors, msg.camera_error
+            link.sensor_errors, link.sensor_error = msg.sensor_errors, msg.sensor_error
             if not link.welcomed:  # the ship restarted under a running module: greet it again
                 self._welcome(link)
             self.q.put(Incoming("heartbeat", module, msg, None, t_unix, t_mono))

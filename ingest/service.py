@@ -346,6 +346,8 @@ class IngestService:
                 "schedule": link.schedule,
                 "outbox_pending": link.outbox_pending,
                 "card_skipped": link.card_skipped,
+                "capture_errors": link.capture_errors,
+                "sensor_errors": link.sensor_errors,
                 "in_flight": link.in_flight,
                 "clock_offset_s": round(link.clock_offset_s, 3) if link.clock_offset_s is not None else None,
                 "last_seq": link.last_seq,

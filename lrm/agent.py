@@ -112,6 +112,9 @@ class Agent(CommandHandling, Producing):
         self._seq_lock = threading.RLock()
         self.card_error: str | None = None  # the SD card's last failure, for the heartbeat
         self._card_logged = -1e9
+        self.device_errors: dict[str, str] = {}
+        self._device_logged: dict[str, float] = {}
+        self._device_streak: dict[str, int] = {}
         self._new: queue.SimpleQueue[tuple[str, int]] = queue.SimpleQueue()
         self._stop = threading.Event()
         self._produce_stop = threading.Event()
@@ -312,6 +315,10 @@ class Agent(CommandHandling, Producing):
                             last_seq=self._seq,
                             card_skipped=self.counters["card_skipped"],
                             card_error=self.card_error,
+                            capture_errors=self.counters["capture_errors"],
+                            camera_error=self.device_errors.get("camera"),
+                            sensor_errors=self.counters["sensor_errors"],
+                            sensor_error=self.device_errors.get("sensors"),
                             **dive,
                         ),
                     )

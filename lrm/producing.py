@@ -5,7 +5,10 @@ it is offered to the ship. A number is used only once the card holds the
 message (`Producing._keep`): a message the card cannot keep (full, failing)
 is not taken and gives its number back, so the ship sees no gap, and the
 module goes on (the heartbeat says how many it could not keep).
-`Producing` is mixed into the agent, whose state it uses.
+A camera or sensor read that fails (a loose cable, a bus glitch) is counted,
+said in the heartbeat and tried again (`Producing._device_failed`): the
+module does not stop for it. `Producing` is mixed into the agent, whose
+state it uses.
 """
 
 from __future__ import annotations
@@ -19,10 +22,14 @@ from collections.abc import Callable
 from typing import Any
 
 from camcal.core.images import encode_png
+from lrm.camera import CameraError
 from lrm.outbox import Outbox
 from lrm.runner import Capture
 
 log = logging.getLogger("camcal.lrm")
+
+#: The longest wait between tries of a camera or sensor that keeps failing.
+DEVICE_RETRY_MAX_S = 10.0
 
 
 class Producing:
@@ -42,6 +49,9 @@ class Producing:
     _seq: int
     _seq_lock: threading.RLock
     _card_logged: float
+    device_errors: dict[str, str]  # the camera's and the sensors' last failure, for the heartbeat
+    _device_logged: dict[str, float]
+    _device_streak: dict[str, int]
 
     def _next_seq(self) -> int:
         with self._seq_lock:
@@ -80,10 +90,36 @@ class Producing:
                 self.counters["card_skipped"],
             )
 
+    def _device_failed(self, device: str, exc: Exception) -> float:
+        """A camera or sensor read that failed (a loose cable, a bus glitch): counted and said in the
+        heartbeat (``capture_errors``/``camera_error``, ``sensor_errors``/``sensor_error``), logged at
+        most every 10 s; the module goes on. Returns how long to wait before trying again: 1 s,
+        doubling while it keeps failing, at most `DEVICE_RETRY_MAX_S`."""
+        count = "capture_errors" if device == "camera" else "sensor_errors"
+        self.counters[count] += 1
+        self.device_errors[device] = f"{type(exc).__name__}: {exc}"[:200]
+        now = time.monotonic()
+        if now - self._device_logged.get(device, -1e9) >= 10.0:
+            self._device_logged[device] = now
+            log.error(
+                "module %s: the %s failed (%s); %d failure(s) since the boot, retrying by itself",
+                self.config.module,
+                device,
+                exc,
+                self.counters[count],
+            )
+        streak = self._device_streak[device] = self._device_streak.get(device, 0) + 1
+        return float(min(DEVICE_RETRY_MAX_S, 2 ** (streak - 1)))
+
     # ------------------------------------------------------------ capture
     def _capture_loop(self) -> None:
         while not self._produce_stop.is_set():
-            cap = self._source(self._produce_stop)
+            try:
+                cap = self._source(self._produce_stop)
+            except (CameraError, OSError) as exc:  # the same shot is tried again
+                self._produce_stop.wait(self._device_failed("camera", exc))
+                continue
+            self._device_streak["camera"] = 0
             if cap is None:
                 return
             f = cap.frame
@@ -113,7 +149,13 @@ class Producing:
         sensors = self.sensors
         assert sensors is not None  # this loop runs only for a module with sensors
         while not self._produce_stop.is_set():
-            s = sensors.read()
+            try:
+                s = sensors.read()
+            except Exception as exc:  # a sensor's driver may raise anything: this sample is lost
+                self._produce_stop.wait(self._device_failed("sensors", exc))
+                next_t = self.clock.monotonic()
+                continue
+            self._device_streak["sensors"] = 0
             acc, gyro = s.acc_m_s2, s.gyro_dps
             rows.append(
                 [

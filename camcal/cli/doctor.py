@@ -223,6 +223,16 @@ def check_modules(s: Settings, health: dict[str, Any] | None) -> list[tuple[str,
                     "boot (full?): free or swap the card at the next recovery",
                 )
             )
+        for key, what in (("capture_errors", "camera captures"), ("sensor_errors", "sensor reads")):
+            if h.get(key):
+                out.append(
+                    (
+                        f"module {m.id}",
+                        WARN,
+                        f"{h[key]} {what} failed this boot (the module retries them): check the "
+                        "module's log and its cables",
+                    )
+                )
     return out
 
 

@@ -57,6 +57,8 @@ def health(hub: HubDep, store: StoreDep, settings: SettingsDep) -> dict[str, Any
             "schedule": h["schedule"] if h else m["schedule"],
             "outbox_pending": h.get("outbox_pending") if h else None,
             "card_skipped": h.get("card_skipped") if h else None,
+            "capture_errors": h.get("capture_errors") if h else None,
+            "sensor_errors": h.get("sensor_errors") if h else None,
             "boot": h["boot"] if h else m["boot"],
             "distance_m": m["distance_m"],
             "phase": hub.phase(m["id"]),

@@ -169,6 +169,12 @@ class ModuleHeartbeat(_ModuleHeader):
     #: (full, failing): nothing is sent that is not on the card first.
     card_skipped: Count = 0
     card_error: Annotated[str, Strict(), Field(max_length=200)] | None = None
+    #: Camera captures and sensor reads that failed since the boot (the module retries them), and
+    #: the last failure of each.
+    capture_errors: Count = 0
+    camera_error: Annotated[str, Strict(), Field(max_length=200)] | None = None
+    sensor_errors: Count = 0
+    sensor_error: Annotated[str, Strict(), Field(max_length=200)] | None = None
 
 
 class CommandStatus(_ModuleHeader):

@@ -20,16 +20,21 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
 import struct
 import threading
+from collections import Counter
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 from typing import Any
 
 from camcal.core import wire
-from camcal.core.frameset import MANIFEST, FrameSetWriter, ManifestRow, Setup, read_manifest
+from camcal.core.frameset import MANIFEST, FrameSetWriter, ManifestRow, Setup, parse_manifest
+from camcal.core.wire.dialect import INT_MAX
+
+log = logging.getLogger("camcal.lrm")
 
 
 @dataclass(frozen=True)
@@ -77,6 +82,14 @@ def drop_cut_line(path: Path) -> bool:
         return True
 
 
+def _seq(value: Any) -> int:
+    """A sequence number read back from the card: an integer 1 … 2⁶³−1, else ValueError."""
+    q = int(value)
+    if not 1 <= q <= INT_MAX:
+        raise ValueError(f"sequence number {q} out of range")
+    return q
+
+
 def png_size(data: bytes) -> tuple[int, int]:
     """(width, height) from a PNG's IHDR chunk, without decoding the image."""
     if len(data) < 24 or data[:8] != b"\x89PNG\r\n\x1a\n" or data[12:16] != b"IHDR":
@@ -108,28 +121,68 @@ class Outbox:
 
     # ------------------------------------------------------------ loading
     def _load(self) -> None:
-        path = self.root / "acked.log"
-        for line in path.read_text(encoding="utf-8").splitlines():
-            parts = line.split()
-            if len(parts) == 3:
-                boot, first, last = parts[0], int(parts[1]), int(parts[2])
-                self._acked.update((boot, q) for q in range(first, last + 1))
-        for line in (self.root / "refused.jsonl").read_text(encoding="utf-8").splitlines():
-            try:
-                obj = json.loads(line)
-                self._acked.add((obj["boot"], int(obj["seq"])))  # settled: never offered again
-            except (json.JSONDecodeError, KeyError, TypeError, ValueError):
-                continue
-        for row in read_manifest(self.root / "frames"):
+        """What the card holds and what of it the ship has. A damaged line (a failing card: bytes
+        that are not UTF-8, values that do not parse) is skipped, counted in `damaged` and logged;
+        the others load: a module must start whatever one line of its card says."""
+        damaged: Counter[str] = Counter()
+        entries: list[Entry] = []
+        text = self._text(f"frames/{MANIFEST}")
+        rows = parse_manifest(text, str(self.root / "frames" / MANIFEST)) if text.strip() else []
+        for row in rows:
             if row.boot and row.seq is not None:
-                self._index(Entry("frame", row.boot, row.seq, row))
-        sensors = self.root / "sensors.jsonl"
-        for line in sensors.read_text(encoding="utf-8").splitlines():
+                entries.append(Entry("frame", row.boot, row.seq, row))
+        for line in self._text("sensors.jsonl").splitlines():
+            try:
+                if "\ufffd" in line:
+                    raise ValueError("not UTF-8")
+                obj = json.loads(line)
+                entries.append(Entry("sensors", str(obj["boot"]), _seq(obj["seq"]), obj))
+                if not isinstance(obj["rows"], list):
+                    raise TypeError("rows")
+            except (ValueError, KeyError, TypeError):  # a line cut by a power loss was never sent
+                damaged["sensors.jsonl"] += bool(line.strip())
+                continue
+        for e in entries:
+            self._last_seq[e.boot] = max(self._last_seq.get(e.boot, 0), e.seq)
+        for line in self._text("acked.log").splitlines():
+            parts = line.split()
+            try:
+                boot, first, last = parts[0], _seq(parts[1]), _seq(parts[2])
+                # A range beyond what the card holds was never acknowledged (the ship acknowledges
+                # what was sent, and only what is on the card is sent): a damaged number.
+                if len(parts) != 3 or first > last or last > self._last_seq.get(boot, 0) or "\ufffd" in line:
+                    raise ValueError(line)
+            except (IndexError, ValueError):
+                damaged["acked.log"] += bool(line.strip())
+                continue
+            self._acked.update((boot, q) for q in range(first, last + 1))
+        for line in self._text("refused.jsonl").splitlines():
             try:
                 obj = json.loads(line)
-            except json.JSONDecodeError:
-                continue  # a line cut by a power loss: its message was never sent
-            self._index(Entry("sensors", obj["boot"], int(obj["seq"]), obj))
+                self._acked.add((str(obj["boot"]), _seq(obj["seq"])))  # settled: never offered again
+            except (ValueError, KeyError, TypeError):
+                damaged["refused.jsonl"] += bool(line.strip())
+        for e in entries:
+            self._index(e)
+        damaged[f"frames/{MANIFEST}"] += sum("\ufffd" in line for line in text.splitlines())
+        #: Damaged lines found at start, per file of the card (a row of the manifest is kept, as
+        #: the frame set's rules say, with its damaged value).
+        self.damaged = {k: n for k, n in damaged.items() if n}
+        if self.damaged:
+            log.error(
+                "outbox %s: damaged line(s) on the SD card (%s) skipped: the card may be failing; "
+                "replace it at the next recovery (what it holds is kept)",
+                self.root,
+                ", ".join(f"{k}: {n}" for k, n in self.damaged.items()),
+            )
+
+    def _text(self, name: str) -> str:
+        """A file of the card as text ("" if absent); bytes that are not UTF-8 (a damaged card)
+        become U+FFFD, so that only the line they are in fails to parse, not the whole file."""
+        try:
+            return (self.root / name).read_bytes().decode("utf-8", errors="replace")
+        except FileNotFoundError:
+            return ""
 
     def _index(self, e: Entry) -> None:
         self._last_seq[e.boot] = max(self._last_seq.get(e.boot, 0), e.seq)
@@ -308,7 +361,7 @@ class Outbox:
             return None
         try:
             return json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, json.JSONDecodeError):
+        except (OSError, ValueError):  # not JSON, or not UTF-8 (a damaged card)
             return None
 
     def save_json(self, name: str, obj: Any) -> None:
@@ -330,7 +383,7 @@ class Outbox:
         if not path.exists():
             return []
         out = []
-        for line in path.read_text(encoding="utf-8").splitlines():
+        for line in self._text(name).splitlines():
             try:
                 out.append(json.loads(line))
             except json.JSONDecodeError:

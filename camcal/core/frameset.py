@@ -384,7 +384,7 @@ class FrameSetWriter:
         if new:
             self._writer.writeheader()
             self._fh.flush()
-        self._count = 0 if new else sum(1 for _ in read_manifest(self.folder))
+        self._count = 0 if new else len(parse_manifest(_manifest_text(manifest), str(manifest)))
 
     def add(self, frame: np.ndarray | bytes, row: ManifestRow) -> ManifestRow:
         """Store one frame (array or encoded PNG bytes) under ``row.file`` and record it."""
@@ -428,8 +428,13 @@ class FrameSetWriter:
 
 def _header(manifest: Path) -> list[str]:
     """Column names of an existing manifest."""
-    with manifest.open(newline="", encoding="utf-8-sig") as fh:
-        return [h.strip() for h in next(csv.reader(fh), [])]
+    return [h.strip() for h in next(csv.reader(io.StringIO(_manifest_text(manifest), newline="")), [])]
+
+
+def _manifest_text(manifest: Path) -> str:
+    """A manifest being continued, as text: a byte that is not UTF-8 (a damaged SD card) becomes
+    U+FFFD, so that only its row reads wrong, and the writer can still append."""
+    return manifest.read_bytes().decode("utf-8-sig", errors="replace")
 
 
 def iter_frames(folder: Path) -> Iterator[tuple[ManifestRow, np.ndarray | FrameReadError]]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -161,3 +162,45 @@ def test_state_files_round_trip_and_unreadable_ones_read_as_missing(tmp_path: Pa
     again.append_jsonl("commands.jsonl", {"command_id": "c3", "state": "done"})
     assert [c["command_id"] for c in again.read_jsonl("commands.jsonl")] == ["c1", "c3"]
     again.close()
+
+
+def damage(data: bytes, where: bytes, into: bytes) -> bytes:
+    """``data`` with the first ``where`` replaced by ``into`` (a failing card's bit flips)."""
+    assert where in data
+    return data.replace(where, into, 1)
+
+
+@pytest.mark.parametrize(
+    ("what", "file", "change", "still_pending"),
+    [  # filled(): frames 1, 2, 4 and sensor batch 3 of b1; 1..2 acknowledged
+        ("a number that is not one", "acked.log", lambda d: d + b"b1 3 x\n", [3, 4]),
+        ("bytes that are not UTF-8", "acked.log", lambda d: damage(d, b"b1", b"\xff\xfe"), [1, 2, 3, 4]),
+        (
+            "a range of billions",
+            "acked.log",
+            lambda d: damage(d, b"b1 1 2", b"b1 1 9000000000"),
+            [1, 2, 3, 4],
+        ),
+        ("JSON that is not a batch", "sensors.jsonl", lambda d: b"[1, 2]\n" + d, [3, 4]),
+        ("bytes that are not UTF-8", "sensors.jsonl", lambda d: damage(d, b'"b1"', b'"\xff1"'), [4]),
+        ("bytes that are not UTF-8", f"frames/{'manifest.csv'}", lambda d: damage(d, b"b1", b"\xb1"), [3, 4]),
+        ("bytes that are not UTF-8", "refused.jsonl", lambda d: b"\xff\n" + d, [3, 4]),
+    ],
+)
+def test_a_damaged_line_on_the_card_is_skipped_and_the_module_still_starts(
+    tmp_path: Path, what: str, file: str, change: Any, still_pending: list[int], caplog: Any
+) -> None:
+    """A failing SD card's damaged line (not a power cut's last line) made the outbox, and with it
+    the module, fail to start: now that line is skipped and said, and everything else loads. An
+    unreadable acknowledgement costs a resend (the ship stores once), never a message."""
+    filled(tmp_path).close()
+    (tmp_path / "refused.jsonl").touch()
+    path = tmp_path / file
+    path.write_bytes(change(path.read_bytes()))
+    box = Outbox(tmp_path, "A", fsync=False)
+    assert [q for _, _, q in keys(box)] == still_pending, what
+    assert box.damaged == {file: 1}, what
+    assert "damaged line(s) on the SD card" in caplog.text and file in caplog.text
+    add_frame(box, "b1", 5)  # and the card takes more
+    assert [q for _, _, q in keys(box)] == [*still_pending, 5]
+    box.close()

@@ -16,7 +16,7 @@ from functools import partial
 from pathlib import Path
 
 from analysis import FrameConfig
-from camcal.core.frameset import ManifestRow, Setup, parse_manifest, parse_setup
+from camcal.core.frameset import ManifestRow, Setup, decode_manifest, parse_manifest, parse_setup
 from camcal.core.images import FrameReadError, decode_frame
 from camcal.core.parallel import process_pool
 from camcal.core.wire.models import is_id
@@ -70,10 +70,7 @@ def read_frame_set(folder: RemoteFolder) -> tuple[RemoteFolder, bytes, list[Mani
         raise FrameSetError(f"{frames_dir.url}: no {MANIFEST} (not a frame set?)") from None
     except OSError as exc:
         raise FrameSetError(f"{frames_dir.url}: cannot read the manifest ({exc})") from exc
-    try:
-        rows = parse_manifest(manifest.decode("utf-8-sig"), f"{frames_dir.url}/{MANIFEST}")
-    except UnicodeDecodeError as exc:
-        raise FrameSetError(f"{frames_dir.url}/{MANIFEST}: not UTF-8 text ({exc})") from exc
+    rows = parse_manifest(decode_manifest(manifest), f"{frames_dir.url}/{MANIFEST}")
     setup = Setup()
     if frames_dir.exists(SETUP):
         where = f"{frames_dir.url}/{SETUP}"

@@ -31,7 +31,16 @@ from pathlib import Path
 from typing import Any
 
 from camcal.core import wire
-from camcal.core.frameset import MANIFEST, FrameSetWriter, ManifestRow, Setup, parse_manifest
+from camcal.core.frameset import (
+    DAMAGED,
+    DAMAGED_ROW,
+    MANIFEST,
+    FrameSetWriter,
+    ManifestRow,
+    Setup,
+    decode_manifest,
+    parse_manifest,
+)
 from camcal.core.wire.dialect import INT_MAX
 
 log = logging.getLogger("camcal.lrm")
@@ -128,12 +137,12 @@ class Outbox:
         entries: list[Entry] = []
         text = self._text(f"frames/{MANIFEST}")
         rows = parse_manifest(text, str(self.root / "frames" / MANIFEST)) if text.strip() else []
-        for row in rows:
-            if row.boot and row.seq is not None:
+        for row in rows:  # a damaged row is not offered: its values cannot be trusted (it stays on the card)
+            if row.boot and row.seq is not None and DAMAGED_ROW not in (row.error or ""):
                 entries.append(Entry("frame", row.boot, row.seq, row))
         for line in self._text("sensors.jsonl").splitlines():
             try:
-                if "\ufffd" in line:
+                if DAMAGED in line:
                     raise ValueError("not UTF-8")
                 obj = json.loads(line)
                 entries.append(Entry("sensors", str(obj["boot"]), _seq(obj["seq"]), obj))
@@ -150,7 +159,7 @@ class Outbox:
                 boot, first, last = parts[0], _seq(parts[1]), _seq(parts[2])
                 # A range beyond what the card holds was never acknowledged (the ship acknowledges
                 # what was sent, and only what is on the card is sent): a damaged number.
-                if len(parts) != 3 or first > last or last > self._last_seq.get(boot, 0) or "\ufffd" in line:
+                if len(parts) != 3 or first > last or last > self._last_seq.get(boot, 0) or DAMAGED in line:
                     raise ValueError(line)
             except (IndexError, ValueError):
                 damaged["acked.log"] += bool(line.strip())
@@ -164,7 +173,7 @@ class Outbox:
                 damaged["refused.jsonl"] += bool(line.strip())
         for e in entries:
             self._index(e)
-        damaged[f"frames/{MANIFEST}"] += sum("\ufffd" in line for line in text.splitlines())
+        damaged[f"frames/{MANIFEST}"] += sum(DAMAGED in line for line in text.splitlines())
         #: Damaged lines found at start, per file of the card (a row of the manifest is kept, as
         #: the frame set's rules say, with its damaged value).
         self.damaged = {k: n for k, n in damaged.items() if n}
@@ -178,9 +187,9 @@ class Outbox:
 
     def _text(self, name: str) -> str:
         """A file of the card as text ("" if absent); bytes that are not UTF-8 (a damaged card)
-        become U+FFFD, so that only the line they are in fails to parse, not the whole file."""
+        read as `DAMAGED`, so that only the line they are in fails to parse, not the whole file."""
         try:
-            return (self.root / name).read_bytes().decode("utf-8", errors="replace")
+            return decode_manifest((self.root / name).read_bytes())
         except FileNotFoundError:
             return ""
 

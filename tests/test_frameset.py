@@ -55,6 +55,16 @@ def test_bad_rows_carry_an_error_not_an_exception(tmp_path: Path, cells: str, fr
     assert row.error is not None and fragment in row.error
 
 
+def test_a_byte_that_is_not_utf8_rejects_its_row_not_the_frame_set(tmp_path: Path) -> None:
+    """A failing SD card's damaged byte: the manifest still reads, and only that row is rejected."""
+    (tmp_path / "manifest.csv").write_bytes(
+        b"file,camera,wavelength_nm,exposure_s,gain_db\na.png,A,460,0.05,8\nb.png,\xffA,460,0.05,8\n"
+    )
+    good, bad = read_manifest(tmp_path)
+    assert good.error is None and good.camera == "A"
+    assert bad.error is not None and "damaged bytes" in bad.error and "not UTF-8" in bad.error
+
+
 def test_missing_required_columns_are_fatal_and_named(tmp_path: Path) -> None:
     write_manifest(tmp_path, "file,camera,wavelength_nm\na.png,A,460\n")
     with pytest.raises(FrameSetError, match="required columns exposure_s, gain_db missing"):

@@ -253,6 +253,8 @@ def _number(value: str, column: str, *, integer: bool = False) -> float:
 def _parse_row(index: int, raw: Mapping[str, str | None]) -> ManifestRow:
     get = {k.strip(): (v or "").strip() for k, v in raw.items() if k is not None}
     problems: list[str] = []
+    if any(DAMAGED in v for v in get.values()):
+        problems.append(DAMAGED_ROW)
 
     def num(col: str, *, integer: bool = False, required: bool = False) -> float | None:
         text = get.get(col, "")
@@ -336,10 +338,21 @@ def read_manifest(folder: Path) -> list[ManifestRow]:
     if not path.is_file():
         raise FrameSetError(f"{path}: manifest missing (a frame set needs {MANIFEST})")
     try:
-        text = path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
+        text = decode_manifest(path.read_bytes())
+    except OSError as exc:
         raise FrameSetError(f"{path}: cannot read the manifest ({exc})") from exc
     return parse_manifest(text, str(path))
+
+
+#: What a byte that is not UTF-8 reads as (`decode_manifest`), and the error of a row holding one.
+DAMAGED = "\ufffd"
+DAMAGED_ROW = "damaged bytes in this row (not UTF-8: a failing card?)"
+
+
+def decode_manifest(data: bytes) -> str:
+    """A manifest's bytes as text. A byte that is not UTF-8 (a failing SD card) reads as `DAMAGED`,
+    so that only its row is rejected (its ``error`` says so), not the frame set."""
+    return data.decode("utf-8-sig", errors="replace")
 
 
 def parse_manifest(text: str, where: str = MANIFEST) -> list[ManifestRow]:
@@ -432,9 +445,8 @@ def _header(manifest: Path) -> list[str]:
 
 
 def _manifest_text(manifest: Path) -> str:
-    """A manifest being continued, as text: a byte that is not UTF-8 (a damaged SD card) becomes
-    U+FFFD, so that only its row reads wrong, and the writer can still append."""
-    return manifest.read_bytes().decode("utf-8-sig", errors="replace")
+    """A manifest being continued, as text (`decode_manifest`): the writer can still append."""
+    return decode_manifest(manifest.read_bytes())
 
 
 def iter_frames(folder: Path) -> Iterator[tuple[ManifestRow, np.ndarray | FrameReadError]]:

@@ -157,14 +157,18 @@ def test_import_of_a_set_with_bad_files_imports_the_rest_and_names_each_bad_one(
     deep = (np.arange(64 * 48, dtype=np.uint16).reshape(48, 64) * 20).astype(np.uint16)
     (folder / rows[7].file).write_bytes(cv2.imencode(".png", deep)[1].tobytes())  # 16-bit
     (folder / rows[10].file).write_text("not an image at all\n")
+    manifest = folder / "manifest.csv"  # a byte of a row that is not UTF-8 (a failing card)
+    line = next(ln for ln in manifest.read_bytes().splitlines() if rows[13].file.encode() in ln)
+    manifest.write_bytes(manifest.read_bytes().replace(line, line.replace(b",", b"\xff,", 1)))
 
     store_dir = tmp_path / "data"
     res = camcal_cli("import", str(folder), "--data", str(store_dir), "--workers", "1")
     assert res.returncode == 0, res.stderr
-    good = len(rows) - len(bad)
+    good = len(rows) - len(bad) - 1
     assert f"{good} frames imported, 0 already present" in res.stdout
     assert f"{good} analysed" in res.stdout
-    assert "4 not imported" in res.stdout
+    assert "5 not imported" in res.stdout
+    assert "damaged bytes in this row" in " ".join(res.stdout.split())
     for name in bad:
         assert name in res.stdout, f"{name} not reported"
     assert "file not found" in res.stdout and "uint16" in res.stdout

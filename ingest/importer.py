@@ -16,7 +16,7 @@ from functools import partial
 from pathlib import Path
 
 from analysis import FrameConfig
-from camcal.core.frameset import ManifestRow, Setup, decode_manifest, parse_manifest, parse_setup
+from camcal.core.frameset import DAMAGED, ManifestRow, Setup, decode_manifest, parse_manifest, parse_setup
 from camcal.core.images import FrameReadError, decode_frame
 from camcal.core.parallel import process_pool
 from camcal.core.wire.models import is_id
@@ -182,8 +182,10 @@ def import_frame_set(
     if root.exists("sensors.jsonl"):
         module = rows[0].camera if rows else None
         batches = []
-        for line in root.read_bytes("sensors.jsonl").decode("utf-8", "replace").splitlines():
+        for line in decode_manifest(root.read_bytes("sensors.jsonl")).splitlines():
             try:
+                if DAMAGED in line:  # its values cannot be trusted (a failing card)
+                    raise ValueError("damaged bytes in this line (not UTF-8: a failing card?)")
                 obj = json.loads(line)
                 columns = tuple(obj["columns"])
                 problem = check_columns(columns)

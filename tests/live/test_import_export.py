@@ -197,3 +197,21 @@ def test_export_errors_are_one_line_and_exit_2(tmp_path: Path, args: list[str], 
     res = CliRunner().invoke(app, ["export", *args, "--data", str(data), "--out", str(tmp_path / "out")])
     assert res.exit_code == 2
     assert res.stderr.strip().splitlines() == [f"error: {message}"]
+
+
+def test_import_of_a_card_with_a_damaged_sensor_line_takes_the_others_and_says_which(tmp_path: Path) -> None:
+    """A byte of ``sensors.jsonl`` that is not UTF-8 (a failing card): that batch is reported and
+    skipped (its values cannot be trusted), the other batches and every frame are imported."""
+    from tests.lrm.test_outbox import filled, sensor_rows
+
+    card = tmp_path / "card"
+    box = filled(card)  # frames 1, 2, 4 and sensor batch 3 of boot b1
+    box.add_sensors("b1", 5, sensor_rows())
+    box.close()
+    sensors = card / "sensors.jsonl"
+    first, second = sensors.read_bytes().splitlines()
+    sensors.write_bytes(first.replace(b'"b1"', b'"\xff1"') + b"\n" + second + b"\n")
+    res = camcal_cli("import", str(card), "--data", str(tmp_path / "data"), "--workers", "1")
+    assert res.returncode == 0, res.stderr
+    assert "3 frames imported" in res.stdout and "1 sensor batches" in res.stdout
+    assert "damaged bytes in this line" in " ".join(res.stdout.split())

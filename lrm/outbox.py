@@ -106,6 +106,21 @@ def png_size(data: bytes) -> tuple[int, int]:
     return struct.unpack(">II", data[16:24])
 
 
+class OutboxUnavailable(OSError):
+    """The outbox cannot be opened for writing: the module takes nothing it cannot keep there."""
+
+    def __init__(self, root: Path, exc: OSError) -> None:
+        super().__init__(
+            exc.errno,
+            f"the outbox {root} cannot be written ({exc.strerror or exc}): the SD card is read-only, "
+            "full, missing or not ours; remount it read-write, free or swap it, or give another "
+            "--outbox. The module takes nothing it cannot keep on its card",
+        )
+
+    def __str__(self) -> str:
+        return str(self.strerror)
+
+
 class Outbox:
     """Write-first, send-later store of a module's frames and sensor packets. Thread-safe."""
 
@@ -113,20 +128,28 @@ class Outbox:
         self.root = Path(root)
         self.module = module
         self.fsync = fsync
-        self.root.mkdir(parents=True, exist_ok=True)
         self._lock = threading.RLock()
-        frames_dir = self.root / "frames"
-        for name in (f"frames/{MANIFEST}", "sensors.jsonl", "acked.log", "refused.jsonl", "commands.jsonl"):
-            drop_cut_line(self.root / name)
-        fresh = not (frames_dir / MANIFEST).exists()
-        self._writer = FrameSetWriter(frames_dir, setup if fresh else None, fsync=fsync)
-        self._sensors = (self.root / "sensors.jsonl").open("a", encoding="utf-8")
-        self._acked_fh = (self.root / "acked.log").open("a", encoding="utf-8")
-        self._refused_fh = (self.root / "refused.jsonl").open("a", encoding="utf-8")
+        try:
+            self._open(setup)
+        except OSError as exc:
+            self.close()
+            raise OutboxUnavailable(self.root, exc) from exc
         self._acked: set[tuple[str, int]] = set()
         self._pending: dict[tuple[str, int], Entry] = {}
         self._last_seq: dict[str, int] = {}
         self._load()
+
+    def _open(self, setup: Setup | None) -> None:
+        """The card's folder and logs, opened for appending (a power cut's last lines dropped)."""
+        self.root.mkdir(parents=True, exist_ok=True)
+        frames_dir = self.root / "frames"
+        for name in (f"frames/{MANIFEST}", "sensors.jsonl", "acked.log", "refused.jsonl", "commands.jsonl"):
+            drop_cut_line(self.root / name)
+        fresh = not (frames_dir / MANIFEST).exists()
+        self._writer = FrameSetWriter(frames_dir, setup if fresh else None, fsync=self.fsync)
+        self._sensors = (self.root / "sensors.jsonl").open("a", encoding="utf-8")
+        self._acked_fh = (self.root / "acked.log").open("a", encoding="utf-8")
+        self._refused_fh = (self.root / "refused.jsonl").open("a", encoding="utf-8")
 
     # ------------------------------------------------------------ loading
     def _load(self) -> None:
@@ -400,8 +423,7 @@ class Outbox:
         return out
 
     def close(self) -> None:
-        with self._lock:
-            self._writer.close()
-            self._sensors.close()
-            self._acked_fh.close()
-            self._refused_fh.close()
+        with self._lock:  # (what `_open` opened: all of it, or part of it when it failed)
+            for name in ("_writer", "_sensors", "_acked_fh", "_refused_fh"):
+                if hasattr(self, name):
+                    getattr(self, name).close()

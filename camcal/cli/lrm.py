@@ -73,6 +73,18 @@ def refused(agent: Any) -> bool:
     return r is not None and (r.definitive or time.monotonic() - r.since_mono >= REFUSAL_GRACE_S)
 
 
+def with_outbox(make: Callable[[], Any]) -> Any:
+    """``make()`` (a module agent, which opens its outbox); an outbox it cannot write is a one-line
+    error and exit status 3 (not started), not a traceback."""
+    from camcal.core.supervise import EXIT_NOT_STARTED
+    from lrm.outbox import OutboxUnavailable
+
+    try:
+        return make()
+    except OutboxUnavailable as exc:
+        raise fail(str(exc), code=EXIT_NOT_STARTED) from None
+
+
 def register(parent: typer.Typer) -> None:
     parent.add_typer(app, name="lrm")
 
@@ -251,7 +263,9 @@ def simulate(
         keys=module_keys,
         plaintext=plaintext,
     )
-    agent = simulated_module(sim, cfg, clock, sched, readout_s=readout_s, lem_settle_s=lem_settle_s)
+    agent = with_outbox(
+        lambda: simulated_module(sim, cfg, clock, sched, readout_s=readout_s, lem_settle_s=lem_settle_s)
+    )
     agent.start()
     console.print(
         f"module {camera}: dive of {profile.duration_s / 60:.0f} min at {speed:g}x "
@@ -311,7 +325,7 @@ def replay(
         keys=module_keys,
         plaintext=plaintext,
     )
-    agent = Agent(cfg, clock=clock, source=source)
+    agent = with_outbox(lambda: Agent(cfg, clock=clock, source=source))
     agent.start()
     console.print(f"replaying {len(source)} frames of camera {camera} from {folder} to {connect}")
     failed = _run_until_signal(
@@ -430,7 +444,7 @@ def camera_module(
         keys=module_keys,
         plaintext=plaintext,
     )
-    agent = Agent(cfg, clock=clock, runner=runner, camera_limits=limits)
+    agent = with_outbox(lambda: Agent(cfg, clock=clock, runner=runner, camera_limits=limits))
     agent.start()
     console.print(
         f"module {camera}: camera {cam.device_path}, schedule {sched.name} v{sched.version}, "

@@ -204,3 +204,15 @@ def test_a_damaged_line_on_the_card_is_skipped_and_the_module_still_starts(
     add_frame(box, "b1", 5)  # and the card takes more
     assert [q for _, _, q in keys(box)] == [*still_pending, 5]
     box.close()
+
+
+def test_an_outbox_that_cannot_be_written_says_what_to_do(tmp_path: Path) -> None:
+    """Where the card's folder cannot be made (here a file is in its way; a read-only card is the
+    CLI test's), the error names the outbox and what to do, and leaves nothing open."""
+    from lrm.outbox import OutboxUnavailable
+
+    in_the_way = tmp_path / "card"
+    in_the_way.write_text("not a folder\n")
+    with pytest.raises(OutboxUnavailable, match="cannot be written") as caught:
+        Outbox(in_the_way / "outbox", "A", fsync=False)
+    assert str(in_the_way / "outbox") in str(caught.value) and "swap it" in str(caught.value)

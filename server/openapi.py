@@ -4,8 +4,9 @@ Routes declare what is special to them (`NOT_FOUND`, `CONFLICT`, `GONE`,
 `BUSY`, ...); `install` adds what follows from a route's shape, so that no
 route can forget it: an operator route may answer 401, 403 and 429 and
 carries the bearer security requirement; a route with a body may answer 413;
-a route with a path parameter may answer 404; and every route may answer
-429 (too many requests of one address at once, `server.guard`). Every error
+a route with a path parameter may answer 404; every route may answer
+429 (too many requests of one address at once, `server.guard`) and, but
+the health checks, 503 (the database cannot be used now, `server.errors`). Every error
 has the one shape of `server.errors`.
 """
 
@@ -48,7 +49,11 @@ _GENERIC = {
     "413": "The request body is over the route's limit (1 MiB unless the route says otherwise)",
     "429": "Too many requests of this address at once, or too many wrong tokens: see Retry-After",
     "404": "No such thing (the message names it)",
+    "503": "The database cannot be used now (code database_unavailable; the message says what to do): "
+    "see Retry-After",
 }
+#: Routes that answer without the database (`/api/health` says its state in its body).
+_NO_DATABASE = {"/healthz", "/api/health"}
 
 
 def api_routes(routes: Any, prefix: str = "") -> Iterator[tuple[APIRoute, str]]:
@@ -98,6 +103,10 @@ def install(app: FastAPI) -> None:
                 if op is None:
                     continue
                 _add(op, "429")
+                if path not in _NO_DATABASE:
+                    _add(op, "503")
+                    if "database_unavailable" not in op["responses"]["503"]["description"]:
+                        op["responses"]["503"]["description"] += f"; or: {_GENERIC['503']}"
                 if route.dependant.path_params:
                     _add(op, "404")
                 if route.dependant.body_params:

@@ -44,6 +44,8 @@ def test_a_database_that_cannot_be_reached_is_said_and_the_server_recovers(
             assert dives.status_code == 503 and dives.headers["retry-after"] == "5"
             error = dives.json()["error"]
             assert error["code"] == "database_unavailable" and "Nothing is lost" in error["message"]
+            documented = httpx.get(f"{base}/openapi.json").json()["paths"]["/api/dives"]["get"]["responses"]
+            assert "database_unavailable" in documented["503"]["description"]  # an answer it documents
 
             ws.send(json.dumps({"type": "resync"}))  # a snapshot asked for while it is down
             said = json.loads(ws.recv(30))

@@ -37,9 +37,14 @@ class Overrides:
     distance_errs_m: Mapping[str, float] | None = None
     emission_ratios: Mapping[int, tuple[float, float]] | None = None
     linear_range: tuple[float, float] | None = None
+    clock_offsets_s: Mapping[str, float] | None = None
 
     def apply(self, setup: Setup) -> Setup:
         data = setup.model_dump()
+        for cam, off in (self.clock_offsets_s or {}).items():
+            if cam not in data["cameras"]:
+                raise FrameSetError(f"clock offset given for camera {cam}, which the setup does not have")
+            data["cameras"][cam]["clock_offset_s"] = off
         for cam, d in (self.distances_m or {}).items():
             data["cameras"].setdefault(cam, {"distance_m": d, "distance_err_m": 0.0})
             data["cameras"][cam]["distance_m"] = d

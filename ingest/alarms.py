@@ -268,7 +268,8 @@ class AlarmEvaluator:
                 if severity == "MAJOR":
                     message += (
                         ": λ_att pairs the two cameras' frames by their times, and frames this far apart "
-                        "are paired with the wrong moments or not at all"
+                        "are paired with the wrong moments or not at all (repair them afterwards: "
+                        f"camcal reanalyze --clock-offset {module}={off:+.0f})"
                     )
                 add("clock", module, severity, message)
             old = [g for g in st.open_gaps if now_unix_s - g[2] >= lim.gap_age_s]

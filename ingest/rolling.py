@@ -30,7 +30,7 @@ from __future__ import annotations
 import bisect
 import math
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from analysis import EmissionRatio, Geometry
@@ -113,6 +113,8 @@ class VisitSeries:
         self.ratios: dict[int, EmissionRatio] = gr[1]
         self.rules: SeriesSetup = setup.series
         self.distances = {name: cam.distance_m for name, cam in setup.cameras.items()}
+        #: A module's clock ahead of true time: its frames' times are corrected before pairing.
+        self.clock_offsets = {n: c.clock_offset_s for n, c in setup.cameras.items() if c.clock_offset_s}
         self._cams = (self.geometry.near_camera, self.geometry.far_camera)
         self._samples: list[Sample] = []  # every sample of the two cameras, in capture order
         self._orders: list[tuple[float, str, int]] = []
@@ -129,6 +131,8 @@ class VisitSeries:
         for s in samples:
             if s.module not in self._cams or s.frame_id in self._seen:
                 continue
+            if s.module in self.clock_offsets:
+                s = replace(s, t_unix_s=s.t_unix_s - self.clock_offsets[s.module])
             self._seen.add(s.frame_id)
             i = bisect.bisect(self._orders, s.order)
             self._orders.insert(i, s.order)

@@ -105,6 +105,9 @@ class RunPublic(BaseModel):
 class CameraDistance(BaseModel):
     distance_m: float = Field(gt=0, le=10000)
     distance_err_m: float = Field(0.0, ge=0, le=100)
+    clock_offset_s: float | None = Field(
+        None, ge=-86400, le=86400, description="the module clock ahead of true time [s] (setup's)"
+    )
 
 
 class Ratio(BaseModel):

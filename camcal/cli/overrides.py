@@ -17,6 +17,14 @@ RatioOption = Annotated[
     list[str] | None, typer.Option(help="Override I0'/I0: NM=VALUE[:ERR], e.g. 460=1.27:0.04.")
 ]
 LinearRangeOption = Annotated[str | None, typer.Option(help="Override the linear range: LOW,HIGH gray.")]
+ClockOffsetOption = Annotated[
+    list[str] | None,
+    typer.Option(
+        help="A module clock that was off: CAM=SECONDS it was ahead of true time (behind: negative; "
+        "the ship's 'clock' alarm and `camcal doctor` say how far). Its frames are paired with the "
+        "other camera's at the corrected times."
+    ),
+]
 
 
 def parse_ratios(items: list[str] | None) -> dict[int, tuple[float, float]]:
@@ -47,6 +55,7 @@ def overrides_from(
     distance_err: list[str] | None,
     ratio: list[str] | None,
     linear_range: str | None = None,
+    clock_offset: list[str] | None = None,
 ) -> Overrides:
     """The `Overrides` the options ask for (each one exits 2 with one line if it cannot be read)."""
     from camcal.pipeline import Overrides
@@ -56,4 +65,5 @@ def overrides_from(
         distance_errs_m=parse_mapping(distance_err, "--distance-err") or None,
         emission_ratios=parse_ratios(ratio) or None,
         linear_range=parse_linear_range(linear_range),
+        clock_offsets_s=parse_mapping(clock_offset, "--clock-offset") or None,
     )

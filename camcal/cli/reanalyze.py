@@ -13,6 +13,7 @@ from rich.table import Table
 
 from camcal.cli.common import DataOption, DbUrlOption, console, fail
 from camcal.cli.overrides import (
+    ClockOffsetOption,
     DistanceErrOption,
     DistanceOption,
     LinearRangeOption,
@@ -106,6 +107,7 @@ def reanalyze(
     distance_err: DistanceErrOption = None,
     ratio: RatioOption = None,
     linear_range: LinearRangeOption = None,
+    clock_offset: ClockOffsetOption = None,
     data: DataOption = None,
     db_url: DbUrlOption = None,
     frames_url: Annotated[
@@ -159,7 +161,7 @@ def reanalyze(
         raise fail("--workers and --batch-size must be at least 1")
     if setup and calibration:
         raise fail("give --setup or --calibration, not both")
-    overrides = overrides_from(distance, distance_err, ratio, linear_range)
+    overrides = overrides_from(distance, distance_err, ratio, linear_range, clock_offset)
     chosen = load_setup_file(setup) if setup else None
     storage_options = parse_storage_options(storage_option)
     options = ReanalysisOptions(

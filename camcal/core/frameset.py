@@ -67,6 +67,14 @@ class CameraSetup(BaseModel):
     focal_px: float | None = Field(
         None, gt=0, description="focal length in pixels (default: the setup's focal_px)"
     )
+    clock_offset_s: float = Field(
+        0.0,
+        ge=-86400,
+        le=86400,
+        description="how far the camera's module clock was ahead of true time [s] (behind: < 0); "
+        "its frames' times are corrected by it where the two cameras' frames are paired by time "
+        "(the λ_att series per LEM visit)",
+    )
 
 
 class SeriesSetup(BaseModel):

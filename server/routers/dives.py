@@ -168,8 +168,8 @@ def create_reanalysis(
 
     def adjust(base: Setup) -> Setup:
         data = base.model_dump()
-        for cam, d in (body.cameras or {}).items():
-            data["cameras"][cam] = d.model_dump()
+        for cam, d in (body.cameras or {}).items():  # the camera's other values (focal_px...) are kept
+            data["cameras"].setdefault(cam, {}).update(d.model_dump(exclude_none=True))
         for wl, r in (body.emission_ratio or {}).items():
             data["emission_ratio"][wl] = r.model_dump()
         if body.linear_range:

@@ -8,14 +8,14 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from sqlalchemy import select
+from sqlalchemy import func, select
 from typer.testing import CliRunner
 
 from camcal.cli import app
 from camcal.core.calibrations import record_values
 from camcal.core.frameset import parse_setup, read_manifest, read_setup
 from ingest.runners import DaskRunner
-from storage.models import AnalysisRun, Frame, FrameResult
+from storage.models import AnalysisRun, AttenuationPoint, Frame, FrameResult
 from storage.store import Store
 
 runner = CliRunner()
@@ -116,6 +116,21 @@ def test_a_stored_dive_and_a_time_span_with_other_distances(
     scale = (45.0 - 21.56) / (41.62 - 21.56)
     for p, q in zip(same["attenuation"], moved["attenuation"], strict=True):
         assert q["lambda_att_m"] == pytest.approx(p["lambda_att_m"] * scale, rel=1e-9)
+    # a module clock that was off: its frames are paired at the corrected times (here an hour
+    # away from the other camera's, so no visit has both cameras)
+    res = reanalyze(*dive, "--clock-offset", "B=3600")
+    assert res.exit_code == 0, res.output
+    shifted = summary(out)
+    assert shifted["calibration"]["cameras"]["B"]["clock_offset_s"] == 3600.0
+    store = Store.open(data, run_migrations=False)
+    with store.read() as ses:
+        points = {
+            key: ses.scalar(select(func.count(AttenuationPoint.id)).where(AttenuationPoint.run_id == run))
+            for key, run in (("right", same["run_id"]), ("shifted", shifted["run_id"]))
+        }
+    store.close()
+    assert points["right"] > 0 and points["shifted"] == 0  # the station mean pairs by setting: as it was
+    assert shifted["attenuation"] == same["attenuation"]
     # a stored calibration record: the run uses its values and records which version it was
     store = Store.open(data, run_migrations=False)
     taped = read_setup(trex_small_set).to_json()
@@ -164,6 +179,7 @@ def test_a_stored_dive_and_a_time_span_with_other_distances(
         (["/nonexistent/set"], "no manifest.csv"),
         (["--dive", "x", "--linear-range", "5"], "--linear-range: give LOW,HIGH"),
         (["--dive", "x", "--storage-option", "novalue"], "--storage-option: expected KEY=VALUE"),
+        (["--dive", "x", "--clock-offset", "B"], "--clock-offset: expected KEY=VALUE"),
     ],
 )
 def test_bad_requests_exit_2_with_one_line(tmp_path: Path, args: list[str], message: str) -> None:

@@ -153,11 +153,16 @@ def test_the_api_still_starts_a_reanalysis(replayed: dict[str, Any]) -> None:
     with TestClient(app) as client:
         r = client.post(
             f"/api/dives/{dive_id}/reanalyses",
-            json={"label": "api", "cameras": {"B": {"distance_m": 45.0, "distance_err_m": 0.04}}},
+            json={
+                "label": "api",
+                "cameras": {"B": {"distance_m": 45.0, "distance_err_m": 0.04, "clock_offset_s": 0.5}},
+            },
             headers={"Authorization": "Bearer token-123456"},
         )
         assert r.status_code == 202, r.text
         run_id = r.json()["id"]
+        cameras = r.json()["calibration"]["cameras"]
+        assert cameras["B"]["clock_offset_s"] == 0.5 and cameras["B"]["distance_m"] == 45.0
         end = time.monotonic() + 60
         while time.monotonic() < end:
             run = next(x for x in client.get(f"/api/dives/{dive_id}/runs").json() if x["id"] == run_id)

@@ -176,3 +176,20 @@ def test_a_late_frame_updates_a_final_visit_and_a_bridging_one_joins_two() -> No
 def test_a_setup_without_two_cameras_has_no_series() -> None:
     with pytest.raises(ValueError, match="two cameras"):
         VisitSeries(Setup(cameras={"A": {"distance_m": 21.56}}))
+
+
+def test_a_module_clock_that_was_off_is_corrected_by_the_setups_clock_offset() -> None:
+    """Camera B's clock 90 s ahead (a module without NTP): its frames fall among another colour's
+    and no visit pairs the cameras; with B's ``clock_offset_s`` in the setup (what a re-analysis's
+    ``--clock-offset B=90`` sets) the series is the one of the right times."""
+    samples = timetable(9)
+    ahead = [dataclasses.replace(s, t_unix_s=s.t_unix_s + 90.0) if s.module == "B" else s for s in samples]
+    assert series_rows(ahead, Setup()) == []
+    data = Setup().model_dump()
+    data["cameras"]["B"]["clock_offset_s"] = 90.0
+    repaired = series_rows(ahead, Setup.model_validate(data))
+    right = series_rows(samples, Setup())
+    assert len(repaired) == len(right) == 9
+    for r, ok in zip(repaired, right, strict=True):
+        assert r["lambda_att_m"] == pytest.approx(ok["lambda_att_m"], rel=1e-12)
+        assert r["t_unix_s"] == pytest.approx(ok["t_unix_s"], abs=1e-6)  # stamped on the true time

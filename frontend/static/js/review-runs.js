@@ -74,6 +74,22 @@ function buildForm(ctx, from = null) {
       el(
         "fieldset",
         {},
+        el("legend", {}, "Module clocks ahead of true time"),
+        ...Object.keys(cams)
+          .sort()
+          .map((m) =>
+            el(
+              "div",
+              { class: "pair", title: "a module clock that was off (the ship's clock alarm says how far): its frames are paired with the other camera's at the corrected times; behind: negative" },
+              el("span", {}, `LRM-${m}`),
+              el("input", { type: "number", name: `clock-${m}`, value: cams[m].clock_offset_s ?? 0, step: "any", min: -86400, max: 86400, required: true, "aria-label": `LRM-${m} clock offset` }),
+              el("span", {}, "s"),
+            ),
+          ),
+      ),
+      el(
+        "fieldset",
+        {},
         el("legend", {}, "Emission ratio I0'/I0 (far / near)"),
         ...Object.keys(ratios)
           .sort()
@@ -118,7 +134,9 @@ async function submit(ctx, f, cams, ratios, calibrationId) {
   const v = (n) => Number(f.elements[n].value);
   const body = {
     label: f.elements.label.value.trim(),
-    cameras: Object.fromEntries(Object.keys(cams).map((m) => [m, { distance_m: v(`cam-${m}-v`), distance_err_m: v(`cam-${m}-e`) }])),
+    cameras: Object.fromEntries(
+      Object.keys(cams).map((m) => [m, { distance_m: v(`cam-${m}-v`), distance_err_m: v(`cam-${m}-e`), clock_offset_s: v(`clock-${m}`) }]),
+    ),
     emission_ratio: Object.fromEntries(Object.keys(ratios).map((wl) => [wl, { value: v(`er-${wl}-v`), err: v(`er-${wl}-e`) }])),
     linear_range: [v("lin-lo"), v("lin-hi")],
   };
@@ -164,7 +182,7 @@ function renderRuns(ctx) {
           el("td", {}, utc(r.created_unix_s)),
           el("td", {}, el("span", { class: "run-status", "data-status": r.status }, r.kind === "live" && r.status === "running" ? "live (ongoing)" : r.status)),
           el("td", { class: "r" }, r.kind === "live" ? "–" : progress(ctx, r)),
-          el("td", { style: { whiteSpace: "normal" } }, Object.entries(c.cameras || {}).map(([m, d]) => `${m} ${fmt(d.distance_m, 2)}±${fmt(d.distance_err_m, 2)}`).join(", ")),
+          el("td", { style: { whiteSpace: "normal" } }, Object.entries(c.cameras || {}).map(([m, d]) => `${m} ${fmt(d.distance_m, 2)}±${fmt(d.distance_err_m, 2)}` + (d.clock_offset_s ? ` (clock ${d.clock_offset_s > 0 ? "+" : ""}${fmt(d.clock_offset_s, 1)} s)` : "")).join(", ")),
           el("td", { style: { whiteSpace: "normal" } }, Object.entries(c.emission_ratio || {}).map(([wl, e]) => `${wl}: ${fmt(e.value, 2)}`).join(", ")),
           el("td", {}, c.linear_range ? `${c.linear_range[0]}–${c.linear_range[1]}` : "–"),
         );

@@ -11,8 +11,7 @@ from typing import Any
 import pytest
 
 from tests.browser.conftest import camcal_page
-from tests.utils.pg import SKIP_REASON, fresh_database, relayed
-from tests.utils.system import camcal_serve
+from tests.utils.pg import served_on_a_relayed_database
 
 pytestmark = pytest.mark.browser
 
@@ -20,12 +19,8 @@ pytestmark = pytest.mark.browser
 def test_the_live_page_says_the_database_is_down_and_recovers(
     browser: Any, tmp_path: Path, artifacts: Path, pg_template: tuple[str, str] | None
 ) -> None:
-    if pg_template is None:
-        pytest.skip(SKIP_REASON)
     with (
-        fresh_database(*pg_template) as url,
-        relayed(url) as (relayed_url, proxy),
-        camcal_serve(tmp_path / "data", "--db-url", relayed_url) as (base, _),
+        served_on_a_relayed_database(tmp_path / "data", pg_template) as (base, proxy),
         camcal_page(browser, SimpleNamespace(base_url=base)) as page,
     ):
         proxy.cut()

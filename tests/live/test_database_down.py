@@ -12,24 +12,16 @@ import json
 from pathlib import Path
 
 import httpx
-import pytest
 from websockets.sync.client import connect
 
 from tests.utils.live import wait_for
-from tests.utils.pg import SKIP_REASON, fresh_database, relayed
-from tests.utils.system import camcal_serve
+from tests.utils.pg import served_on_a_relayed_database
 
 
 def test_a_database_that_cannot_be_reached_is_said_and_the_server_recovers(
     tmp_path: Path, pg_template: tuple[str, str] | None
 ) -> None:
-    if pg_template is None:
-        pytest.skip(SKIP_REASON)
-    with (
-        fresh_database(*pg_template) as url,
-        relayed(url) as (relayed_url, proxy),
-        camcal_serve(tmp_path / "data", "--db-url", relayed_url) as (base, _),
-    ):
+    with served_on_a_relayed_database(tmp_path / "data", pg_template) as (base, proxy):
         assert httpx.get(f"{base}/api/health").json()["database"] == {"ok": True, "error": None}
         with connect(f"{base.replace('http', 'ws')}/ws/live", open_timeout=10) as ws:
             assert json.loads(ws.recv(10))["type"] == "snapshot"

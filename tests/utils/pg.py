@@ -14,6 +14,7 @@ import time
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from sqlalchemy import Engine, create_engine, text
@@ -116,3 +117,23 @@ def relayed(url: str) -> Iterator[tuple[str, TcpProxy]]:
         yield real.set(host="127.0.0.1", port=proxy.port).render_as_string(hide_password=False), proxy
     finally:
         proxy.close()
+
+
+@contextmanager
+def served_on_a_relayed_database(
+    data: Path, pg_template: tuple[str, str] | None
+) -> Iterator[tuple[str, TcpProxy]]:
+    """``camcal serve`` of ``data`` on a fresh PostgreSQL database reached through a relay the test
+    can cut (`relayed`): yields the server's base URL and the relay; skips without PostgreSQL."""
+    import pytest
+
+    from tests.utils.system import camcal_serve
+
+    if pg_template is None:
+        pytest.skip(SKIP_REASON)
+    with (
+        fresh_database(*pg_template) as url,
+        relayed(url) as (relayed_url, proxy),
+        camcal_serve(data, "--db-url", relayed_url) as (base, _),
+    ):
+        yield base, proxy

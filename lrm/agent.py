@@ -121,13 +121,15 @@ class Agent(CommandHandling, Producing):
         self._threads: list[threading.Thread] = []
         self.counters: Counter[str] = Counter()
         self.linked = threading.Event()
-        self._commands: dict[str, dict[str, Any]] = {
-            c["command_id"]: c for c in self.outbox.read_jsonl("commands.jsonl")
+        self._commands: dict[str, dict[str, Any]] = {  # (a damaged line of the card is skipped)
+            c["command_id"]: c
+            for c in self.outbox.read_jsonl("commands.jsonl")
+            if isinstance(c, dict) and isinstance(c.get("command_id"), str)
         }
         self._status_out: queue.SimpleQueue[Any] = queue.SimpleQueue()
         if runner is not None:
             saved = self.outbox.load_json("schedule.json")
-            if saved and saved.get("schedule"):
+            if isinstance(saved, dict) and saved.get("schedule"):
                 try:
                     sched = Schedule.model_validate(saved["schedule"])
                     if sched.version >= runner.schedule.version:

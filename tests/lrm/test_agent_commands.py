@@ -300,3 +300,32 @@ def test_an_outbox_entry_whose_file_is_gone_is_skipped_and_the_rest_is_sent(
         assert not again.agent.stopped
     finally:
         again.stop()
+
+
+@pytest.mark.parametrize(
+    ("file", "damaged"),
+    [
+        ("commands.jsonl", b'[1, 2]\n{"state": "done"}\n\xff\n'),  # JSON that is no answer, bytes
+        ("schedule.json", b"[]\n"),  # JSON that is no saved schedule
+        ("schedule.json", b'{"schedule": "\xff"}\n'),
+    ],
+)
+def test_a_damaged_state_file_on_the_card_does_not_keep_the_module_from_starting(
+    tmp_path: Path, ship: FakeShip, file: str, damaged: bytes
+) -> None:
+    """The card's answers and saved schedule, damaged (a failing card): the module starts on its
+    built-in schedule and answers commands."""
+    outbox = tmp_path / "outbox"
+    first = Module(outbox, ship.endpoint, schedule(1))
+    assert ship.pump(lambda: ship.hellos, 10)
+    first.stop()
+    ship.hellos.clear()
+    (outbox / file).write_bytes(damaged)
+    m = Module(outbox, ship.endpoint, schedule(2))
+    try:
+        assert m.runner.schedule.version == 2
+        assert ship.pump(lambda: ship.hellos, 10), "the module never said hello"
+        ship.command("c-after", "set_schedule", target_version=3, schedule=spec(schedule(3)))
+        assert answered(ship, "c-after", "accepted", "done")
+    finally:
+        m.stop()

@@ -306,7 +306,7 @@ def test_an_outbox_entry_whose_file_is_gone_is_skipped_and_the_rest_is_sent(
     ("file", "damaged"),
     [
         ("commands.jsonl", b'[1, 2]\n{"state": "done"}\n\xff\n'),  # JSON that is no answer, bytes
-        ("schedule.json", b"[]\n"),  # JSON that is no saved schedule
+        ("schedule.json", b"[1, 2]\n"),  # JSON that is no saved schedule
         ("schedule.json", b'{"schedule": "\xff"}\n'),
     ],
 )

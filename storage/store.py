@@ -15,13 +15,15 @@ from pathlib import Path
 from typing import Any, cast
 
 from sqlalchemy import Table, case, insert, select, update
+from sqlalchemy.engine import make_url
+from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session
 
 from camcal.core.events import Event
 from storage import queries
 from storage.analysis_writes import AnalysisWrites
 from storage.base import now_unix_s
-from storage.db import DataPaths, make_engine, migrate
+from storage.db import DataPaths, database_unavailable, make_engine, migrate
 from storage.files import FrameFiles
 from storage.models import Dive, Frame, Gap, IngestCounter, Module, SensorBatch, SensorSample
 from storage.operations_writes import COMMAND_STATES, OperationsWrites
@@ -89,6 +91,22 @@ class BatchOutcome:
     events: list[Event] = field(default_factory=list)  # stored with the frames, ``id`` set
 
 
+class StoreUnavailable(RuntimeError):
+    """The store's database cannot be opened: the message names it and says what to do."""
+
+    def __init__(self, where: str, exc: BaseException) -> None:
+        why = (str(getattr(exc, "orig", None) or exc).strip().splitlines() or [type(exc).__name__])[0][:200]
+        if database_unavailable(exc) is not None:
+            advice = "check that the database runs and the URL is right (`camcal doctor`)"
+        else:  # it answers, but what it holds is not a camcal database
+            advice = (
+                "the file is damaged or not camcal's: move it aside and start again (the frame files "
+                "are kept, and `camcal import` of the modules' SD cards rebuilds the dives), or restore "
+                "it from a backup"
+            )
+        super().__init__(f"the database {where} cannot be opened ({why}): {advice}")
+
+
 class Store(AnalysisWrites, OperationsWrites):
     """The database (any SQLAlchemy URL; SQLite by default) and the frame files."""
 
@@ -101,12 +119,26 @@ class Store(AnalysisWrites, OperationsWrites):
         run_migrations: bool = True,
         sqlite_synchronous: str = "FULL",
     ) -> Store:
-        """Open (and by default migrate) the store of a data folder."""
+        """Open (and by default migrate) the store of a data folder.
+
+        Raises `StoreUnavailable` (its message says what to do) when the database cannot be
+        reached or read: not running, a wrong URL, a damaged or foreign SQLite file.
+        """
         paths = DataPaths(Path(data_dir))
         paths.root.mkdir(parents=True, exist_ok=True)
         engine = make_engine(url or paths.sqlite_url(), sqlite_synchronous=sqlite_synchronous)
-        if run_migrations:
-            migrate(engine)
+        try:
+            if run_migrations:
+                migrate(engine)
+            else:
+                with engine.connect() as conn:
+                    conn.exec_driver_sql("SELECT 1")
+        except DBAPIError as exc:
+            engine.dispose()
+            where = (
+                make_url(url).render_as_string(hide_password=True) if url else str(paths.root / "camcal.db")
+            )
+            raise StoreUnavailable(where, exc) from exc
         return cls(engine, FrameFiles(paths.root))
 
     # ------------------------------------------------------------ dives

@@ -41,20 +41,25 @@ class HttpServer:
 
         from server.app import create_app
         from server.settings import ServerSettings
+        from storage.store import Store
 
-        app = create_app(
-            ServerSettings(
-                data_dir=settings.data_dir,
-                db_url=settings.database_url,
-                events=events,
-                operator_tokens=tokens,
-                linear_range=settings.linear_range,
-                station_depth_m=settings.station_depth_m,
-                max_body_bytes=int(settings.http_max_body_mb * 1024 * 1024),
-                max_websockets_per_client=settings.http_max_connections_per_client,
-                max_requests_per_client=2 * settings.http_max_connections_per_client,
-            )
+        server_settings = ServerSettings(
+            data_dir=settings.data_dir,
+            db_url=settings.database_url,
+            events=events,
+            operator_tokens=tokens,
+            linear_range=settings.linear_range,
+            station_depth_m=settings.station_depth_m,
+            max_body_bytes=int(settings.http_max_body_mb * 1024 * 1024),
+            max_websockets_per_client=settings.http_max_connections_per_client,
+            max_requests_per_client=2 * settings.http_max_connections_per_client,
         )
+        # Opened here, not in the app's start-up: a database that cannot be opened is one line
+        # (`storage.store.StoreUnavailable`) before anything runs, not uvicorn's traceback.
+        self.store = Store.open(
+            settings.data_dir, settings.database_url, run_migrations=server_settings.run_migrations
+        )
+        app = create_app(server_settings, store=self.store)
         tls = tls_files(settings)
         # No permessage-deflate: compressing every event once per browser costs the ship more CPU than
         # the bytes it saves on its own network (events are a few hundred bytes of JSON).
@@ -118,6 +123,7 @@ class HttpServer:
         self.server.should_exit = True
         if self._thread is not None:
             self._thread.join(timeout_s)
+        self.store.close()
 
 
 def bind_http(settings: Settings, setting: str = "--port (CAMCAL_HTTP_PORT)") -> socket.socket:
@@ -192,7 +198,13 @@ def serve(
     tokens = operator_tokens(operator_token, s)
     sock = bind_http(s)
     stop = stop_signals()
-    http = HttpServer(s, tokens, None if s.events_connect == "none" else s.events_connect)
+    from storage.store import StoreUnavailable
+
+    try:
+        http = HttpServer(s, tokens, None if s.events_connect == "none" else s.events_connect)
+    except StoreUnavailable as exc:
+        sock.close()
+        raise fail(str(exc), code=supervise.EXIT_NOT_STARTED) from None
     http.start(sock)
     try:
         http.wait_healthy(30.0, stop)

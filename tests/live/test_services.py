@@ -61,6 +61,47 @@ def test_a_port_in_use_stops_camcal_ingest_and_camcal_serve_at_once(tmp_path: Pa
     assert not tree(mark)
 
 
+def test_a_damaged_database_stops_ingest_serve_and_up_with_one_line_that_says_what_to_do(
+    tmp_path: Path,
+) -> None:
+    """camcal.db is not a database (a damaged disk, a file put in its place): before, `camcal
+    serve` printed uvicorn's traceback and the ingest SQLAlchemy's; now each says it in one line."""
+    port, events, http = free_ports(3)
+    mark = uuid.uuid4().hex
+    data = tmp_path / "data"
+    data.mkdir()
+    (data / "camcal.db").write_bytes(b"not a database, only bytes " * 400)
+    for args in (
+        [
+            "ingest",
+            "--data",
+            str(data),
+            "--bind",
+            f"tcp://127.0.0.1:{port}",
+            "--events",
+            f"tcp://127.0.0.1:{events}",
+        ],
+        ["serve", "--data", str(data), "--port", str(http)],
+        [
+            "up",
+            "--data",
+            str(data),
+            "--port",
+            str(http),
+            "--ingest-port",
+            str(port),
+            "--events-port",
+            str(events),
+        ],
+    ):
+        code, out, _ = run_camcal(args, mark, tmp_path)
+        line = " ".join(out.split())
+        assert code == 3 and "Traceback" not in out, (args[0], out)
+        assert f"the database {data / 'camcal.db'} cannot be opened (file is not a database)" in line, args[0]
+        assert "move it aside" in line and "camcal import" in line, args[0]
+        assert not tree(mark)
+
+
 def health_report(events_port: int, timeout_s: float) -> dict:
     """The next health report the ingest publishes."""
     ctx = zmq.Context.instance()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -84,11 +85,20 @@ def export_dive(
     written = []
     for name, table in dive_tables(store, dive_id, run_id).items():
         if "csv" in formats:
-            path = out / f"{name}.csv"
-            pa_csv.write_csv(table, path)
-            written.append(path)
+            written.append(_whole(out / f"{name}.csv", lambda p, t=table: pa_csv.write_csv(t, p)))
         if "parquet" in formats:
-            path = out / f"{name}.parquet"
-            pq.write_table(table, path)
-            written.append(path)
+            written.append(_whole(out / f"{name}.parquet", lambda p, t=table: pq.write_table(t, p)))
     return written
+
+
+def _whole(path: Path, write: Any) -> Path:
+    """``write(tmp)`` then rename to ``path``: a table is there whole or not at all (a full disk
+    leaves no half-written file, and an older export's file is replaced only by a whole one)."""
+    tmp = path.with_name(f".{path.name}.part")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path

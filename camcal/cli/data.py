@@ -126,6 +126,12 @@ def export_cmd(
         files = export_dive(store, d.id, out, formats, run.id if run else None)
     except ValueError as exc:
         raise fail(str(exc)) from None
+    except OSError as exc:  # a full or read-only disk: the tables written so far are whole
+        raise fail(
+            f"cannot write the export into {out} ({exc.strerror or exc}): free space or choose another "
+            "--out (no half-written table is left)",
+            code=1,
+        ) from None
     finally:
         store.close()
     console.print(f"dive {d.name}: wrote {len(files)} files to {out}", soft_wrap=True)

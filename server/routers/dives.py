@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import tempfile
 import zipfile
@@ -23,7 +24,7 @@ from ingest.reanalysis import (
     start_reanalysis,
 )
 from server.deps import FloatQuery, IdPath, IdQuery, OperatorDep, SettingsDep, StoreDep
-from server.errors import Invalid, NotFound
+from server.errors import Invalid, NotFound, Unavailable
 from server.openapi import BUSY, NOT_FOUND
 from server.schemas import (
     AttenuationTable,
@@ -223,6 +224,13 @@ def export(
 
     try:
         path = _export_zip(store, dive_id, fmt, run_id)
+    except OSError as exc:
+        if exc.errno not in (errno.ENOSPC, errno.EDQUOT):
+            raise
+        raise Unavailable(
+            f"no room for the export in {tempfile.gettempdir()} ({exc.strerror}): free space on the "
+            "ship computer and try again"
+        ) from None
     finally:
         slots.give()
     return FileResponse(

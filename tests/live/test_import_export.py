@@ -215,3 +215,48 @@ def test_import_of_a_card_with_a_damaged_sensor_line_takes_the_others_and_says_w
     assert res.returncode == 0, res.stderr
     assert "3 frames imported" in res.stdout and "1 sensor batches" in res.stdout
     assert "damaged bytes in this line" in " ".join(res.stdout.split())
+
+
+def test_an_export_to_a_full_disk_is_one_line_and_leaves_no_half_written_table(
+    dive_data, tmp_path: Path
+) -> None:
+    """`camcal export` onto a stick with 64 kB left (the dive's tables need more): before, a traceback
+    and a table cut where the disk filled; now one line, exit 1, and only whole tables."""
+    import pyarrow.parquet as pq
+
+    from tests.utils.tmpfs import small_tmpfs
+
+    with small_tmpfs(tmp_path / "usb", 1) as usb:
+        free = shutil.disk_usage(usb).free
+        (usb / "filler").write_bytes(b"\0" * (free - 64 * 1024))  # 64 kB left: less than the tables
+        res = camcal_cli("export", "--data", str(dive_data[0]), "--out", str(usb / "out"))
+        assert res.returncode == 1, res.stdout + res.stderr
+        assert "Traceback" not in res.stderr
+        assert "cannot write the export into" in " ".join(res.stderr.split()) and "free space" in res.stderr
+        left = sorted((usb / "out").iterdir())
+        assert not [p for p in left if p.name.startswith(".")], left  # no temporary part
+        for p in left:  # each table there is whole
+            if p.suffix == ".parquet":
+                assert pq.read_table(p).num_rows >= 0
+            else:
+                with p.open(newline="") as fh:
+                    rows = list(csv.reader(fh))
+                assert rows and all(len(r) == len(rows[0]) for r in rows), p
+
+
+def test_the_dashboards_export_with_no_room_left_is_a_503_that_says_so(dive_data, tmp_path: Path) -> None:
+    """The ZIP the dashboard builds in the temporary folder, when that folder's disk is full: a
+    503 naming the folder and what to do (was a 500 "internal error"), and no partial file left."""
+    import httpx
+
+    from tests.utils.system import camcal_serve
+    from tests.utils.tmpfs import small_tmpfs
+
+    with small_tmpfs(tmp_path / "tmp", 1) as tmp:
+        (tmp / "filler").write_bytes(b"\0" * (shutil.disk_usage(tmp).free - 16 * 1024))
+        with camcal_serve(dive_data[0], env={"TMPDIR": str(tmp)}) as (base, _):
+            dive = httpx.get(f"{base}/api/dives").json()[0]["id"]
+            r = httpx.get(f"{base}/api/dives/{dive}/export", params={"format": "csv"}, timeout=60)
+        assert r.status_code == 503, r.text
+        assert f"no room for the export in {tmp}" in r.json()["error"]["message"]
+        assert sorted(p.name for p in tmp.iterdir()) == ["filler"]  # the partial ZIP was removed

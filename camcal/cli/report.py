@@ -44,8 +44,14 @@ def report(
     store = open_store(data, db_url)
     try:
         result = write_report(store, dive, target, run)
-    except (DiveLookupError, FrameSetError, OSError) as exc:
+    except (DiveLookupError, FrameSetError) as exc:
         raise fail(str(exc).splitlines()[0]) from None
+    except OSError as exc:  # a full or read-only disk: nothing half-written is left (written whole)
+        raise fail(
+            f"cannot write the report to {target} ({exc.strerror or exc}): free space or choose "
+            "another --out",
+            code=1,
+        ) from None
     finally:
         store.close()
     size_kb = target.stat().st_size / 1024

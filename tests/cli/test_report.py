@@ -192,6 +192,27 @@ def test_report_of_an_unknown_dive_is_refused(dive: dict[str, Any], tmp_path: Pa
     assert code == 2 and "no camcal store" in out
 
 
+def test_report_onto_a_full_disk_is_one_line_and_leaves_nothing(tmp_path: Path) -> None:
+    """A USB stick with 4 kB left (an empty dive's report needs 8): one line that says what to do, exit 1
+    (a disk, not a wrong option: was exit 2 with a bare errno), and no partial file."""
+    import shutil
+
+    from tests.utils.tmpfs import small_tmpfs
+
+    store = Store.open(tmp_path / "data")
+    try:
+        dive = store.create_dive("a-dive")
+        store.analysis_run(dive.id, "live", software_version=__version__)
+    finally:
+        store.close()
+    with small_tmpfs(tmp_path / "usb", 1) as usb:
+        (usb / "filler").write_bytes(b"\0" * (shutil.disk_usage(usb).free - 4 * 1024))
+        code, out = run("report", "a-dive", "--data", tmp_path / "data", "--out", usb / "r.html")
+        assert code == 1, out
+        assert f"cannot write the report to {usb / 'r.html'}" in " ".join(out.split()) and "free space" in out
+        assert sorted(p.name for p in usb.iterdir()) == ["filler"]
+
+
 def test_report_of_a_dive_without_data_says_so(tmp_path: Path) -> None:
     store = Store.open(tmp_path / "data")
     try:

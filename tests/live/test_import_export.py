@@ -260,3 +260,37 @@ def test_the_dashboards_export_with_no_room_left_is_a_503_that_says_so(dive_data
         assert r.status_code == 503, r.text
         assert f"no room for the export in {tmp}" in r.json()["error"]["message"]
         assert sorted(p.name for p in tmp.iterdir()) == ["filler"]  # the partial ZIP was removed
+
+
+def test_an_import_onto_a_full_ship_disk_is_one_line_and_the_same_import_again_completes_it(
+    trex_small_set: Path, tmp_path: Path
+) -> None:
+    """The data folder's disk fills during `camcal import`: one line that says what to do (was a
+    traceback), and once there is room the same command takes every frame, none twice."""
+    import subprocess
+
+    from tests.utils.tmpfs import small_tmpfs
+
+    with small_tmpfs(tmp_path / "ship", 8) as ship:
+        data = ship / "data"
+        needed = sum(p.stat().st_size for p in trex_small_set.iterdir() if p.suffix == ".png")
+        (ship / "filler").write_bytes(b"\0" * (shutil.disk_usage(ship).free - needed // 2))
+        res = camcal_cli("import", str(trex_small_set), "--data", str(data), "--workers", "1")
+        assert res.returncode == 1, res.stdout + res.stderr
+        assert "Traceback" not in res.stderr
+        line = " ".join(res.stderr.split())
+        assert f"cannot store into {data}" in line and "run the same import again" in line
+        (ship / "filler").unlink()  # room again
+        subprocess.run(["mount", "-o", "remount,size=64m", str(ship)], check=True)
+        again = camcal_cli("import", str(trex_small_set), "--data", str(data), "--workers", "1")
+        assert again.returncode == 0, again.stderr
+        n = len(read_manifest(trex_small_set))
+        store = Store.open(data, run_migrations=False)
+        try:
+            with store.read() as s:
+                frames = s.scalar(select(func.count(Frame.id)))
+                keys = s.execute(select(Frame.module_id, Frame.seq)).all()
+                results = s.scalar(select(func.count(FrameResult.id)))
+        finally:
+            store.close()
+        assert frames == results == n and len(set(keys)) == n

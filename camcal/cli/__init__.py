@@ -255,6 +255,33 @@ def main() -> None:
 
         err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
         raise SystemExit(2) from None
+    except OSError as exc:  # a full or read-only disk under any command: one line, not a traceback
+        message = disk_trouble(exc)
+        if message is None:
+            raise
+        from rich.markup import escape
+
+        from camcal.cli.common import err_console
+
+        err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
+        raise SystemExit(1) from None
+
+
+def disk_trouble(exc: OSError) -> str | None:
+    """The one line for a write the disk refused (full, over quota, read-only, not permitted), or
+    None for any other OSError (those keep their traceback: they are not the disk's)."""
+    import errno
+
+    advice = {
+        errno.ENOSPC: "no space left: free space or write elsewhere",
+        errno.EDQUOT: "over the disk quota: free space or write elsewhere",
+        errno.EROFS: "the file system is read-only: remount it read-write or write elsewhere",
+        errno.EACCES: "permission denied: write elsewhere or fix the folder's permissions",
+    }.get(exc.errno or -1)
+    if advice is None:
+        return None
+    where = f" to {exc.filename}" if exc.filename else ""
+    return f"a write{where} failed, {advice}"
 
 
 def _workers_skip_the_entry_script() -> None:

@@ -71,28 +71,13 @@ def test_a_damaged_database_stops_ingest_serve_and_up_with_one_line_that_says_wh
     data = tmp_path / "data"
     data.mkdir()
     (data / "camcal.db").write_bytes(b"not a database, only bytes " * 400)
+    ingest = ["ingest", "--data", str(data), "--bind", f"tcp://127.0.0.1:{port}"]
+    serve = ["serve", "--data", str(data), "--port", str(http)]
+    up = ["up", "--data", str(data), "--port", str(http), "--ingest-port", str(port)]
     for args in (
-        [
-            "ingest",
-            "--data",
-            str(data),
-            "--bind",
-            f"tcp://127.0.0.1:{port}",
-            "--events",
-            f"tcp://127.0.0.1:{events}",
-        ],
-        ["serve", "--data", str(data), "--port", str(http)],
-        [
-            "up",
-            "--data",
-            str(data),
-            "--port",
-            str(http),
-            "--ingest-port",
-            str(port),
-            "--events-port",
-            str(events),
-        ],
+        [*ingest, "--events", f"tcp://127.0.0.1:{events}"],
+        serve,
+        [*up, "--events-port", str(events)],
     ):
         code, out, _ = run_camcal(args, mark, tmp_path)
         line = " ".join(out.split())

@@ -35,6 +35,12 @@ if TYPE_CHECKING:
 log = logging.getLogger("camcal.ingest")
 
 
+#: Heartbeats the module's clock offset is estimated over (`Link.clock_offset_s`), and how many
+#: it needs before it says anything.
+CLOCK_BEATS = 30
+CLOCK_MIN_BEATS = 5
+
+
 @dataclass
 class Link:
     """What the ship knows of one module's connection."""
@@ -61,6 +67,7 @@ class Link:
     last_frame_unix_s: float | None = None
     last_heartbeat_sent: float = 0.0
     clock_offset_s: float | None = None
+    clock_readings: deque[float] = field(default_factory=lambda: deque(maxlen=CLOCK_BEATS))
 
 
 @dataclass
@@ -254,11 +261,13 @@ class Network:
             self._welcome(link)
             self.q.put(Incoming("hello", module, msg, None, t_unix, t_mono))
         elif kind == "heartbeat":
-            # Module clock minus ship clock (network delay is small on a fibre): smoothed.
-            offset = msg.sent_at.timestamp() - t_unix
-            link.clock_offset_s = (
-                offset if link.clock_offset_s is None else 0.8 * link.clock_offset_s + 0.2 * offset
-            )
+            # Module clock minus ship clock. A heartbeat queued behind frames on a busy link (a
+            # catch-up after an outage) arrives late and reads as a clock behind, never ahead: the
+            # least delayed of the recent beats (the largest reading) is the estimate, as NTP's
+            # minimum-delay filter does.
+            link.clock_readings.append(msg.sent_at.timestamp() - t_unix)
+            if len(link.clock_readings) >= CLOCK_MIN_BEATS:  # (before: not known yet)
+                link.clock_offset_s = max(link.clock_readings)
             link.schedule = msg.schedule.model_dump()
             link.outbox_pending, link.in_flight, link.boot = msg.outbox_pending, msg.in_flight, msg.boot
             link.last_seq = msg.last_seq

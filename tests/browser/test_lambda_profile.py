@@ -43,7 +43,12 @@ def test_the_live_profile_shows_every_visit_with_its_error_bars(
     # Depth points down; on a desk the profile sits beside the time series.
     lo, hi = page.evaluate("() => document.querySelector('#att-depth')._fullLayout.yaxis.range")
     assert lo > hi
-    time_box, depth_box = page.locator("#att-time").bounding_box(), page.locator("#att-depth").bounding_box()
+    # Both boxes in one frame: the live page re-renders as events come (a banner, an alarm above),
+    # and two separate reads could straddle a shift of everything below it.
+    time_box, depth_box = page.evaluate(
+        "() => ['#att-time', '#att-depth'].map(s => document.querySelector(s).getBoundingClientRect())"
+        ".map(r => ({x: r.x, y: r.y}))"
+    )
     assert abs(time_box["y"] - depth_box["y"]) < 5 and depth_box["x"] > time_box["x"]
     page.locator("#attenuation-panel").screenshot(path=artifacts / "live-lambda-profile-1400.png")
     # Smoothing is a display option: a line labelled with its span appears, the points stay.

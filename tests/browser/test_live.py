@@ -112,8 +112,10 @@ def test_live_view_on_a_tablet_with_operator_login(page: Any, system: System, ar
     page.goto(system.url("/"))
     page.wait_for_selector("#module-B")
     page.wait_for_function(BOTH_THUMBS, timeout=90_000)
-    a = page.locator("#module-A").bounding_box()
-    b = page.locator("#module-B").bounding_box()
+    a, b = page.evaluate(  # in one frame (see test_lambda_profile): a re-render cannot come between
+        "() => ['#module-A', '#module-B'].map(s => document.querySelector(s).getBoundingClientRect())"
+        ".map(r => ({x: r.x, y: r.y, width: r.width, height: r.height}))"
+    )
     assert b["y"] >= a["y"] + a["height"] - 1, "portrait: the module cards stack"
     assert a["width"] <= 768
 

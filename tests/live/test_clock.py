@@ -69,3 +69,30 @@ def test_a_module_clock_a_minute_ahead_raises_a_major_alarm_that_says_what_to_do
     finally:
         for a in (good, ahead):
             a.stop()
+
+
+def test_heartbeats_that_arrive_late_on_a_busy_link_are_not_taken_for_a_clock_behind(
+    service: IngestService, tmp_path: Path
+) -> None:
+    """On a link saturated by a catch-up, a heartbeat waits behind frames and reads as a clock
+    seconds behind; the estimate takes the least delayed recent beat, so no alarm is raised."""
+    late = make_agent("B", service.endpoint, tmp_path / "outbox-B")[0]
+    send = late._send
+    beats = []
+
+    def mostly_late(sock: Any, msg: Any) -> None:  # two beats in three as if 8 s in the queue
+        if getattr(msg, "sent_at", None) is not None:
+            beats.append(msg)
+            if len(beats) % 3:
+                msg = msg.model_copy(update={"sent_at": msg.sent_at - timedelta(seconds=8.0)})
+        send(sock, msg)
+
+    late._send = mostly_late  # type: ignore[method-assign]
+    late.start()
+    try:
+        assert wait_for(lambda: len(beats) >= 8, 20)
+        offset = service.health()["modules"]["B"]["clock_offset_s"]
+        assert offset is not None and abs(offset) < 1.0, offset
+        assert not clock_alarms(service)
+    finally:
+        late.stop()

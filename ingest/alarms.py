@@ -258,8 +258,7 @@ class AlarmEvaluator:
                         )
             for device, (_, count, error, rose) in st.failures.items():
                 if rose is not None and now_unix_s - rose <= lim.card_hold_s:
-                    severity, message = _failure_message(device, module, count, error, _hms(rose))
-                    add(device, module, severity, message)
+                    add(device, module, "MAJOR", _failure_message(device, module, count, error, _hms(rose)))
             clock = self._clock(st)
             if clock is not None:
                 severity, off = clock
@@ -298,21 +297,21 @@ class AlarmEvaluator:
         return st.clock_shown
 
 
-def _failure_message(device: str, module: str, count: int, error: str | None, at: str) -> tuple[str, str]:
-    """The alarm of a device whose failures rose within ``card_hold_s``: severity and message."""
+def _failure_message(device: str, module: str, count: int, error: str | None, at: str) -> str:
+    """The (MAJOR) alarm's message of a device whose failures rose within ``card_hold_s``."""
     if device == "card":
-        return "MAJOR", (
+        return (
             f"module {module}: its SD card cannot keep what it takes ({error or 'write failed'}); "
             f"{count} frame(s) and sensor message(s) not taken since its boot, the last at {at} UTC: "
             "free or swap the card at the next recovery (everything on it is kept)"
         )
     if device == "camera":
-        return "MAJOR", (
+        return (
             f"module {module}: its camera failed {count} time(s) since its boot, the last at {at} UTC "
             f"({error or 'no frame'}); the module retries by itself: if no frames come, check the "
             "camera's cable and power"
         )
-    return "MAJOR", (
+    return (
         f"module {module}: its sensors failed {count} time(s) since its boot, the last at {at} UTC "
         f"({error or 'read failed'}); the humidity (leak) and tilt alarms are blind while they fail: "
         "the module retries by itself, check the sensor board"

@@ -9,9 +9,8 @@ store them later (`ingest.results`).
 from __future__ import annotations
 
 import errno
-import sqlite3
 
-from sqlalchemy.exc import DBAPIError, OperationalError
+from storage.db import database_unusable
 
 #: What a failed write says when the disk, not the data, is at fault.
 _SHIP_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EIO, errno.EACCES, errno.EPERM, errno.EMFILE}
@@ -21,8 +20,8 @@ def ships_fault(exc: BaseException) -> bool:
     """Whether a failure to store is the ship's own (disk, database), whatever the message held.
 
     A full, read-only or failing disk (OSError with such an errno, anywhere in the exception's
-    chain), an operational database error (locked, disk full, connection lost: SQLAlchemy's
-    `OperationalError`, a driver's disconnect) or no memory.
+    chain), a database that cannot be used now (`storage.db.database_unusable`: locked, disk
+    full, connection lost) or no memory.
     """
     seen: set[int] = set()
     e: BaseException | None = exc
@@ -30,9 +29,7 @@ def ships_fault(exc: BaseException) -> bool:
         seen.add(id(e))
         if isinstance(e, OSError) and e.errno in _SHIP_ERRNOS:
             return True
-        if isinstance(e, OperationalError | sqlite3.OperationalError | MemoryError):
-            return True
-        if isinstance(e, DBAPIError) and e.connection_invalidated:
+        if isinstance(e, MemoryError) or database_unusable(e):
             return True
         e = e.__cause__ or e.__context__
     return False

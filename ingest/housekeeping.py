@@ -218,7 +218,7 @@ class Housekeeping:
             alarms.observe_failures("card", link.module, link.boot, link.card_skipped, link.card_error)
             alarms.observe_failures("camera", link.module, link.boot, link.capture_errors, link.camera_error)
             alarms.observe_failures("sensors", link.module, link.boot, link.sensor_errors, link.sensor_error)
-            self.st.alarms.observe_clock(link.module, link.clock_offset_s)
+            alarms.observe_clock(link.module, link.clock_offset_s)
 
     def _observe_gaps(self) -> None:
         svc = self.svc

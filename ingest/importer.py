@@ -16,7 +16,7 @@ from functools import partial
 from pathlib import Path
 
 from analysis import FrameConfig
-from camcal.core.frameset import DAMAGED, ManifestRow, Setup, decode_manifest, parse_manifest, parse_setup
+from camcal.core.frameset import DAMAGED, ManifestRow, Setup, decode_text, parse_manifest, parse_setup
 from camcal.core.images import FrameReadError, decode_frame
 from camcal.core.parallel import process_pool
 from camcal.core.wire.models import is_id
@@ -70,7 +70,7 @@ def read_frame_set(folder: RemoteFolder) -> tuple[RemoteFolder, bytes, list[Mani
         raise FrameSetError(f"{frames_dir.url}: no {MANIFEST} (not a frame set?)") from None
     except OSError as exc:
         raise FrameSetError(f"{frames_dir.url}: cannot read the manifest ({exc})") from exc
-    rows = parse_manifest(decode_manifest(manifest), f"{frames_dir.url}/{MANIFEST}")
+    rows = parse_manifest(decode_text(manifest), f"{frames_dir.url}/{MANIFEST}")
     setup = Setup()
     if frames_dir.exists(SETUP):
         where = f"{frames_dir.url}/{SETUP}"
@@ -182,7 +182,7 @@ def import_frame_set(
     if root.exists("sensors.jsonl"):
         module = rows[0].camera if rows else None
         batches = []
-        for line in decode_manifest(root.read_bytes("sensors.jsonl")).splitlines():
+        for line in decode_text(root.read_bytes("sensors.jsonl")).splitlines():
             try:
                 if DAMAGED in line:  # its values cannot be trusted (a failing card)
                     raise ValueError("damaged bytes in this line (not UTF-8: a failing card?)")

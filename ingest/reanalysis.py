@@ -23,7 +23,7 @@ from camcal.core.calibrations import setup_of
 from camcal.core.frameset import FrameSetError, Setup, parse_setup
 from camcal.core.parallel import process_pool
 from ingest.derived import linearity_rows, mean_gray_by_setting, result_row
-from ingest.results import CRASHED
+from ingest.results import crashed_row
 from ingest.rolling import Sample, series_rows
 from ingest.runners import BatchRunner, LocalRunner
 from ingest.worker import analyse_batch
@@ -294,7 +294,7 @@ def one_at_a_time(
                 keep(pool.submit(analyse, [task], config, storage_options).result())
             except BrokenProcessPool:
                 log.error("frame %s killed an analysis process on its own: stored as rejected", task[0])
-                keep([(task[0], {"status": "rejected", "reason": "analysis_crashed", "detail": CRASHED})])
+                keep([(task[0], crashed_row())])
                 pool.shutdown(wait=False)
                 pool = process_pool(1)
     finally:

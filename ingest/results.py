@@ -16,6 +16,7 @@ from ingest.faults import ships_fault
 from ingest.network import Incoming
 from ingest.rolling import Changes, Sample, VisitSeries
 from storage import queries
+from storage.db import error_line
 
 if TYPE_CHECKING:
     from ingest.storeloop import StoreState
@@ -31,6 +32,11 @@ CRASHED = (
     "the analysis process died while analysing this frame alone (after dying with it among "
     "others): the frame file is stored; run `camcal analyze` on it to see why"
 )
+
+
+def crashed_row() -> dict[str, Any]:
+    """The result of a frame that killed an analysis process on its own (live and re-analysis)."""
+    return {"status": "rejected", "reason": "analysis_crashed", "detail": CRASHED}
 
 
 class Results:
@@ -67,7 +73,7 @@ class Results:
                 row = fut.result()
             except BrokenProcessPool:  # analysed alone, and its process died again
                 log.error("frame %s killed an analysis process on its own: stored as rejected", frame_id)
-                row = {"status": "rejected", "reason": "analysis_crashed", "detail": CRASHED}
+                row = crashed_row()
             except Exception as exc:  # the analysis raised: record it, keep going
                 log.exception("analysis of frame %s failed", frame_id)
                 row = {"status": "rejected", "reason": "analysis_error", "detail": str(exc)[:500]}
@@ -279,8 +285,7 @@ def unstorable(
     if len(rows) != 1 or changes or str(rows[0].get("detail") or "").startswith(UNSTORABLE):
         return []
     row = rows[0]
-    why = (str(exc).splitlines() or [""])[0]
-    detail = f"{UNSTORABLE} ({type(exc).__name__}: {why}); run `camcal analyze` on the frame"
+    detail = f"{UNSTORABLE} ({type(exc).__name__}: {error_line(exc)}); run `camcal analyze` on the frame"
     kept = {"frame_id": row["frame_id"], "analysed_unix_s": row.get("analysed_unix_s"), "status": "rejected"}
     kept |= {"reason": "analysis_error", "detail": detail[:500]}
     shown = [

@@ -38,7 +38,7 @@ from camcal.core.frameset import (
     FrameSetWriter,
     ManifestRow,
     Setup,
-    decode_manifest,
+    decode_text,
     parse_manifest,
 )
 from camcal.core.wire.dialect import INT_MAX
@@ -212,7 +212,7 @@ class Outbox:
         """A file of the card as text ("" if absent); bytes that are not UTF-8 (a damaged card)
         read as `DAMAGED`, so that only the line they are in fails to parse, not the whole file."""
         try:
-            return decode_manifest((self.root / name).read_bytes())
+            return decode_text((self.root / name).read_bytes())
         except FileNotFoundError:
             return ""
 
@@ -411,9 +411,6 @@ class Outbox:
                 os.fsync(fh.fileno())
 
     def read_jsonl(self, name: str) -> list[Any]:
-        path = self.root / name
-        if not path.exists():
-            return []
         out = []
         for line in self._text(name).splitlines():
             try:

@@ -117,18 +117,33 @@ def head_revision() -> str | None:
     return ScriptDirectory.from_config(alembic_config()).get_current_head()
 
 
-def database_unavailable(exc: BaseException) -> str | None:
-    """What to tell a person when ``exc`` says the database cannot be used now (not running,
-    unreachable, locked, its disk full, no connection free), else None (a fault of the request)."""
+def database_unusable(exc: BaseException) -> bool:
+    """Whether ``exc`` says the database cannot be used now, whatever was asked of it: not running,
+    unreachable, locked, its disk full, no connection free (SQLAlchemy's `OperationalError`,
+    `InterfaceError`, pool timeout, a driver's disconnect; sqlite3's own `OperationalError`)."""
+    import sqlite3
+
     from sqlalchemy.exc import DBAPIError, InterfaceError, OperationalError
     from sqlalchemy.exc import TimeoutError as PoolTimeout
 
-    unusable = isinstance(exc, OperationalError | InterfaceError | PoolTimeout) or (
+    return isinstance(exc, OperationalError | InterfaceError | PoolTimeout | sqlite3.OperationalError) or (
         isinstance(exc, DBAPIError) and exc.connection_invalidated
     )
-    if not unusable:
+
+
+def error_line(exc: BaseException) -> str:
+    """The first line of what went wrong, at most 200 characters: the driver's own message for a
+    database error (without SQLAlchemy's statement and link), else the exception's."""
+    text = str(getattr(exc, "orig", None) or exc).strip()
+    return (text.splitlines() or [type(exc).__name__])[0][:200]
+
+
+def database_unavailable(exc: BaseException) -> str | None:
+    """What to tell a person when ``exc`` says the database cannot be used now (`database_unusable`),
+    else None (a fault of the request)."""
+    if not database_unusable(exc):
         return None
-    why = (str(getattr(exc, "orig", None) or exc).strip().splitlines() or [type(exc).__name__])[0][:200]
+    why = error_line(exc)
     return (
         f"the database cannot be used now ({why}). Nothing is lost: the modules keep their frames "
         "and the ingest its results until it can store them. Check that the database is running "

@@ -23,7 +23,7 @@ from camcal.core.events import Event
 from storage import queries
 from storage.analysis_writes import AnalysisWrites
 from storage.base import now_unix_s
-from storage.db import DataPaths, database_unavailable, make_engine, migrate
+from storage.db import DataPaths, database_unusable, error_line, make_engine, migrate
 from storage.files import FrameFiles
 from storage.models import Dive, Frame, Gap, IngestCounter, Module, SensorBatch, SensorSample
 from storage.operations_writes import COMMAND_STATES, OperationsWrites
@@ -95,8 +95,8 @@ class StoreUnavailable(RuntimeError):
     """The store's database cannot be opened: the message names it and says what to do."""
 
     def __init__(self, where: str, exc: BaseException) -> None:
-        why = (str(getattr(exc, "orig", None) or exc).strip().splitlines() or [type(exc).__name__])[0][:200]
-        if database_unavailable(exc) is not None:
+        why = error_line(exc)
+        if database_unusable(exc):
             advice = "check that the database runs and the URL is right (`camcal doctor`)"
         else:  # it answers, but what it holds is not a camcal database
             advice = (
@@ -135,9 +135,7 @@ class Store(AnalysisWrites, OperationsWrites):
                     conn.exec_driver_sql("SELECT 1")
         except DBAPIError as exc:
             engine.dispose()
-            where = (
-                make_url(url).render_as_string(hide_password=True) if url else str(paths.root / "camcal.db")
-            )
+            where = make_url(url).render_as_string(hide_password=True) if url else str(paths.db_file)
             raise StoreUnavailable(where, exc) from exc
         return cls(engine, FrameFiles(paths.root))
 

@@ -93,12 +93,12 @@ def import_cmd(
         raise fail(str(exc)) from None
     except Exception as exc:
         from ingest.faults import ships_fault
+        from storage.db import error_line
 
         if not ships_fault(exc):
             raise
-        why = (str(getattr(exc, "orig", None) or exc).strip().splitlines() or [type(exc).__name__])[0]
         raise fail(  # nothing half-stored is counted: the same import again takes what is missing
-            f"cannot store into {store.files.root} ({why[:200]}): free space (or make the data folder "
+            f"cannot store into {store.files.root} ({error_line(exc)}): free space (or make the data folder "
             "writable) and run the same import again; the frames already imported are skipped",
             code=1,
         ) from None

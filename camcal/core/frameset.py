@@ -346,20 +346,21 @@ def read_manifest(folder: Path) -> list[ManifestRow]:
     if not path.is_file():
         raise FrameSetError(f"{path}: manifest missing (a frame set needs {MANIFEST})")
     try:
-        text = decode_manifest(path.read_bytes())
+        text = decode_text(path.read_bytes())
     except OSError as exc:
         raise FrameSetError(f"{path}: cannot read the manifest ({exc})") from exc
     return parse_manifest(text, str(path))
 
 
-#: What a byte that is not UTF-8 reads as (`decode_manifest`), and the error of a row holding one.
+#: What a byte that is not UTF-8 reads as (`decode_text`), and the error of a row holding one.
 DAMAGED = "\ufffd"
 DAMAGED_ROW = "damaged bytes in this row (not UTF-8: a failing card?)"
 
 
-def decode_manifest(data: bytes) -> str:
-    """A manifest's bytes as text. A byte that is not UTF-8 (a failing SD card) reads as `DAMAGED`,
-    so that only its row is rejected (its ``error`` says so), not the frame set."""
+def decode_text(data: bytes) -> str:
+    """A manifest's (or another text file of a frame set or SD card) bytes as text. A byte that is
+    not UTF-8 (a failing SD card) reads as `DAMAGED`, so that only its row or line is rejected (a
+    manifest row's ``error`` says so), not the whole file."""
     return data.decode("utf-8-sig", errors="replace")
 
 
@@ -453,8 +454,8 @@ def _header(manifest: Path) -> list[str]:
 
 
 def _manifest_text(manifest: Path) -> str:
-    """A manifest being continued, as text (`decode_manifest`): the writer can still append."""
-    return decode_manifest(manifest.read_bytes())
+    """A manifest being continued, as text (`decode_text`): the writer can still append."""
+    return decode_text(manifest.read_bytes())
 
 
 def iter_frames(folder: Path) -> Iterator[tuple[ManifestRow, np.ndarray | FrameReadError]]:

@@ -110,8 +110,6 @@ class Agent(CommandHandling, Producing):
         self.outbox = Outbox(config.outbox, config.module, fsync=config.fsync)
         self._seq = 0
         self._seq_lock = threading.RLock()
-        self.card_error: str | None = None  # the SD card's last failure, for the heartbeat
-        self._card_logged = -1e9
         self.device_errors: dict[str, str] = {}
         self._device_logged: dict[str, float] = {}
         self._device_streak: dict[str, int] = {}
@@ -316,7 +314,7 @@ class Agent(CommandHandling, Producing):
                             in_flight=len(in_flight),
                             last_seq=self._seq,
                             card_skipped=self.counters["card_skipped"],
-                            card_error=self.card_error,
+                            card_error=self.device_errors.get("card"),
                             capture_errors=self.counters["capture_errors"],
                             camera_error=self.device_errors.get("camera"),
                             sensor_errors=self.counters["sensor_errors"],

@@ -42,14 +42,12 @@ class Producing:
     clock: Any
     sensors: Any | None
     depth: Callable[[], float | None] | None
-    card_error: str | None  # the SD card's last failure, for the heartbeat
     _source: Callable[[threading.Event], Capture | None]
     _produce_stop: threading.Event
     _new: queue.SimpleQueue[tuple[str, int]]
     _seq: int
     _seq_lock: threading.RLock
-    _card_logged: float
-    device_errors: dict[str, str]  # the camera's and the sensors' last failure, for the heartbeat
+    device_errors: dict[str, str]  # the card's, the camera's and the sensors' last failure (heartbeat)
     _device_logged: dict[str, float]
     _device_streak: dict[str, int]
 
@@ -75,39 +73,41 @@ class Producing:
         self.counters[count] += 1
         self._new.put((self.boot, seq))
 
-    def _card_failed(self, what: str, exc: OSError) -> None:
-        self.counters["card_skipped"] += 1
-        self.card_error = f"{what}: {exc.strerror or exc}"[:200]
-        now = time.monotonic()
-        if now - self._card_logged >= 10.0:
-            self._card_logged = now
-            log.error(
-                "module %s: the SD card cannot keep a %s (%s); %d not taken so far: free or swap the "
-                "card (everything on it is kept)",
-                self.config.module,
-                what,
-                exc,
-                self.counters["card_skipped"],
-            )
-
-    def _device_failed(self, device: str, exc: Exception) -> float:
-        """A camera or sensor read that failed (a loose cable, a bus glitch): counted and said in the
-        heartbeat (``capture_errors``/``camera_error``, ``sensor_errors``/``sensor_error``), logged at
-        most every 10 s; the module goes on. Returns how long to wait before trying again: 1 s,
-        doubling while it keeps failing, at most `DEVICE_RETRY_MAX_S`."""
-        count = "capture_errors" if device == "camera" else "sensor_errors"
+    def _failed(self, device: str, count: str, error: str, message: str, *args: Any) -> None:
+        """A device's failure (``card``, ``camera``, ``sensors``): counted (``counters[count]``), its
+        ``error`` kept for the heartbeat, ``message`` (with ``args`` and the count) logged at most
+        every 10 s per device. The module goes on."""
         self.counters[count] += 1
-        self.device_errors[device] = f"{type(exc).__name__}: {exc}"[:200]
+        self.device_errors[device] = error[:200]
         now = time.monotonic()
         if now - self._device_logged.get(device, -1e9) >= 10.0:
             self._device_logged[device] = now
-            log.error(
-                "module %s: the %s failed (%s); %d failure(s) since the boot, retrying by itself",
-                self.config.module,
-                device,
-                exc,
-                self.counters[count],
-            )
+            log.error(message, self.config.module, *args, self.counters[count])
+
+    def _card_failed(self, what: str, exc: OSError) -> None:
+        self._failed(
+            "card",
+            "card_skipped",
+            f"{what}: {exc.strerror or exc}",
+            "module %s: the SD card cannot keep a %s (%s); %d not taken so far: free or swap the card "
+            "(everything on it is kept)",
+            what,
+            exc,
+        )
+
+    def _device_failed(self, device: str, exc: Exception) -> float:
+        """A camera or sensor read that failed (a loose cable, a bus glitch): counted and said in the
+        heartbeat (``capture_errors``/``camera_error``, ``sensor_errors``/``sensor_error``). Returns
+        how long to wait before trying again: 1 s, doubling while it keeps failing, at most
+        `DEVICE_RETRY_MAX_S`."""
+        self._failed(
+            device,
+            "capture_errors" if device == "camera" else "sensor_errors",
+            f"{type(exc).__name__}: {exc}",
+            "module %s: the %s failed (%s); %d failure(s) since the boot, retrying by itself",
+            device,
+            exc,
+        )
         streak = self._device_streak[device] = self._device_streak.get(device, 0) + 1
         return float(min(DEVICE_RETRY_MAX_S, 2 ** (streak - 1)))
 

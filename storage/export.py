@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -12,6 +12,7 @@ import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 from sqlalchemy import select
 
+from camcal.core.files import write_whole
 from storage.models import (
     Alarm,
     AttenuationPoint,
@@ -84,21 +85,12 @@ def export_dive(
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for name, table in dive_tables(store, dive_id, run_id).items():
+        # Each table whole or not at all: a full disk leaves no half-written file, and an older
+        # export's file is replaced only by a whole one.
         if "csv" in formats:
-            written.append(_whole(out / f"{name}.csv", lambda p, t=table: pa_csv.write_csv(t, p)))
+            write_whole(out / f"{name}.csv", partial(pa_csv.write_csv, table))
+            written.append(out / f"{name}.csv")
         if "parquet" in formats:
-            written.append(_whole(out / f"{name}.parquet", lambda p, t=table: pq.write_table(t, p)))
+            write_whole(out / f"{name}.parquet", partial(pq.write_table, table))
+            written.append(out / f"{name}.parquet")
     return written
-
-
-def _whole(path: Path, write: Any) -> Path:
-    """``write(tmp)`` then rename to ``path``: a table is there whole or not at all (a full disk
-    leaves no half-written file, and an older export's file is replaced only by a whole one)."""
-    tmp = path.with_name(f".{path.name}.part")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path

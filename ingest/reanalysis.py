@@ -10,9 +10,11 @@ results are stored by this process (the one writer) as batches complete.
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import threading
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from typing import Any
@@ -28,6 +30,7 @@ from ingest.rolling import Sample, series_rows
 from ingest.runners import BatchRunner, LocalRunner
 from ingest.worker import analyse_batch
 from storage import queries
+from storage.queries.runs import RUN_BEAT_S
 from storage.store import Store
 
 log = logging.getLogger("camcal.reanalysis")
@@ -68,6 +71,57 @@ def start_run(
     )
     assert run is not None
     return run.id
+
+
+class ReanalysisInterrupted(Exception):
+    """The re-analysis was asked to stop (its server stops): the run is marked ``interrupted``."""
+
+
+class RunBeats:
+    """Says every `RUN_BEAT_S` that the runs it holds are still queued or running.
+
+    A run nobody beats for `storage.queries.runs.RUN_STALE_S` reads as ``interrupted``: the
+    process that held it was stopped (killed, the machine down) without ending it, and it would
+    otherwise read as running forever. A beat the database refuses is logged and tried again.
+    """
+
+    def __init__(self, store: Store, run_ids: Sequence[int] = ()) -> None:
+        self.store = store
+        self._ids = set(run_ids)
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._beat, name="run-beats", daemon=True)
+        self._thread.start()
+
+    def hold(self, run_id: int) -> None:
+        with self._lock:
+            self._ids.add(run_id)
+
+    def release(self, run_id: int) -> None:
+        with self._lock:
+            self._ids.discard(run_id)
+
+    def _beat(self) -> None:
+        while not self._stop.wait(RUN_BEAT_S):
+            with self._lock:
+                ids = sorted(self._ids)
+            try:
+                self.store.beat_runs(ids)
+            except Exception as exc:  # the database away for a moment: the next beat tries again
+                log.warning("could not say that runs %s are still under way: %s", ids, exc)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(5.0)
+
+
+@contextlib.contextmanager
+def beating(store: Store, run_id: int) -> Iterator[None]:
+    beats = RunBeats(store, [run_id])
+    try:
+        yield
+    finally:
+        beats.stop()
 
 
 class ReanalysisInputError(ValueError):
@@ -162,6 +216,7 @@ def reanalyse(
     progress: Callable[[str, float], None] | None = None,
     runner: BatchRunner | None = None,
     sources: Mapping[int, str] | None = None,
+    cancel: threading.Event | None = None,
 ) -> int:
     """Fill run ``run_id`` of a dive: frame results, the λ_att series and linearity.
 
@@ -171,10 +226,27 @@ def reanalyse(
     those frames are analysed, each read from its URL (e.g. the frame-set
     folder it was imported from). Distances and emission ratios only enter
     λ_att, which is always recomputed. The live run is never touched. The
-    run ends ``done`` (or ``failed``, re-raising). Returns the number of
-    frame results.
+    run ends ``done``, or ``failed`` re-raising, or ``interrupted`` when
+    ``cancel`` is set (between batches: `ReanalysisInterrupted`) or on
+    KeyboardInterrupt. While it runs it beats (`RunBeats`). Returns the
+    number of frame results.
     """
     options = options or ReanalysisOptions()
+    with beating(store, run_id):
+        return _reanalyse(store, dive_id, run_id, setup, options, progress, runner, sources, cancel)
+
+
+def _reanalyse(
+    store: Store,
+    dive_id: int,
+    run_id: int,
+    setup: Setup,
+    options: ReanalysisOptions,
+    progress: Callable[[str, float], None] | None,
+    runner: BatchRunner | None,
+    sources: Mapping[int, str] | None,
+    cancel: threading.Event | None,
+) -> int:
     live = store.analysis_run(dive_id, "live", create=False)
     try:
         same_range = live is not None and tuple(live.calibration.get("linear_range", ())) == tuple(
@@ -203,6 +275,7 @@ def reanalyse(
                 options,
                 runner or LocalRunner(options.workers),
                 progress=(lambda f: progress("frames", 0.7 * f)) if progress else None,
+                cancel=cancel,
             )
         if progress:
             progress("attenuation", 0.7)
@@ -211,6 +284,10 @@ def reanalyse(
         if progress:
             progress("done", 1.0)
         return n
+    except (ReanalysisInterrupted, KeyboardInterrupt):
+        log.warning("re-analysis %s of dive %s interrupted: start it again to complete it", run_id, dive_id)
+        store.finish_run(run_id, "interrupted")
+        raise
     except BaseException:
         log.exception("re-analysis %s of dive %s failed", run_id, dive_id)
         store.finish_run(run_id, "failed")
@@ -226,6 +303,7 @@ def analyse_into_run(
     runner: BatchRunner,
     progress: Callable[[float], None] | None = None,
     analyse: Callable[..., list[tuple[int, dict[str, Any]]]] = analyse_batch,
+    cancel: threading.Event | None = None,
 ) -> int:
     """Analyse frames ``(frame_id, URL or path[, module])`` in batches on ``runner`` (with ``config``,
     or its module's when it maps modules to configs, see `analyse_batch`); store each batch's
@@ -234,6 +312,7 @@ def analyse_into_run(
     When an analysis process dies (the OOM killer, a decoder crash), the frames not yet done are
     analysed one at a time, as the live ingest does (`one_at_a_time`): a run is not lost to it.
     ``analyse`` is `ingest.worker.analyse_batch` (another only in tests: a frame that kills).
+    With ``cancel`` set, `ReanalysisInterrupted` is raised after the batch being stored.
     """
     size = max(1, options.batch_size)
     batches = [tasks[i : i + size] for i in range(0, len(tasks), size)]
@@ -254,6 +333,8 @@ def analyse_into_run(
         finished.update(fid for fid, _ in out)
         if progress:
             progress(done / max(1, len(tasks)))
+        if cancel is not None and cancel.is_set():
+            raise ReanalysisInterrupted(f"run {run_id} stopped after {done} of {len(tasks)} frames")
 
     try:
         for out in runner.map(analyse, batches, config=config, storage_options=storage_options):

@@ -39,10 +39,13 @@ class LocalRunner:
             return
         from camcal.core.parallel import process_pool
 
-        with process_pool(min(self.workers, len(batches))) as pool:
+        pool = process_pool(min(self.workers, len(batches)))
+        try:
             futures = [pool.submit(fn, b, **kwargs) for b in batches]
             for fut in as_completed(futures):
                 yield fut.result()
+        finally:  # left early (stopped, failed): the batches not started are dropped, not waited for
+            pool.shutdown(wait=True, cancel_futures=True)
 
     def close(self) -> None:
         pass

@@ -17,6 +17,7 @@ import queue
 import threading
 from collections.abc import Callable
 
+from ingest.reanalysis import RunBeats
 from server.errors import Unavailable
 from storage.store import Store
 
@@ -34,22 +35,41 @@ class Busy(Unavailable):
 class ReanalysisQueue:
     """Re-analyses run on one worker thread, one at a time, oldest first; at most ``max_queued`` wait.
 
-    A queued run has the status ``queued`` until its turn; runs still queued
-    when the server stops are marked ``cancelled``.
+    A queued run has the status ``queued`` until its turn, and beats while it waits
+    (`ingest.reanalysis.RunBeats`; the running one beats itself). When the server stops, runs still
+    queued are marked ``cancelled``, and the running one is asked to stop after its current batch
+    (``interrupted``; it is waited for at most `STOP_WAIT_S`). Runs left queued or running by a
+    server that was killed are marked ``interrupted`` when the next one starts.
     """
+
+    #: How long a stopping server waits for the running re-analysis to store its batch and end.
+    STOP_WAIT_S = 10.0
 
     def __init__(self, store: Store, max_queued: int) -> None:
         self.store = store
-        self._q: queue.Queue[tuple[int, Callable[[], None]] | None] = queue.Queue(max_queued)
+        for run in store.interrupt_stale_runs():
+            log.warning(
+                "re-analysis run %s of dive %s (%s) was left unfinished by a server that stopped: "
+                "marked interrupted; start it again to complete it",
+                run["id"],
+                run["dive_id"],
+                run["label"] or "no label",
+            )
+        self._q: queue.Queue[tuple[int, Callable[[threading.Event], None]] | None] = queue.Queue(max_queued)
+        self._cancel = threading.Event()
+        self._beats = RunBeats(store)
         self._thread = threading.Thread(target=self._run, name="reanalysis-queue", daemon=True)
         self._thread.start()
 
-    def submit(self, run_id: int, job: Callable[[], None]) -> None:
-        """Queue ``job`` (which fills run ``run_id``); `Busy` if too many wait already."""
+    def submit(self, run_id: int, job: Callable[[threading.Event], None]) -> None:
+        """Queue ``job`` (which fills run ``run_id``, stopping when the event it is given is set);
+        `Busy` if too many wait already."""
         self.store.finish_run(run_id, "queued")
+        self._beats.hold(run_id)
         try:
             self._q.put_nowait((run_id, job))
         except queue.Full:
+            self._beats.release(run_id)
             self.store.finish_run(run_id, "cancelled")
             raise Busy(
                 f"{self._q.maxsize} re-analyses are waiting already: try again when one has finished",
@@ -62,23 +82,31 @@ class ReanalysisQueue:
             if item is None:
                 return
             run_id, job = item
+            self._beats.release(run_id)  # from here the run beats itself (or is over)
+            if self._cancel.is_set():  # taken just as the server began to stop
+                self.store.finish_run(run_id, "cancelled")
+                continue
             self.store.finish_run(run_id, "running")
             try:
-                job()
-            except Exception:  # recorded as a failed run (and logged); the queue goes on
-                log.exception("re-analysis run %s failed", run_id)
+                job(self._cancel)
+            except Exception:  # recorded as a failed or interrupted run (and logged); the queue goes on
+                log.debug("re-analysis run %s ended early", run_id, exc_info=True)
 
     def stop(self) -> None:
-        """Cancel what waits; let the running one end with the process."""
+        """Cancel what waits; ask the running one to stop after its batch, and wait for it a little."""
+        self._cancel.set()
         while True:
             try:
                 item = self._q.get_nowait()
             except queue.Empty:
                 break
             if item is not None:
+                self._beats.release(item[0])
                 self.store.finish_run(item[0], "cancelled")
         with contextlib.suppress(queue.Full):
             self._q.put_nowait(None)
+        self._thread.join(self.STOP_WAIT_S)
+        self._beats.stop()
 
 
 class ExportSlots:

@@ -98,8 +98,12 @@ class RunPublic(BaseModel):
     calibration_id: int | None
     software_version: str
     created_unix_s: float
-    status: str
+    status: str = Field(
+        description="live runs: running; re-analyses: queued, running, done, failed, cancelled (still "
+        "queued when the server stopped) or interrupted (its process stopped while it ran)"
+    )
     n_frames: int
+    note: str | None = Field(None, description="what to do about the status, when it needs something")
 
 
 class CameraDistance(BaseModel):

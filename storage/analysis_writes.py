@@ -9,6 +9,7 @@ from sqlalchemy import delete, insert, literal, select, text, update
 from sqlalchemy.orm import Session
 
 from camcal.core.events import Event
+from camcal.core.owner import this_process
 from storage.base import StoreBase, now_unix_s
 from storage.models import (
     AnalysisRun,
@@ -19,6 +20,7 @@ from storage.models import (
     LinearityCheck,
 )
 from storage.queries.frames import frames_in
+from storage.queries.runs import UNFINISHED, is_orphan
 
 
 class AnalysisWrites(StoreBase):
@@ -46,6 +48,8 @@ class AnalysisWrites(StoreBase):
             "created_unix_s": now_unix_s(),
             "status": "running",
             "n_frames": 0,
+            "heartbeat_unix_s": None if kind == "live" else now_unix_s(),
+            "owner": None if kind == "live" else this_process(),
         }
         with self.session() as s:
             if kind == "live":
@@ -69,6 +73,38 @@ class AnalysisWrites(StoreBase):
             if n_frames is not None:
                 values["n_frames"] = n_frames
             s.execute(update(AnalysisRun).where(AnalysisRun.id == run_id).values(**values))
+
+    def beat_runs(self, run_ids: Sequence[int]) -> None:
+        """Say that runs ``run_ids`` are still queued or running (`storage.queries.runs.RUN_STALE_S`)."""
+        if not run_ids:
+            return
+        with self.session() as s:
+            s.execute(
+                update(AnalysisRun)
+                .where(AnalysisRun.id.in_(list(run_ids)), AnalysisRun.status.in_(UNFINISHED))
+                .values(heartbeat_unix_s=now_unix_s(), owner=this_process())
+            )
+
+    def interrupt_stale_runs(self) -> list[dict[str, Any]]:
+        """Mark ``interrupted`` the re-analyses queued or running whose process is gone.
+
+        Gone: it stopped beating (`storage.queries.runs.RUN_STALE_S`), or it ran on this host and
+        has ended (`camcal.core.owner.gone`: a server restarted at once after a kill). Returns them
+        (id, dive, label) for the caller to say so. A run another live process still beats is left
+        alone: a server starting beside a ``camcal reanalyze`` under way does not end it."""
+        with self.session() as s:
+            runs = s.scalars(
+                select(AnalysisRun).where(AnalysisRun.kind != "live", AnalysisRun.status.in_(UNFINISHED))
+            ).all()
+            now = now_unix_s()
+            ended = [{"id": r.id, "dive_id": r.dive_id, "label": r.label} for r in runs if is_orphan(r, now)]
+            if ended:
+                s.execute(
+                    update(AnalysisRun)
+                    .where(AnalysisRun.id.in_([r["id"] for r in ended]), AnalysisRun.status.in_(UNFINISHED))
+                    .values(status="interrupted")
+                )
+            return ended
 
     def save_results(self, run_id: int, results: Sequence[dict[str, Any]]) -> int:
         """Store frame results (dicts of `FrameResult` columns with ``frame_id``); duplicates skipped."""

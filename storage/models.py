@@ -119,6 +119,10 @@ class AnalysisRun(Base):
     created_unix_s: Mapped[float] = mapped_column(Float)
     status: Mapped[str] = mapped_column(String(16), default="running")
     n_frames: Mapped[int] = mapped_column(Integer, default=0)
+    # When the process that runs (or queues) a re-analysis last said it still does, and which
+    # process that is (`camcal.core.owner`; see `storage.queries.runs.RUN_STALE_S`). None: live runs.
+    heartbeat_unix_s: Mapped[float | None] = mapped_column(Float)
+    owner: Mapped[str | None] = mapped_column(String(200))
 
 
 class FrameResult(Base):

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import signal
+import threading
 import time
 from datetime import UTC, datetime
 from pathlib import Path
@@ -11,7 +13,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from rich.table import Table
 
-from camcal.cli.common import DataOption, DbUrlOption, console, fail
+from camcal.cli.common import DataOption, DbUrlOption, console, err_console, fail
 from camcal.cli.overrides import (
     ClockOffsetOption,
     DistanceErrOption,
@@ -174,6 +176,7 @@ def reanalyze(
     )
 
     store = open_store(data, db_url, create=bool(folders))
+    cancel = _stop_on_signals()
     runner = None
     summaries: list[dict[str, Any]] = []
     try:
@@ -189,7 +192,7 @@ def reanalyze(
         runner = _start_runner(workers, scheduler)
         for job in jobs:
             started = _start(store, job, chosen, overrides.apply, label, calibration, options)
-            summaries.append(_run(store, job, started, options, runner))
+            summaries.append(_run(store, job, started, options, runner, cancel))
     finally:
         if runner is not None:
             runner.close()
@@ -199,6 +202,22 @@ def reanalyze(
         json_out.parent.mkdir(parents=True, exist_ok=True)
         write_atomic(json_out, (json.dumps({"runs": summaries}, indent=1) + "\n").encode(), fsync=False)
         console.print(f"wrote {json_out}")
+
+
+def _stop_on_signals() -> threading.Event:
+    """Ctrl-C or SIGTERM (`kill`, systemd) stop the run after the batch it stores, marked
+    ``interrupted``; a second Ctrl-C stops at once."""
+    cancel = threading.Event()
+
+    def on_signal(signum: int, frame: Any) -> None:
+        if cancel.is_set():
+            raise KeyboardInterrupt
+        cancel.set()
+        err_console.print("stopping after the batch under way (Ctrl-C again to stop at once)")
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    return cancel
 
 
 def _stored(store: Any, name: str | None, frm: float | None, to: float | None) -> list[dict[str, Any]]:
@@ -316,16 +335,29 @@ def _start(
         raise fail(str(exc)) from None
 
 
-def _run(store: Any, job: dict[str, Any], started: Any, options: Any, runner: Any) -> dict[str, Any]:
+def _run(
+    store: Any, job: dict[str, Any], started: Any, options: Any, runner: Any, cancel: threading.Event
+) -> dict[str, Any]:
     from ingest.derived import attenuation_dict, result_row, span_attenuation
-    from ingest.reanalysis import reanalyse
+    from ingest.reanalysis import ReanalysisInterrupted, reanalyse
     from storage import queries
 
     d = job["dive"]
     run_id, setup, record = started.run_id, started.setup, started.record
     t0 = time.perf_counter()
     try:
-        n = reanalyse(store, d.id, run_id, setup, options, runner=runner, sources=job["sources"])
+        if cancel.is_set():  # stopped between two dives
+            raise ReanalysisInterrupted
+        n = reanalyse(
+            store, d.id, run_id, setup, options, runner=runner, sources=job["sources"], cancel=cancel
+        )
+    except (ReanalysisInterrupted, KeyboardInterrupt):
+        store.finish_run(run_id, "interrupted")
+        raise fail(
+            f"re-analysis of dive {d.name} interrupted (run {run_id}, marked interrupted): run the same "
+            "command again to redo it",
+            code=130,
+        ) from None
     except Exception as exc:
         raise fail(f"re-analysis of dive {d.name} failed (run {run_id}): {exc}", code=1) from None
     elapsed = time.perf_counter() - t0

@@ -5,6 +5,7 @@ from __future__ import annotations
 import errno
 import os
 import tempfile
+import threading
 import zipfile
 from pathlib import Path
 from typing import Annotated, Any
@@ -193,8 +194,9 @@ def create_reanalysis(
         raise Invalid(str(exc)) from None
     run_id, setup = started.run_id, started.setup
 
-    def job() -> None:
-        reanalyse(store, dive_id, run_id, setup, ReanalysisOptions(workers=settings.reanalysis_workers))
+    def job(cancel: threading.Event) -> None:
+        options = ReanalysisOptions(workers=settings.reanalysis_workers)
+        reanalyse(store, dive_id, run_id, setup, options, cancel=cancel)
 
     request.app.state.reanalyses.submit(run_id, job)
     return next(r for r in store.call(queries.runs, dive_id) if r["id"] == run_id)

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Sequence
 from typing import Any
 
 from sqlalchemy import and_, func, select
 from sqlalchemy.orm import Session
 
+from camcal.core.owner import gone
 from storage.models import (
     Alarm,
     AnalysisRun,
@@ -19,6 +21,36 @@ from storage.models import (
 )
 from storage.queries.operations import alarm_dict
 from storage.queries.series import downsampled
+
+#: How often the process that holds a re-analysis (queued or running) says so, in seconds.
+RUN_BEAT_S = 5.0
+#: A queued or running re-analysis not heard of for this long was stopped with its process (the
+#: server or ``camcal reanalyze`` killed, the machine down): it reads as ``interrupted``.
+RUN_STALE_S = 30.0
+UNFINISHED = ("queued", "running")
+INTERRUPTED_NOTE = "the server or `camcal reanalyze` running it stopped before it finished: start it again"
+
+
+def is_stale(heartbeat_unix_s: float | None, now_unix_s: float) -> bool:
+    """Whether a queued or running re-analysis has not been heard of for `RUN_STALE_S`."""
+    return heartbeat_unix_s is None or heartbeat_unix_s < now_unix_s - RUN_STALE_S
+
+
+def is_orphan(r: AnalysisRun, now_unix_s: float) -> bool:
+    """A re-analysis still marked queued or running whose process is gone: silent for `RUN_STALE_S`,
+    or ended on this host (`camcal.core.owner.gone`)."""
+    return (
+        r.kind != "live"
+        and r.status in UNFINISHED
+        and (is_stale(r.heartbeat_unix_s, now_unix_s) or gone(r.owner))
+    )
+
+
+def run_status(r: AnalysisRun, now_unix_s: float) -> tuple[str, str | None]:
+    """A run's status as people should read it, and a note saying what to do when it needs one."""
+    if r.status == "interrupted" or is_orphan(r, now_unix_s):
+        return "interrupted", INTERRUPTED_NOTE
+    return r.status, None
 
 
 def live_run_id(s: Session, dive_id: int) -> int | None:
@@ -75,20 +107,39 @@ def dive_by_name(s: Session, name: str) -> Dive | None:
 
 
 def runs(s: Session, dive_id: int) -> list[dict[str, Any]]:
-    return [
-        {
-            "id": r.id,
-            "kind": r.kind,
-            "label": r.label,
-            "calibration": r.calibration if isinstance(r.calibration, dict) else {},
-            "calibration_id": r.calibration_id,
-            "software_version": r.software_version,
-            "created_unix_s": r.created_unix_s,
-            "status": r.status,
-            "n_frames": r.n_frames,
-        }
-        for r in s.scalars(select(AnalysisRun).where(AnalysisRun.dive_id == dive_id).order_by(AnalysisRun.id))
-    ]
+    """The dive's analysis runs, oldest first; a re-analysis whose process stopped reads as
+    ``interrupted`` (with a ``note``) even before a server marks it so (`RUN_STALE_S`)."""
+    now = time.time()
+    out = []
+    rows = s.scalars(select(AnalysisRun).where(AnalysisRun.dive_id == dive_id).order_by(AnalysisRun.id)).all()
+    # A re-analysis under way (or stopped) counts the results it has stored so far: its progress.
+    counting = [r.id for r in rows if r.kind != "live" and r.status != "done"]
+    stored = dict(
+        s.execute(
+            select(FrameResult.run_id, func.count())
+            .where(FrameResult.run_id.in_(counting))
+            .group_by(FrameResult.run_id)
+        ).all()
+        if counting
+        else []
+    )
+    for r in rows:
+        status, note = run_status(r, now)
+        out.append(
+            {
+                "id": r.id,
+                "kind": r.kind,
+                "label": r.label,
+                "calibration": r.calibration if isinstance(r.calibration, dict) else {},
+                "calibration_id": r.calibration_id,
+                "software_version": r.software_version,
+                "created_unix_s": r.created_unix_s,
+                "status": status,
+                "n_frames": stored.get(r.id, 0) if r.id in counting else r.n_frames,
+                "note": note,
+            }
+        )
+    return out
 
 
 class RunLookupError(LookupError):

@@ -141,7 +141,11 @@ async function submit(ctx, f, cams, ratios, calibrationId) {
     linear_range: [v("lin-lo"), v("lin-hi")],
   };
   if (calibrationId !== null) body.calibration_id = calibrationId;
-  const button = $("#reanalysis-submit");
+  await start(ctx, body, $("#reanalysis-submit"));
+}
+
+/** Start a re-analysis (POST ``body``), show it beside the live run and follow it. */
+async function start(ctx, body, button) {
   button.disabled = true;
   try {
     const run = await api(`/api/dives/${ctx.dive.id}/reanalyses`, { method: "POST", body });
@@ -154,6 +158,32 @@ async function submit(ctx, f, cams, ratios, calibrationId) {
   } finally {
     button.disabled = !operator();
   }
+}
+
+/** The same re-analysis again, for one that did not finish: its calibration, its record, its name. */
+function runAgain(ctx, r) {
+  const c = r.calibration || {};
+  const body = {
+    label: `${r.label || `run #${r.id}`} (again)`.slice(0, 200),
+    cameras: Object.fromEntries(
+      Object.entries(c.cameras || {}).map(([m, d]) => [m, { distance_m: d.distance_m, distance_err_m: d.distance_err_m ?? 0, clock_offset_s: d.clock_offset_s ?? 0 }]),
+    ),
+    emission_ratio: Object.fromEntries(Object.entries(c.emission_ratio || {}).map(([wl, e]) => [wl, { value: e.value, err: e.err ?? 0 }])),
+  };
+  if (c.linear_range) body.linear_range = c.linear_range;
+  if (r.calibration_id !== null && r.calibration_id !== undefined) body.calibration_id = r.calibration_id;
+  return (ev) => start(ctx, body, ev.currentTarget);
+}
+
+/** A run's status, with what to do when it did not finish (and, for an operator, a button to do it). */
+function statusCell(ctx, r) {
+  const text = r.kind === "live" && r.status === "running" ? "live (ongoing)" : r.status;
+  const cell = el("td", { title: r.note || "" }, el("span", { class: "run-status", "data-status": r.status }, text));
+  if (r.kind !== "live" && ["interrupted", "failed", "cancelled"].includes(r.status)) {
+    if (r.note) cell.append(el("div", { class: "muted run-note" }, r.note));
+    if (operator()) cell.append(el("button", { type: "button", class: "run-again", onclick: runAgain(ctx, r) }, "Run again"));
+  }
+  return cell;
 }
 
 /** Frames analysed by a re-analysis, against the dive's frames. */
@@ -180,7 +210,7 @@ function renderRuns(ctx) {
           el("td", {}, r.kind),
           el("td", {}, r.label || "–"),
           el("td", {}, utc(r.created_unix_s)),
-          el("td", {}, el("span", { class: "run-status", "data-status": r.status }, r.kind === "live" && r.status === "running" ? "live (ongoing)" : r.status)),
+          statusCell(ctx, r),
           el("td", { class: "r" }, r.kind === "live" ? "–" : progress(ctx, r)),
           el("td", { style: { whiteSpace: "normal" } }, Object.entries(c.cameras || {}).map(([m, d]) => `${m} ${fmt(d.distance_m, 2)}±${fmt(d.distance_err_m, 2)}` + (d.clock_offset_s ? ` (clock ${d.clock_offset_s > 0 ? "+" : ""}${fmt(d.clock_offset_s, 1)} s)` : "")).join(", ")),
           el("td", { style: { whiteSpace: "normal" } }, Object.entries(c.emission_ratio || {}).map(([wl, e]) => `${wl}: ${fmt(e.value, 2)}`).join(", ")),
@@ -308,4 +338,5 @@ window.addEventListener("camcal:auth", () => {
   button.disabled = !op;
   note.className = op ? "muted" : "error-msg";
   note.textContent = op ? `as ${op.name}` : "Log in as operator to start a re-analysis.";
+  if (current) renderRuns(current); // the "Run again" buttons are an operator's
 });

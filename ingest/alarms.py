@@ -12,6 +12,8 @@ import time
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
 
+from camcal.core.wire.limits import TIME_MIN_UNIX_S
+
 
 @dataclass(frozen=True)
 class AlarmLimits:
@@ -261,16 +263,7 @@ class AlarmEvaluator:
                     add(device, module, "MAJOR", _failure_message(device, module, count, error, _hms(rose)))
             clock = self._clock(st)
             if clock is not None:
-                severity, off = clock
-                side = "ahead of" if off > 0 else "behind"
-                message = f"module {module}: its clock is {abs(off):.0f} s {side} the ship's; sync it (NTP)"
-                if severity == "MAJOR":
-                    message += (
-                        ": λ_att pairs the two cameras' frames by their times, and frames this far apart "
-                        "are paired with the wrong moments or not at all (repair them afterwards: "
-                        f"camcal reanalyze --clock-offset {module}={off:+.0f})"
-                    )
-                add("clock", module, severity, message)
+                add("clock", module, clock[0], _clock_message(module, clock[0], clock[1], now_unix_s))
             old = [g for g in st.open_gaps if now_unix_s - g[2] >= lim.gap_age_s]
             if old:
                 missing = sum(b - a + 1 for a, b, _ in old)
@@ -295,6 +288,37 @@ class AlarmEvaluator:
         elif st.clock_shown is None or st.clock_shown[0] != severity:
             st.clock_shown = (severity, off)  # type: ignore[assignment]
         return st.clock_shown
+
+
+#: The largest clock offset a re-analysis can repair (`camcal reanalyze --clock-offset`), seconds.
+REPAIRABLE_CLOCK_S = 86400.0
+
+
+def _clock_message(module: str, severity: str, off: float, now_unix_s: float) -> str:
+    """The clock alarm's message: how far off, what it does to the science, what to do."""
+    reads = now_unix_s + off
+    if reads < TIME_MIN_UNIX_S:  # never set: a Raspberry Pi without its clock's battery starts at 1970
+        return (
+            f"module {module}: its clock is not set (it reads {_ymd_hm(reads)} UTC): its frames cannot "
+            "be placed in time and are not taken (they stay on its SD card); set its clock from the "
+            "ship (NTP) and restart it. After the dive, its card imports at the right times: "
+            f"camcal import CARD --clock-offset {module}={off:+.0f}"
+        )
+    side = "ahead of" if off > 0 else "behind"
+    message = f"module {module}: its clock is {abs(off):.0f} s {side} the ship's; sync it (NTP)"
+    if severity != "MAJOR":
+        return message
+    message += (
+        ": λ_att pairs the two cameras' frames by their times, and frames this far apart are paired "
+        "with the wrong moments or not at all"
+    )
+    if abs(off) <= REPAIRABLE_CLOCK_S:
+        return message + f" (repair them afterwards: camcal reanalyze --clock-offset {module}={off:+.0f})"
+    return message + f" (its clock reads {_ymd_hm(reads)} UTC: set it and restart the module)"
+
+
+def _ymd_hm(t_unix_s: float) -> str:
+    return time.strftime("%Y-%m-%d %H:%M", time.gmtime(max(t_unix_s, 0.0)))
 
 
 def _failure_message(device: str, module: str, count: int, error: str | None, at: str) -> str:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from datetime import datetime
 from functools import partial
@@ -19,6 +19,7 @@ from analysis import FrameConfig
 from camcal.core.frameset import DAMAGED, ManifestRow, Setup, decode_text, parse_manifest, parse_setup
 from camcal.core.images import FrameReadError, decode_frame
 from camcal.core.parallel import process_pool
+from camcal.core.wire.limits import TIME_MIN_UNIX_S
 from camcal.core.wire.models import is_id
 from camcal.core.wire.sensors import check_columns, check_rows
 from ingest.seqtrack import SeqTracker
@@ -92,6 +93,7 @@ def import_frame_set(
     workers: int = 1,
     progress: Callable[[int, int], None] | None = None,
     storage_options: dict[str, object] | None = None,
+    clock_offsets_s: Mapping[str, float] | None = None,
 ) -> ImportReport:
     """Store every readable frame of ``folder`` not yet in the store, then analyse the new ones.
 
@@ -99,7 +101,12 @@ def import_frame_set(
     frame that already arrived over the link is skipped, and one the link
     lost is added (and its gap closed). Unreadable files are reported and
     skipped; sensor batches of an outbox (``sensors.jsonl``) come along.
+    ``clock_offsets_s``: per module, how far its clock was ahead of true time
+    (behind: negative); its frames' and samples' times are corrected by it.
+    A frame stamped before 2000 (a module clock never set) is reported, with
+    the option that imports it, and not stored at a time that means nothing.
     """
+    offsets = dict(clock_offsets_s or {})
     root = RemoteFolder(folder, storage_options)
     # a broken manifest or setup.json stops the import early
     frames_dir, manifest, rows, _setup = read_frame_set(root)
@@ -139,6 +146,11 @@ def import_frame_set(
             report.already_present += 1
             report.sources[(row.camera, boot, seq)] = frames_dir.file_url(row.file)
             continue
+        stamped = _unix(row.timestamp)
+        captured = stamped - offsets.get(row.camera, 0.0) if stamped is not None else time.time()
+        if captured < TIME_MIN_UNIX_S:
+            report.problems.append((row.file, _unset_clock(row.camera, stamped or 0.0)))
+            continue
         try:
             data = frames_dir.read_bytes(row.file)
             frame = decode_frame(data, row.file)
@@ -151,7 +163,6 @@ def import_frame_set(
         encoding = "png" if data.startswith(b"\x89PNG") else "tiff"
         rel = store.files.relative_path(dive_id, row.camera, boot, seq, encoding)
         store.files.write(rel, data)
-        captured = _unix(row.timestamp) or time.time()
         batch.append(
             FrameRow(
                 module_id=row.camera,
@@ -182,6 +193,7 @@ def import_frame_set(
     if root.exists("sensors.jsonl"):
         module = rows[0].camera if rows else None
         batches = []
+        skipped: list[str] = []
         for line in decode_text(root.read_bytes("sensors.jsonl")).splitlines():
             try:
                 if DAMAGED in line:  # its values cannot be trusted (a failing card)
@@ -191,13 +203,22 @@ def import_frame_set(
                 problem = check_columns(columns)
                 if problem:
                     raise ValueError(problem)
-                samples = check_rows(columns, obj["rows"], len(obj["rows"]))  # the link's checks
+                rows_in = obj["rows"]
+                shift = offsets.get(module or "", 0.0)
+                if shift and "t_unix_s" in columns:  # the module's clock, corrected
+                    i_t = columns.index("t_unix_s")
+                    rows_in = [_shifted(r, i_t, shift) for r in rows_in]
+                samples = check_rows(columns, rows_in, len(rows_in))  # the link's checks
             except (json.JSONDecodeError, KeyError, ValueError, TypeError) as exc:
-                report.problems.append(("sensors.jsonl", f"a line was skipped: {str(exc)[:200]}"))
+                skipped.append(str(exc)[:200])
                 continue
             if module:
                 batches.append(SensorBatchRow(module, obj["boot"], int(obj["seq"]), time.time(), samples))
                 touched.add((module, obj["boot"]))
+        for why in skipped[:3]:  # (a clock never set spoils every line alike: three say it)
+            report.problems.append(("sensors.jsonl", f"a line was skipped: {why}"))
+        if len(skipped) > 3:
+            report.problems.append(("sensors.jsonl", f"... and {len(skipped) - 3} more lines skipped"))
         if batches:
             out = store.commit_batch(dive_id, [], batches)
             report.sensor_batches = len(out.new_sensor_batches)
@@ -251,6 +272,23 @@ def analyse_frames(
             row.pop(k, None)
         rows.append({**row, "frame_id": fid, "analysed_unix_s": time.time()})
     return store.save_results(run_id, rows)
+
+
+def _unset_clock(module: str, stamped_unix_s: float) -> str:
+    reads = time.strftime("%Y-%m-%d %H:%M", time.gmtime(max(stamped_unix_s, 0.0)))
+    return (
+        f"captured at {reads} UTC by module {module}'s clock, which was not set: import again with "
+        f"--clock-offset {module}=-SECONDS, how far it was behind (the ship's 'clock' alarm names it)"
+    )
+
+
+def _shifted(row: object, i: int, shift_s: float) -> object:
+    """A sensor row with its time corrected by ``shift_s`` (anything else left for the checks)."""
+    if not isinstance(row, list) or len(row) <= i or isinstance(row[i], bool):
+        return row
+    if not isinstance(row[i], int | float):
+        return row
+    return [*row[:i], row[i] - shift_s, *row[i + 1 :]]
 
 
 def _unix(text: str | None) -> float | None:

@@ -23,7 +23,7 @@ import time
 from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
@@ -89,6 +89,7 @@ class Agent(CommandHandling, Producing):
         camera_limits: CameraLimits | None = None,
         ctx: zmq.Context[Any] | None = None,
         depth: Callable[[], float | None] | None = None,
+        simulated_clock_error_s: float = 0.0,
     ) -> None:
         if (runner is None) == (source is None):
             raise ValueError("give the agent either a schedule runner or a replay source")
@@ -106,6 +107,9 @@ class Agent(CommandHandling, Producing):
         self.camera_limits = camera_limits
         self.ctx = ctx or zmq.Context.instance()
         self.depth = depth
+        #: Simulation only: a module clock (its real-time clock) this far off, in what the module
+        #: stamps and sends (capture and sample times, `sent_at`); the simulated world is not moved.
+        self.clock_error = timedelta(seconds=simulated_clock_error_s)
         self.boot = new_boot_id()
         self.outbox = Outbox(config.outbox, config.module, fsync=config.fsync)
         self._seq = 0
@@ -347,7 +351,8 @@ class Agent(CommandHandling, Producing):
                         if dive:  # the ship refuses a message of another dive than its own
                             header = header.model_copy(update=dive)
                     except (OSError, ValueError) as exc:  # the SD card lost or damaged it
-                        log.error("outbox entry %s/%d cannot be sent, skipped: %s", key[0], key[1], exc)
+                        why = " ".join(str(exc).split())  # (a validation error's lines, on one)
+                        log.error("outbox entry %s/%d cannot be sent, skipped: %s", key[0], key[1], why)
                         self.outbox.discard(*key)
                         self.counters["unsendable"] += 1
                         continue
@@ -404,6 +409,8 @@ class Agent(CommandHandling, Producing):
         retry_at.pop(key, None)
 
     def _send(self, sock: Any, msg: Any) -> None:
+        if self.clock_error:  # (simulation only)
+            msg = msg.model_copy(update={"sent_at": wire.utc_now() + self.clock_error})
         try:
             sock.send_multipart(wire.encode(msg), zmq.NOBLOCK)
         except zmq.Again:

@@ -19,6 +19,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable
+from datetime import timedelta
 from typing import Any
 
 from camcal.core.images import encode_png
@@ -42,6 +43,7 @@ class Producing:
     clock: Any
     sensors: Any | None
     depth: Callable[[], float | None] | None
+    clock_error: timedelta  # (simulation only: a module clock that is off)
     _source: Callable[[threading.Event], Capture | None]
     _produce_stop: threading.Event
     _new: queue.SimpleQueue[tuple[str, int]]
@@ -131,7 +133,7 @@ class Producing:
                 "frames_captured",
                 self.outbox.add_frame,
                 png,
-                captured_at=f.captured_at,
+                captured_at=f.captured_at + self.clock_error,
                 camera=f.camera or self.config.module,
                 wavelength_nm=cap.wavelength_nm,
                 exposure_s=f.exposure_s,
@@ -159,7 +161,7 @@ class Producing:
             acc, gyro = s.acc_m_s2, s.gyro_dps
             rows.append(
                 [
-                    s.t.timestamp(),
+                    s.t.timestamp() + self.clock_error.total_seconds(),
                     s.temperature_c,
                     s.humidity_pct,
                     acc[0],

@@ -22,12 +22,14 @@ def simulated_module(
     *,
     readout_s: float = 0.8,
     lem_settle_s: float = 0.0,
+    clock_error_s: float = 0.0,
 ) -> Agent:
     """The agent of module ``config.module`` of a simulated dive (not started).
 
     It takes pictures only while the dive's profile allows (not on deck),
     waits ``lem_settle_s`` after each change of LEM colour, and refuses
-    schedules its camera cannot take (the camera's limits).
+    schedules its camera cannot take (the camera's limits). ``clock_error_s``: its clock that far
+    off (what it stamps and sends; see `lrm.agent.Agent`).
     """
     module = config.module
     if module not in sim.module_ids:
@@ -46,4 +48,5 @@ def simulated_module(
         runner=runner,
         sensors=SimulatedSensors(sim, module, clock),
         camera_limits=CameraLimits(cam.exposure_range_s, cam.gain_range_db, cam.gain_step_db),
+        simulated_clock_error_s=clock_error_s,
     )

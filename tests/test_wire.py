@@ -77,7 +77,12 @@ CASES = [
     ("year 0001", frame_parts(captured_at="0001-01-01T00:00:00Z"), "invalid_field"),
     ("year 9999", frame_parts(captured_at="9999-12-31T23:59:59Z"), "invalid_field"),
     ("time as a number", frame_parts(captured_at=1.7e9), "invalid_field"),
-    ("sent_at 1970", frame_parts(sent_at="1970-01-01T00:00:00Z"), "invalid_field"),
+    (
+        "sent_at 1969",
+        frame_parts(sent_at="1969-12-31T23:59:59Z"),
+        "invalid_field",
+    ),  # (1970 on: a clock never set)
+    ("captured_at 1970", frame_parts(captured_at="1970-01-01T00:05:00Z"), "invalid_field"),
     ("boot ..", frame_parts(boot=".."), "invalid_field"),
     ("boot .", frame_parts(boot="."), "invalid_field"),
     ("module ...", frame_parts(module="..."), "invalid_field"),

@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from camcal.cli.common import DataOption, DbUrlOption, console, fail, progress_bar
+from camcal.cli.common import DataOption, DbUrlOption, console, fail, parse_mapping, progress_bar
 
 
 def register(app: typer.Typer) -> None:
@@ -75,19 +75,34 @@ def import_cmd(
     dive: Annotated[str | None, typer.Option(help="Dive to import into (default: the latest).")] = None,
     workers: Annotated[int, typer.Option(help="Analysis processes.")] = 2,
     analyse: Annotated[bool, typer.Option(help="Analyse the imported frames.")] = True,
+    clock_offset: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="A module clock that was off: CAM=SECONDS it was ahead of true time (behind: negative; "
+            "the ship's 'clock' alarm names it). Its frames' and samples' times are corrected."
+        ),
+    ] = None,
 ) -> None:
     """Load an SD-card frame set into a dive: frames already stored are skipped, gaps are filled."""
     from camcal.core import __version__
     from camcal.core.frameset import FrameSetError
     from ingest.importer import import_frame_set
 
+    offsets = parse_mapping(clock_offset, "--clock-offset")
     store = open_store(data, db_url, create=True)
     try:
         d = pick_dive(store, dive, create_as=dive or folder.name)
         run = store.analysis_run(d.id, "live", software_version=__version__)
         with progress_bar("importing") as update:
             report = import_frame_set(
-                store, folder, dive_id=d.id, run_id=run.id, analyse=analyse, workers=workers, progress=update
+                store,
+                folder,
+                dive_id=d.id,
+                run_id=run.id,
+                analyse=analyse,
+                workers=workers,
+                progress=update,
+                clock_offsets_s=offsets,
             )
     except FrameSetError as exc:
         raise fail(str(exc)) from None

@@ -199,6 +199,13 @@ def simulate(
     exit_when_recovered: Annotated[
         bool, typer.Option(help="Exit once the dive is over and all is sent.")
     ] = True,
+    clock_error_s: Annotated[
+        float,
+        typer.Option(
+            help="A module clock this far off [s], in its stamps and messages (-1.8e9: a clock never "
+            "set, reading 1970); the simulated world is not moved."
+        ),
+    ] = 0.0,
     dive: DiveOption = None,
     keys: KeysOption = Path(DATA_DIR) / "keys",
     plaintext: PlaintextOption = False,
@@ -264,7 +271,15 @@ def simulate(
         plaintext=plaintext,
     )
     agent = with_outbox(
-        lambda: simulated_module(sim, cfg, clock, sched, readout_s=readout_s, lem_settle_s=lem_settle_s)
+        lambda: simulated_module(
+            sim,
+            cfg,
+            clock,
+            sched,
+            readout_s=readout_s,
+            lem_settle_s=lem_settle_s,
+            clock_error_s=clock_error_s,
+        )
     )
     agent.start()
     console.print(

@@ -7,7 +7,10 @@ points within 1 %, 30 s moves them by up to 1.5 %, 90 s leaves no point). The cr
 
 from __future__ import annotations
 
-from datetime import timedelta
+import subprocess
+import sys
+import time
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +18,9 @@ from sqlalchemy import select
 
 from ingest.service import IngestService
 from storage.models import Alarm, Event
-from tests.utils.live import make_agent, wait_for
+from tests.utils.live import cli_env, make_agent, wait_for
+from tests.utils.rogue import IngestProbe
+from tests.utils.system import wait_until
 
 AHEAD_S = 60.0
 DRIFT_S = 0.7
@@ -96,3 +101,79 @@ def test_heartbeats_that_arrive_late_on_a_busy_link_are_not_taken_for_a_clock_be
         assert not clock_alarms(service)
     finally:
         late.stop()
+
+
+#: A Raspberry Pi whose clock was never set (no battery, no NTP yet) reads 1970-01-01 at its boot.
+NEVER_SET_S = datetime(1970, 1, 1, 0, 5, tzinfo=UTC).timestamp() - time.time()
+
+
+def test_a_module_whose_clock_was_never_set_links_and_the_ship_says_what_to_do(tmp_path: Path) -> None:
+    """Before, every `hello` of such a module was refused (`sent_at` before 2000): it never linked,
+    no alarm said why, only the ship's log. Real ``camcal ingest`` and ``camcal lrm simulate``
+    processes over CURVE; the module's clock error is the simulator's (the one stand-in)."""
+    ship = IngestProbe(tmp_path / "data")
+    module = None
+    try:
+        ship.wait_ready()
+        args = [
+            "lrm",
+            "simulate",
+            "--camera",
+            "B",
+            "--connect",
+            ship.endpoint,
+            "--outbox",
+            str(tmp_path / "card"),
+        ]
+        args += [
+            "--keys",
+            str(ship.keys),
+            "--speed",
+            "50",
+            "--frame-scale",
+            "0.1",
+            "--deck-s",
+            "0",
+            "--no-fsync",
+        ]
+        args += ["--clock-error-s", f"{NEVER_SET_S:.0f}"]
+        module = subprocess.Popen(
+            [sys.executable, "-c", "from camcal.cli import main; main()", *args],
+            env=cli_env(),
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+
+        def clock_alarm() -> Any:
+            rows = ship.rows("SELECT severity, message FROM alarms WHERE kind = 'clock' AND module_id = 'B'")
+            return (
+                rows
+                and ship.rows("SELECT COUNT(*) FROM frames")[0][0] == 0
+                and _kept_from_1970(tmp_path / "card") >= 3
+                and rows
+            )
+
+        ((severity, message),) = wait_until(
+            clock_alarm, 60, "the clock alarm and refused frames", every_s=0.5
+        )
+        assert severity == "MAJOR"
+        assert "its clock is not set (it reads 1970-01-01" in message and "NTP" in message
+        assert "stay on its SD card" in message
+        named = float(message.split("--clock-offset B=")[1])  # what its card imports with
+        assert abs(named - NEVER_SET_S) < 60, (named, NEVER_SET_S)
+        health = ship.health()
+        assert health["modules"]["B"]["link"] == "up", health["modules"]["B"]  # it links all the same
+        assert health["modules"]["B"]["clock_offset_s"] < -1.7e9
+        assert ship.rows("SELECT COUNT(*) FROM frames") == [(0,)]  # no frame placed in 1970
+        assert ship.alive() and module.poll() is None
+    finally:
+        if module is not None:
+            module.kill()
+            module.wait(10)
+        ship.stop()
+
+
+def _kept_from_1970(card: Path) -> int:
+    """Frames on the module's card stamped 1970 (kept there: the module does not offer them)."""
+    manifest = card / "frames" / "manifest.csv"
+    return manifest.read_text().count(",1970-01-01T") if manifest.exists() else 0

@@ -17,6 +17,9 @@ TIME_MIN = datetime(2000, 1, 1, tzinfo=UTC)
 TIME_MAX = datetime(2100, 1, 1, tzinfo=UTC)
 TIME_MIN_UNIX_S = TIME_MIN.timestamp()
 TIME_MAX_UNIX_S = TIME_MAX.timestamp()
+#: A message's ``sent_at`` may read from 1970 on: a module whose clock was never set (a Raspberry
+#: Pi's clock without its battery starts at 1970) must still link, so that the ship can say so.
+SENT_AT_MIN = datetime(1970, 1, 1, tzinfo=UTC)
 
 __all__ = [
     "INT_MAX",
@@ -24,6 +27,7 @@ __all__ = [
     "MAX_HEADER_BYTES",
     "MAX_PAYLOAD_BYTES",
     "MAX_SENSOR_ROWS",
+    "SENT_AT_MIN",
     "TIME_MAX",
     "TIME_MAX_UNIX_S",
     "TIME_MIN",

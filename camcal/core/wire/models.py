@@ -18,6 +18,7 @@ from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Fie
 from camcal.core.wire.limits import (
     INT_MAX,
     MAX_SENSOR_ROWS,
+    SENT_AT_MIN,
     TIME_MAX,
     TIME_MIN,
 )
@@ -54,12 +55,17 @@ def _timestamp(v: Any) -> Any:
     return v
 
 
-def _in_window(v: datetime) -> datetime:
+def _in_window(v: datetime, low: datetime = TIME_MIN) -> datetime:
     if v.tzinfo is None:  # no offset: UTC, as the protocol says
         v = v.replace(tzinfo=UTC)
-    if not TIME_MIN <= v < TIME_MAX:
-        raise ValueError(f"must be between {TIME_MIN:%Y-%m-%d} and {TIME_MAX:%Y-%m-%d} (UTC)")
+    if not low <= v < TIME_MAX:
+        unset = " (the module's clock is not set: set it from the ship, NTP)" if v < TIME_MIN else ""
+        raise ValueError(f"must be between {low:%Y-%m-%d} and {TIME_MAX:%Y-%m-%d} (UTC){unset}")
     return v.astimezone(UTC)
+
+
+def _sent_at_window(v: datetime) -> datetime:
+    return _in_window(v, SENT_AT_MIN)
 
 
 #: An identifier: 1-64 letters, digits, ``_``, ``.``, ``-``, and not only dots.
@@ -79,6 +85,16 @@ Timestamp = Annotated[
     BeforeValidator(_timestamp),
     AfterValidator(_in_window),
 ]
+#: When a message was sent, by its sender's clock: as `Timestamp`, but from 1970-01-01 (revision
+#: 1.5): a module whose clock was never set links all the same, and the ship raises its clock alarm.
+SentAt = Annotated[
+    datetime,
+    Field(
+        description="ISO-8601 date and time, UTC (Z or an offset; none means UTC), 1970-01-01 to 2100-01-01"
+    ),
+    BeforeValidator(_timestamp),
+    AfterValidator(_sent_at_window),
+]
 #: A finite JSON number (integer or fraction); each field adds its bounds.
 _NUMBER = BeforeValidator(_number)
 #: A dive's name as the ship records it (``camcal ingest --dive NAME``): text, no control characters.
@@ -89,7 +105,7 @@ class _Header(BaseModel):
     model_config = ConfigDict(extra="ignore", frozen=True)
     v: Literal[1] = PROTOCOL_VERSION
     module: Id
-    sent_at: Timestamp = Field(default_factory=utc_now)
+    sent_at: SentAt = Field(default_factory=utc_now)
 
 
 class _ModuleHeader(_Header):

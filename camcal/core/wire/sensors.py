@@ -80,7 +80,14 @@ def check_rows(columns: tuple[str, ...], rows: Any, count: int) -> list[dict[str
                 raise ValueError(f"row {r}: {col.name} must be a number or null")
             v = float(v)
             if not (math.isfinite(v) and col.lo <= v <= col.hi):
-                raise ValueError(f"row {r}: {col.name} = {v:g} outside {col.lo:g} .. {col.hi:g} {col.unit}")
+                unset = (
+                    " (before 2000: the module's clock is not set)"
+                    if col.name == "t_unix_s" and v < col.lo
+                    else ""
+                )
+                raise ValueError(
+                    f"row {r}: {col.name} = {v:g} outside {col.lo:g} .. {col.hi:g} {col.unit}{unset}"
+                )
             sample[col.name] = v
         for i, v in enumerate(row):  # unknown columns: ignored, but still numbers or null
             if v is not None and (isinstance(v, bool) or not isinstance(v, int | float)):

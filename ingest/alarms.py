@@ -12,6 +12,7 @@ import time
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
 
+from camcal.core.frameset import CLOCK_OFFSET_MAX_S
 from camcal.core.wire.limits import TIME_MIN_UNIX_S
 
 
@@ -290,10 +291,6 @@ class AlarmEvaluator:
         return st.clock_shown
 
 
-#: The largest clock offset a re-analysis can repair (`camcal reanalyze --clock-offset`), seconds.
-REPAIRABLE_CLOCK_S = 86400.0
-
-
 def _clock_message(module: str, severity: str, off: float, now_unix_s: float) -> str:
     """The clock alarm's message: how far off, what it does to the science, what to do."""
     reads = now_unix_s + off
@@ -312,7 +309,7 @@ def _clock_message(module: str, severity: str, off: float, now_unix_s: float) ->
         ": λ_att pairs the two cameras' frames by their times, and frames this far apart are paired "
         "with the wrong moments or not at all"
     )
-    if abs(off) <= REPAIRABLE_CLOCK_S:
+    if abs(off) <= CLOCK_OFFSET_MAX_S:
         return message + f" (repair them afterwards: camcal reanalyze --clock-offset {module}={off:+.0f})"
     return message + f" (its clock reads {_ymd_hm(reads)} UTC: set it and restart the module)"
 

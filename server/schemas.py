@@ -7,6 +7,7 @@ from typing import Annotated, Any
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from camcal.core.events import EventKind
+from camcal.core.frameset import CLOCK_OFFSET_MAX_S
 
 
 class DivePublic(BaseModel):
@@ -110,7 +111,10 @@ class CameraDistance(BaseModel):
     distance_m: float = Field(gt=0, le=10000)
     distance_err_m: float = Field(0.0, ge=0, le=100)
     clock_offset_s: float | None = Field(
-        None, ge=-86400, le=86400, description="the module clock ahead of true time [s] (setup's)"
+        None,
+        ge=-CLOCK_OFFSET_MAX_S,
+        le=CLOCK_OFFSET_MAX_S,
+        description="the module clock ahead of true time [s] (setup's)",
     )
 
 

@@ -25,6 +25,10 @@ from camcal.core.images import FrameReadError, encode_png, read_frame
 
 MANIFEST = "manifest.csv"
 SETUP = "setup.json"
+#: The largest module clock offset a setup corrects, in seconds (~31 years: a clock reset to the
+#: last shutdown's time, weeks behind, is in; one never set, reading 1970, is not: such frames are
+#: not stored, and its card imports with `camcal import --clock-offset`).
+CLOCK_OFFSET_MAX_S = 1e9
 REQUIRED_COLUMNS = ("file", "camera", "wavelength_nm", "exposure_s", "gain_db")
 OPTIONAL_COLUMNS = (
     "timestamp",
@@ -69,8 +73,8 @@ class CameraSetup(BaseModel):
     )
     clock_offset_s: float = Field(
         0.0,
-        ge=-86400,
-        le=86400,
+        ge=-CLOCK_OFFSET_MAX_S,
+        le=CLOCK_OFFSET_MAX_S,
         description="how far the camera's module clock was ahead of true time [s] (behind: < 0); "
         "its frames' times are corrected by it where the two cameras' frames are paired by time "
         "(the λ_att series per LEM visit)",

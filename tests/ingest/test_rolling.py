@@ -193,3 +193,15 @@ def test_a_module_clock_that_was_off_is_corrected_by_the_setups_clock_offset() -
     for r, ok in zip(repaired, right, strict=True):
         assert r["lambda_att_m"] == pytest.approx(ok["lambda_att_m"], rel=1e-12)
         assert r["t_unix_s"] == pytest.approx(ok["t_unix_s"], abs=1e-6)  # stamped on the true time
+
+
+def test_a_clock_days_behind_is_repaired_too() -> None:
+    """A Raspberry Pi whose clock came back at its last shutdown's time (fake-hwclock, no battery)
+    runs days behind: the setup takes such an offset (it took at most a day before)."""
+    behind_s = -3 * 86400.0 - 17.0
+    samples = timetable(9)
+    late = [dataclasses.replace(s, t_unix_s=s.t_unix_s + behind_s) if s.module == "B" else s for s in samples]
+    data = Setup().model_dump()
+    data["cameras"]["B"]["clock_offset_s"] = behind_s
+    repaired = series_rows(late, Setup.model_validate(data))
+    assert len(repaired) == len(series_rows(samples, Setup())) == 9

@@ -82,7 +82,7 @@ function buildForm(ctx, from = null) {
               "div",
               { class: "pair", title: "a module clock that was off (the ship's clock alarm says how far): its frames are paired with the other camera's at the corrected times; behind: negative" },
               el("span", {}, `LRM-${m}`),
-              el("input", { type: "number", name: `clock-${m}`, value: cams[m].clock_offset_s ?? 0, step: "any", min: -86400, max: 86400, required: true, "aria-label": `LRM-${m} clock offset` }),
+              el("input", { type: "number", name: `clock-${m}`, value: cams[m].clock_offset_s ?? 0, step: "any", min: -1e9, max: 1e9, required: true, "aria-label": `LRM-${m} clock offset` }),
               el("span", {}, "s"),
             ),
           ),

@@ -296,9 +296,10 @@ def _clock_message(module: str, severity: str, off: float, now_unix_s: float) ->
     reads = now_unix_s + off
     if reads < TIME_MIN_UNIX_S:  # never set: a Raspberry Pi without its clock's battery starts at 1970
         return (
-            f"module {module}: its clock is not set (it reads {_ymd_hm(reads)} UTC): its frames cannot "
-            "be placed in time and are not taken (they stay on its SD card); set its clock from the "
-            "ship (NTP) and restart it. After the dive, its card imports at the right times: "
+            f"module {module}: its clock is not set (it reads {_ymd_hm(reads)} UTC): its frames and "
+            "sensor readings cannot be placed in time and are not taken (they stay on its SD card; "
+            "the humidity (leak) and tilt alarms are blind for it); set its clock from the ship (NTP) "
+            "and restart it. After the dive, its card imports at the right times: "
             f"camcal import CARD --clock-offset {module}={off:+.0f}"
         )
     side = "ahead of" if off > 0 else "behind"

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any
 
 from camcal.core import wire
 from camcal.core.events import Event, EventKind
-from ingest.counters import RateLimitedLog
+from camcal.core.ratelog import RateLimitedLog
 from ingest.faults import ships_fault
 from ingest.network import Incoming, nack
 from ingest.quarantine import Quarantine

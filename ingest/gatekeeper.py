@@ -31,9 +31,10 @@ from typing import Any
 import zmq
 from zmq.utils.monitor import parse_monitor_message
 
+from camcal.core.ratelog import RateLimitedLog
 from camcal.core.wire.keys import authorised_modules, fingerprint, z85_of
 from camcal.core.wire.sockets import ZAP_DOMAIN
-from ingest.counters import Counters, RateLimitedLog
+from ingest.counters import Counters
 
 log = logging.getLogger("camcal.ingest")
 

@@ -24,9 +24,9 @@ from typing import TYPE_CHECKING, Any
 import zmq
 
 from camcal.core import wire
+from camcal.core.ratelog import RateLimitedLog
 from camcal.core.wire.reasons import REASONS
 from camcal.core.wire.sockets import route_module
-from ingest.counters import RateLimitedLog
 
 if TYPE_CHECKING:
     from ingest.gatekeeper import Gatekeeper

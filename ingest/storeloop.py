@@ -23,9 +23,9 @@ import numpy as np
 import zmq
 
 from camcal.core.events import EventKind
+from camcal.core.ratelog import RateLimitedLog
 from ingest.alarms import AlarmEvaluator
 from ingest.commit import Committer
-from ingest.counters import RateLimitedLog
 from ingest.gaps import Gaps
 from ingest.housekeeping import Housekeeping
 from ingest.network import Incoming

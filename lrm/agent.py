@@ -31,6 +31,7 @@ import zmq
 from pydantic import ValidationError
 
 from camcal.core import __version__, wire
+from camcal.core.ratelog import RateLimitedLog
 from camcal.core.schedule import CameraLimits, Schedule
 from lrm.commands import CommandHandling
 from lrm.outbox import Outbox
@@ -110,6 +111,7 @@ class Agent(CommandHandling, Producing):
         #: Simulation only: a module clock (its real-time clock) this far off, in what the module
         #: stamps and sends (capture and sample times, `sent_at`); the simulated world is not moved.
         self.clock_error = timedelta(seconds=simulated_clock_error_s)
+        self.warn = RateLimitedLog(log)
         self.boot = new_boot_id()
         self.outbox = Outbox(config.outbox, config.module, fsync=config.fsync)
         self._seq = 0
@@ -352,7 +354,14 @@ class Agent(CommandHandling, Producing):
                             header = header.model_copy(update=dive)
                     except (OSError, ValueError) as exc:  # the SD card lost or damaged it
                         why = " ".join(str(exc).split())  # (a validation error's lines, on one)
-                        log.error("outbox entry %s/%d cannot be sent, skipped: %s", key[0], key[1], why)
+                        self.warn(
+                            logging.ERROR,
+                            "unsendable",
+                            "outbox entry %s/%d cannot be sent, skipped: %s",
+                            key[0],
+                            key[1],
+                            why,
+                        )
                         self.outbox.discard(*key)
                         self.counters["unsendable"] += 1
                         continue
@@ -403,7 +412,14 @@ class Agent(CommandHandling, Producing):
         if msg.retry and (tries[key] <= self.config.max_resends or until_it_works):
             retry_at[key] = time.monotonic() + min(2.0 ** (tries[key] - 1), 30.0)
             return
-        log.error("ship refused %s/%d for good: %s: %s (kept on the card)", *key, msg.reason, msg.detail)
+        self.warn(  # (a clock never set has every message refused alike: a line per 10 s, not each)
+            logging.ERROR,
+            f"refused:{msg.reason}",
+            "ship refused %s/%d for good: %s: %s (kept on the card)",
+            *key,
+            msg.reason,
+            msg.detail,
+        )
         self.outbox.refuse(msg.boot, msg.seq, msg.reason, msg.detail)
         self.counters["refused"] += 1
         retry_at.pop(key, None)

@@ -137,12 +137,15 @@ def test_a_module_whose_clock_was_never_set_links_and_the_ship_says_what_to_do(t
             "--no-fsync",
         ]
         args += ["--clock-error-s", f"{NEVER_SET_S:.0f}"]
-        module = subprocess.Popen(
-            [sys.executable, "-c", "from camcal.cli import main; main()", *args],
-            env=cli_env(),
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
+        log = tmp_path / "module.log"
+        t0 = time.monotonic()
+        with log.open("wb") as fh:
+            module = subprocess.Popen(
+                [sys.executable, "-c", "from camcal.cli import main; main()", *args],
+                env=cli_env(),
+                stdout=fh,
+                stderr=subprocess.STDOUT,
+            )
 
         def clock_alarm() -> Any:
             rows = ship.rows("SELECT severity, message FROM alarms WHERE kind = 'clock' AND module_id = 'B'")
@@ -158,7 +161,7 @@ def test_a_module_whose_clock_was_never_set_links_and_the_ship_says_what_to_do(t
         )
         assert severity == "MAJOR"
         assert "its clock is not set (it reads 1970-01-01" in message and "NTP" in message
-        assert "stay on its SD card" in message
+        assert "stay on its SD card" in message and "leak" in message  # its sensors are refused too
         named = float(message.split("--clock-offset B=")[1])  # what its card imports with
         assert abs(named - NEVER_SET_S) < 60, (named, NEVER_SET_S)
         health = ship.health()
@@ -166,6 +169,11 @@ def test_a_module_whose_clock_was_never_set_links_and_the_ship_says_what_to_do(t
         assert health["modules"]["B"]["clock_offset_s"] < -1.7e9
         assert ship.rows("SELECT COUNT(*) FROM frames") == [(0,)]  # no frame placed in 1970
         assert ship.alive() and module.poll() is None
+        # Every sensor batch is refused alike: the module's log (on its SD card) says so once per
+        # 10 s with how many it left out, not once a message.
+        refused = (tmp_path / "card" / "refused.jsonl").read_text().count("\n")
+        lines = log.read_text().count("for good")
+        assert refused >= 10 and lines <= (time.monotonic() - t0) / 10 + 2, (refused, lines)
     finally:
         if module is not None:
             module.kill()

@@ -175,9 +175,16 @@ function runAgain(ctx, r) {
   return (ev) => start(ctx, body, ev.currentTarget);
 }
 
+/** The live run: ongoing while frames come (one in the last 10 min), else when the last came. */
+function liveText(dive) {
+  const last = dive.last_frame_unix_s;
+  if (!last) return "live (no frame yet)";
+  return Date.now() / 1000 - last < 600 ? "live (ongoing)" : `live (last frame ${utc(last)})`;
+}
+
 /** A run's status, with what to do when it did not finish (and, for an operator, a button to do it). */
 function statusCell(ctx, r) {
-  const text = r.kind === "live" && r.status === "running" ? "live (ongoing)" : r.status;
+  const text = r.kind === "live" && r.status === "running" ? liveText(ctx.dive) : r.status;
   const cell = el("td", { title: r.note || "" }, el("span", { class: "run-status", "data-status": r.status }, text));
   if (r.kind !== "live" && ["interrupted", "failed", "cancelled"].includes(r.status)) {
     if (r.note) cell.append(el("div", { class: "muted run-note" }, r.note));
@@ -228,6 +235,7 @@ async function refreshRuns(ctx) {
     const [runs, dive] = await Promise.all([api(`/api/dives/${ctx.dive.id}/runs`), api(`/api/dives/${ctx.dive.id}`)]);
     ctx.runs = runs;
     ctx.dive.n_frames = dive.n_frames;
+    ctx.dive.last_frame_unix_s = dive.last_frame_unix_s;
   } catch (err) {
     toast(err.message);
   }

@@ -47,7 +47,12 @@ class ReanalysisQueue:
 
     def __init__(self, store: Store, max_queued: int) -> None:
         self.store = store
-        for run in store.interrupt_stale_runs():
+        try:
+            orphans = store.interrupt_stale_runs()
+        except Exception as exc:  # the database away at start: the runs API still reads them so
+            log.warning("could not mark the re-analyses a stopped server left: %s", exc)
+            orphans = []
+        for run in orphans:
             log.warning(
                 "re-analysis run %s of dive %s (%s) was left unfinished by a server that stopped: "
                 "marked interrupted; start it again to complete it",

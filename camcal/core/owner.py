@@ -4,7 +4,8 @@ An owner is ``host:pid:start``, the start being the process's start time in
 clock ticks since boot (``/proc/PID/stat``), so a pid the kernel has since
 given to another process is not taken for the one that held the work. Only a
 process on this host can be known to be gone; elsewhere the work's own
-heartbeat has to say it.
+heartbeat has to say it. "This host" is the host name: containers that see
+each other's work must not share one (Docker gives each its own by default).
 """
 
 from __future__ import annotations

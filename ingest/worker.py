@@ -97,7 +97,8 @@ def warm_up() -> None:
 def analyse_stored_frame(path: str, config: FrameConfig, thumb_path: str | None) -> dict[str, Any]:
     """Analyse the frame file at ``path``; write its thumbnail; return the result columns.
 
-    Never raises for a bad file: an unreadable frame is a rejected result.
+    Never raises for a bad file: an unreadable frame is a rejected result. A thumbnail that cannot
+    be written (a full disk) is left out; the result is kept.
     """
     t0 = time.perf_counter()
     try:
@@ -111,8 +112,11 @@ def analyse_stored_frame(path: str, config: FrameConfig, thumb_path: str | None)
     row["width_px"], row["height_px"] = frame.shape[1], frame.shape[0]
     if thumb_path:
         out = Path(thumb_path)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        write_atomic(out, thumbnail_jpeg(frame), fsync=False)
+        try:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            write_atomic(out, thumbnail_jpeg(frame), fsync=False)
+        except OSError:  # a full or failing disk costs the cached thumbnail, never the result:
+            pass  # the dashboard makes a missing thumbnail when it is asked for
     row["analysis_s"] = time.perf_counter() - t0
     return row
 

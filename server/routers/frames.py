@@ -174,8 +174,11 @@ def _thumbnail(store: Store, frame_id: int) -> bytes:
     except FrameReadError as exc:
         raise Unreadable(f"frame {frame_id}: {exc.detail}") from None
     path = store.files.root / "thumbs" / f"{frame_id}.jpg"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_atomic(path, jpeg, fsync=False)  # a rename: replaces a link, never writes through one
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_atomic(path, jpeg, fsync=False)  # a rename: replaces a link, never writes through one
+    except OSError:  # a full disk: served all the same, made again next time
+        pass
     return jpeg
 
 

@@ -12,13 +12,18 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 from sqlalchemy import func, select
 
+from analysis import FrameConfig
+from camcal.core.images import encode_png
 from ingest.service import IngestService
+from ingest.worker import analyse_stored_frame
 from storage.models import Frame, FrameResult
 from tests.live.conftest import ingest_config
 from tests.utils.live import make_agent, stop_and_drain, wait_for
+from tests.utils.sim import SMALL_CAMERA, renderer
 from tests.utils.tmpfs import small_tmpfs
 
 
@@ -64,3 +69,19 @@ def test_a_full_disk_refuses_nothing_for_good_and_every_frame_arrives_once_freed
     finally:
         agent.stop()
         svc.stop()
+
+
+def test_a_thumbnail_the_full_disk_cannot_take_costs_the_thumbnail_not_the_result(tmp_path: Path) -> None:
+    """Found by this file's first test in CI: a frame analysed just as the disk filled was stored as
+    rejected for good ("No space left on device" writing its thumbnail), though its analysis had
+    worked. Now the result is kept, and the dashboard makes the thumbnail when asked."""
+    render = renderer("trex", 21.56, camera=SMALL_CAMERA, camera_id="A")
+    pixels, _ = render.render(460, 0.05, 8.0, rng=np.random.default_rng(1))
+    frame = tmp_path / "frame.png"
+    frame.write_bytes(encode_png(pixels))
+    with small_tmpfs(tmp_path / "disk", 1) as disk:
+        (disk / "filler").write_bytes(bytes(shutil.disk_usage(disk).free))  # full: not a byte left
+        thumb = disk / "thumbs" / "1.jpg"
+        row = analyse_stored_frame(str(frame), FrameConfig(), str(thumb))
+        assert row["status"] == "ok" and row["i_center_gray"] > 0
+        assert not thumb.exists()

@@ -296,7 +296,7 @@ def _clock_message(module: str, severity: str, off: float, now_unix_s: float) ->
     reads = now_unix_s + off
     if reads < TIME_MIN_UNIX_S:  # never set: a Raspberry Pi without its clock's battery starts at 1970
         return (
-            f"module {module}: its clock is not set (it reads {_ymd_hm(reads)} UTC): its frames and "
+            f"module {module}: its clock is not set (it reads {utc_minute(reads)} UTC): its frames and "
             "sensor readings cannot be placed in time and are not taken (they stay on its SD card; "
             "the humidity (leak) and tilt alarms are blind for it); set its clock from the ship (NTP) "
             "and restart it. After the dive, its card imports at the right times: "
@@ -312,10 +312,11 @@ def _clock_message(module: str, severity: str, off: float, now_unix_s: float) ->
     )
     if abs(off) <= CLOCK_OFFSET_MAX_S:
         return message + f" (repair them afterwards: camcal reanalyze --clock-offset {module}={off:+.0f})"
-    return message + f" (its clock reads {_ymd_hm(reads)} UTC: set it and restart the module)"
+    return message + f" (its clock reads {utc_minute(reads)} UTC: set it and restart the module)"
 
 
-def _ymd_hm(t_unix_s: float) -> str:
+def utc_minute(t_unix_s: float) -> str:
+    """``YYYY-MM-DD HH:MM`` (UTC) of a time, 1970 at the earliest (a clock never set)."""
     return time.strftime("%Y-%m-%d %H:%M", time.gmtime(max(t_unix_s, 0.0)))
 
 

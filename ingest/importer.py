@@ -22,6 +22,7 @@ from camcal.core.parallel import process_pool
 from camcal.core.wire.limits import TIME_MIN_UNIX_S
 from camcal.core.wire.models import is_id
 from camcal.core.wire.sensors import check_columns, check_rows
+from ingest.alarms import utc_minute
 from ingest.seqtrack import SeqTracker
 from ingest.worker import analyse_stored_frame
 from storage import queries
@@ -106,7 +107,7 @@ def import_frame_set(
     A frame stamped before 2000 (a module clock never set) is reported, with
     the option that imports it, and not stored at a time that means nothing.
     """
-    offsets = dict(clock_offsets_s or {})
+    offsets = clock_offsets_s or {}
     root = RemoteFolder(folder, storage_options)
     # a broken manifest or setup.json stops the import early
     frames_dir, manifest, rows, _setup = read_frame_set(root)
@@ -275,7 +276,7 @@ def analyse_frames(
 
 
 def _unset_clock(module: str, stamped_unix_s: float) -> str:
-    reads = time.strftime("%Y-%m-%d %H:%M", time.gmtime(max(stamped_unix_s, 0.0)))
+    reads = utc_minute(stamped_unix_s)
     return (
         f"captured at {reads} UTC by module {module}'s clock, which was not set: import again with "
         f"--clock-offset {module}=-SECONDS, how far it was behind (the ship's 'clock' alarm names it)"

@@ -117,7 +117,6 @@ class Agent(CommandHandling, Producing):
         self._seq = 0
         self._seq_lock = threading.RLock()
         self.device_errors: dict[str, str] = {}
-        self._device_logged: dict[str, float] = {}
         self._device_streak: dict[str, int] = {}
         self._new: queue.SimpleQueue[tuple[str, int]] = queue.SimpleQueue()
         self._stop = threading.Event()

@@ -16,13 +16,13 @@ from __future__ import annotations
 import logging
 import queue
 import threading
-import time
 from collections import Counter
 from collections.abc import Callable
 from datetime import timedelta
 from typing import Any
 
 from camcal.core.images import encode_png
+from camcal.core.ratelog import RateLimitedLog
 from lrm.camera import CameraError
 from lrm.outbox import Outbox
 from lrm.runner import Capture
@@ -50,7 +50,7 @@ class Producing:
     _seq: int
     _seq_lock: threading.RLock
     device_errors: dict[str, str]  # the card's, the camera's and the sensors' last failure (heartbeat)
-    _device_logged: dict[str, float]
+    warn: RateLimitedLog  # the module's log, at most a line per 10 s of each kind
     _device_streak: dict[str, int]
 
     def _next_seq(self) -> int:
@@ -81,10 +81,7 @@ class Producing:
         every 10 s per device. The module goes on."""
         self.counters[count] += 1
         self.device_errors[device] = error[:200]
-        now = time.monotonic()
-        if now - self._device_logged.get(device, -1e9) >= 10.0:
-            self._device_logged[device] = now
-            log.error(message, self.config.module, *args, self.counters[count])
+        self.warn(logging.ERROR, f"device:{device}", message, self.config.module, *args, self.counters[count])
 
     def _card_failed(self, what: str, exc: OSError) -> None:
         self._failed(

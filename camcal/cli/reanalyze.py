@@ -346,13 +346,13 @@ def _run(
     run_id, setup, record = started.run_id, started.setup, started.record
     t0 = time.perf_counter()
     try:
-        if cancel.is_set():  # stopped between two dives
+        if cancel.is_set():  # stopped between two dives (a stop within one is marked by reanalyse)
+            store.finish_run(run_id, "interrupted")
             raise ReanalysisInterrupted
         n = reanalyse(
             store, d.id, run_id, setup, options, runner=runner, sources=job["sources"], cancel=cancel
         )
     except (ReanalysisInterrupted, KeyboardInterrupt):
-        store.finish_run(run_id, "interrupted")
         raise fail(
             f"re-analysis of dive {d.name} interrupted (run {run_id}, marked interrupted): run the same "
             "command again to redo it",

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from typing import Any
 
@@ -10,6 +9,7 @@ from sqlalchemy import and_, func, select
 from sqlalchemy.orm import Session
 
 from camcal.core.owner import gone
+from storage.base import now_unix_s
 from storage.models import (
     Alarm,
     AnalysisRun,
@@ -109,7 +109,7 @@ def dive_by_name(s: Session, name: str) -> Dive | None:
 def runs(s: Session, dive_id: int) -> list[dict[str, Any]]:
     """The dive's analysis runs, oldest first; a re-analysis whose process stopped reads as
     ``interrupted`` (with a ``note``) even before a server marks it so (`RUN_STALE_S`)."""
-    now = time.time()
+    now = now_unix_s()
     out = []
     rows = s.scalars(select(AnalysisRun).where(AnalysisRun.dive_id == dive_id).order_by(AnalysisRun.id)).all()
     # A re-analysis under way (or stopped) counts the results it has stored so far: its progress.

@@ -21,6 +21,8 @@ from analysis.profile import (
     crop_half_size_px,
     fit_background,
     radial_profile,
+    unclip_center,
+    unclip_profile,
 )
 
 
@@ -140,10 +142,19 @@ class CropMeasurement:
 
 
 def measure_crop(crop: Crop, radius_px: float, center_pixels: int) -> CropMeasurement:
-    """Band profile, exponential + constant background fit and centre mean of a crop."""
-    profile = radial_profile(crop.pixels, crop.center_xy)
-    fit = fit_background(profile, fit_start_radius_px(radius_px))
+    """Band profile, exponential + constant background fit and centre mean of a crop.
+
+    A sensor that clips its dark noise at zero (`analysis.censor`) has its
+    band means and, with the noise of the centre pixels, its centre mean
+    unclipped (the centre's matters from ~4 gray of noise on, at the bottom
+    of the linear range).
+    """
+    r_min = fit_start_radius_px(radius_px)
+    profile = unclip_profile(radial_profile(crop.pixels, crop.center_xy, zeros=crop.zeros), r_min)
+    fit = fit_background(profile, r_min)
     center = center_value(crop.pixels, crop.center_xy, center_pixels)
+    if profile.unclipped is not None:
+        center = unclip_center(center, profile.unclipped.sigma_gray)
     return CropMeasurement(profile, fit, center)
 
 

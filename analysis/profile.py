@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
+
+from analysis.censor import Unclipping, ndtr, unclip_bands, unclipped_mean
 
 #: The crop of the T-REX analysis: 300 x 300 pixels around the centroid.
 DEFAULT_CROP_PX = 300
@@ -39,12 +41,17 @@ class Crop:
 
     ``pixels`` is float32 with NaN where the crop reaches outside the frame.
     ``origin_xy`` is the frame position of the crop's pixel ``[0, 0]``, and
-    ``center_xy`` the sub-pixel centroid in crop coordinates.
+    ``center_xy`` the sub-pixel centroid in crop coordinates. ``zeros`` is,
+    per pixel, the share of the frames in which it read 0 (a stack's crop
+    averages its frames'), or None when none did: where many do, the
+    camera's black level sits at zero and the dark bands' means are clipped
+    (`analysis.censor`).
     """
 
     pixels: np.ndarray
     origin_xy: tuple[int, int]
     center_xy: tuple[float, float]
+    zeros: np.ndarray | None = None
 
     @property
     def half_size_px(self) -> int:
@@ -64,9 +71,15 @@ def crop_around(frame: np.ndarray, x_px: float, y_px: float, half_size_px: int) 
     out = np.full((size, size), np.nan, dtype=np.float32)
     fx0, fy0 = max(x0, 0), max(y0, 0)
     fx1, fy1 = min(x0 + size, width), min(y0 + size, height)
+    zeros = None
     if fx1 > fx0 and fy1 > fy0:
-        out[fy0 - y0 : fy1 - y0, fx0 - x0 : fx1 - x0] = frame[fy0:fy1, fx0:fx1]
-    return Crop(out, (x0, y0), (x_px - x0, y_px - y0))
+        part = frame[fy0:fy1, fx0:fx1]
+        out[fy0 - y0 : fy1 - y0, fx0 - x0 : fx1 - x0] = part
+        dark = part == 0
+        if dark.any():
+            zeros = np.zeros((size, size), dtype=np.float32)
+            zeros[fy0 - y0 : fy1 - y0, fx0 - x0 : fx1 - x0] = dark
+    return Crop(out, (x0, y0), (x_px - x0, y_px - y0), zeros)
 
 
 @dataclass(frozen=True)
@@ -75,13 +88,17 @@ class RadialProfile:
 
     Band ``i`` holds the pixels whose centre lies at a distance in
     ``[i, i + 1)`` pixels from the centroid. ``sem_gray`` is the standard error
-    of each band mean (pixel scatter over sqrt(count)).
+    of each band mean (pixel scatter over sqrt(count)). ``zero_fraction`` is
+    each band's share of pixels that read 0 (None: none did); ``unclipped``
+    says how `unclip_profile` undid a clipping at zero, if it did.
     """
 
     radius_px: np.ndarray
     mean_gray: np.ndarray
     sem_gray: np.ndarray
     count: np.ndarray
+    zero_fraction: np.ndarray | None = None
+    unclipped: Unclipping | None = None
 
 
 def _distance_map(shape: tuple[int, int], center_xy: tuple[float, float]) -> np.ndarray:
@@ -91,12 +108,16 @@ def _distance_map(shape: tuple[int, int], center_xy: tuple[float, float]) -> np.
 
 
 def radial_profile(
-    pixels: np.ndarray, center_xy: tuple[float, float], max_radius_px: int | None = None
+    pixels: np.ndarray,
+    center_xy: tuple[float, float],
+    max_radius_px: int | None = None,
+    zeros: np.ndarray | None = None,
 ) -> RadialProfile:
     """Mean gray of each one-pixel band around ``center_xy`` (NaN pixels skipped).
 
     Averaging a whole band beats single pixels near zero, where integer gray
     values are coarse; the band means trace the scattered-light halo smoothly.
+    ``zeros`` (a `Crop`'s) gives each band's share of pixels that read 0.
     """
     dist = _distance_map(pixels.shape, center_xy)
     if max_radius_px is None:
@@ -119,12 +140,40 @@ def radial_profile(
         mean = total / count
         var = np.maximum(total2 / count - mean**2, 0.0)
         sem = np.sqrt(var / np.maximum(count - 1, 1))
+        zero_fraction = None
+        if zeros is not None:
+            z = zeros.ravel().astype(np.float64)
+            z[~finite] = 0.0
+            zero_fraction = np.bincount(idx, weights=z, minlength=n)[:max_radius_px] / count
     return RadialProfile(
         radius_px=np.arange(max_radius_px, dtype=np.float64) + 0.5,
         mean_gray=mean,
         sem_gray=sem,
         count=count,
+        zero_fraction=zero_fraction,
     )
+
+
+def unclip_profile(profile: RadialProfile, r_min_px: float) -> RadialProfile:
+    """The profile with a clipping at zero undone (`analysis.censor`); as it is if nothing was clipped.
+
+    The bands from ``r_min_px`` outward (outside the disk, where the noise
+    is the sensor's) measure the pixel noise; every band's mean is then
+    corrected with it.
+    """
+    if profile.zero_fraction is None:
+        return profile
+    done = unclip_bands(
+        profile.mean_gray,
+        profile.sem_gray,
+        profile.count,
+        profile.zero_fraction,
+        profile.radius_px >= r_min_px,
+    )
+    if done is None:
+        return profile
+    mean, sem, how = done
+    return replace(profile, mean_gray=mean, sem_gray=sem, unclipped=how)
 
 
 @dataclass(frozen=True)
@@ -277,3 +326,15 @@ def center_value(
     # Integer gray values: never claim better than quantisation allows.
     err = max(err, 0.29 / math.sqrt(k))
     return CenterValue(float(nearest.mean()), err, k)
+
+
+def unclip_center(center: CenterValue, read_noise_gray: float) -> CenterValue:
+    """The centre mean of a sensor that clips at zero, unclipped with the centre pixels' own noise.
+
+    That noise is the larger of the dark bands' (``read_noise_gray``) and
+    the centre pixels' scatter (the LEM's shot noise adds to it).
+    """
+    sigma = max(read_noise_gray, center.err_gray * math.sqrt(max(center.n_pixels, 1)))
+    mean = float(unclipped_mean(np.array([center.mean_gray]), sigma)[0])
+    slope = max(float(ndtr((mean - 0.5) / sigma)), 0.2)
+    return CenterValue(mean, center.err_gray / slope, center.n_pixels)

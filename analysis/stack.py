@@ -65,7 +65,15 @@ def stack_crops(crops: Sequence[Crop]) -> Crop:
             mean.ravel()[holes] = np.where(count > 0, total / count, np.nan)
     cx = float(np.mean([c.center_xy[0] for c in crops]))
     cy = float(np.mean([c.center_xy[1] for c in crops]))
-    return Crop(mean, crops[0].origin_xy, (cx, cy))
+    # The share of the frames in which each pixel read 0 (a frame without zeros adds none).
+    zeros = None
+    if any(c.zeros is not None for c in crops):
+        zeros = np.zeros(shape, dtype=np.float32)
+        for c in crops:
+            if c.zeros is not None:
+                zeros += c.zeros
+        zeros /= np.float32(len(crops))
+    return Crop(mean, crops[0].origin_xy, (cx, cy), zeros)
 
 
 def stack_frames(results: Sequence[FrameAnalysis], center_pixels: int = DEFAULT_CENTER_PIXELS) -> StackResult:
@@ -107,6 +115,8 @@ def _recentre(crop: Crop, half: int) -> Crop:
     if crop.half_size_px == half:
         return crop
     off = crop.half_size_px - half
-    pixels = crop.pixels[off : off + 2 * half, off : off + 2 * half]
+    window = (slice(off, off + 2 * half), slice(off, off + 2 * half))
+    zeros = crop.zeros[window] if crop.zeros is not None else None
     cx, cy = crop.center_xy
-    return Crop(pixels, (crop.origin_xy[0] + off, crop.origin_xy[1] + off), (cx - off, cy - off))
+    origin = (crop.origin_xy[0] + off, crop.origin_xy[1] + off)
+    return Crop(crop.pixels[window], origin, (cx - off, cy - off), zeros)

@@ -79,6 +79,10 @@ def simulate_set(
     width: Annotated[int, typer.Option(help="Sensor width [px].")] = 2448,
     height: Annotated[int, typer.Option(help="Sensor height [px].")] = 2048,
     fov_deg: Annotated[float, typer.Option(help="Horizontal field of view in water [deg].")] = 16.0,
+    black_level: Annotated[
+        float, typer.Option(help="Dark offset of the sensor [gray]; 0: the dark noise is clipped at zero.")
+    ] = 2.4,
+    read_noise: Annotated[float, typer.Option(help="Read noise of the sensor [electrons].")] = 3.0,
     seed: Annotated[int, typer.Option(help="Seed: the same seed gives the same frames.")] = 0,
     jitter_px: Annotated[float, typer.Option(help="Pointing jitter between frames, one sigma [px].")] = 2.0,
     offset_x: Annotated[float, typer.Option(help="LEM offset from the optical axis, x [px].")] = 0.0,
@@ -144,7 +148,13 @@ def simulate_set(
             if wavelengths
             else sched.wavelengths_nm,
         )
-        camera = CameraModel(width_px=width, height_px=height, fov_deg=fov_deg)
+        camera = CameraModel(
+            width_px=width,
+            height_px=height,
+            fov_deg=fov_deg,
+            black_level_gray=black_level,
+            read_noise_e=read_noise,
+        )
         for e in sched.exposures_s:
             for g in sched.gains_db:
                 camera.check_setting(e, g)

@@ -41,6 +41,10 @@ class CameraModel:
             raise ValueError(f"sensor must be at least 16 x 16 px, got {self.width_px} x {self.height_px}")
         if not (0.5 < self.fov_deg < 120):
             raise ValueError(f"fov_deg must lie in (0.5, 120), got {self.fov_deg}")
+        if not (0.0 <= self.black_level_gray < 200.0):
+            raise ValueError(f"black_level_gray must lie in [0, 200), got {self.black_level_gray}")
+        if not (0.0 <= self.read_noise_e < 1000.0):
+            raise ValueError(f"read_noise_e must lie in [0, 1000), got {self.read_noise_e}")
 
     @property
     def focal_px(self) -> float:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import shutil
 import subprocess
 import sys
@@ -225,3 +226,26 @@ def test_one_frame_file_is_measured_alone_as_in_its_set(trex_small_set: Path, tm
     res = run_cli("analyze", str(trex_small_set / "setup.json"))
     assert res.returncode == 2 and "not a frame of the manifest" in res.stderr
     assert "Traceback" not in res.stderr
+
+
+def test_faint_frames_of_a_sensor_whose_black_level_is_zero_give_the_true_attenuation(tmp_path: Path) -> None:
+    """Far disks of 6-14 gray, read noise 2.5 gray, black level 0: the dark noise is clipped at zero.
+
+    Before the clipping was undone (`analysis.censor`) the background came out ~1 gray high and
+    λ_att 4-7 % low here (pulls -5 to -6).
+    """
+    focal_px = 8709.0
+    fov = 2 * math.degrees(math.atan(400 / focal_px))
+    out, doc = tmp_path / "faint", tmp_path / "faint.json"
+    args = ["simulate-set", "--width", "800", "--height", "700", "--fov-deg", f"{fov:.6f}"]
+    args += ["--exposures", "0.004,0.006,0.009", "--gains", "8", "--repeats", "10"]
+    args += ["--wavelengths", "460,525"]
+    args += ["--black-level", "0", "--read-noise", "25", "--seed", "3", "--workers", "2", "--quiet", str(out)]
+    assert runner.invoke(app, args).exit_code == 0
+    assert runner.invoke(app, ["analyze", str(out), "--json", str(doc), "--quiet"]).exit_code == 0
+    truth = json.loads((out / "truth.json").read_text())["water"]
+    rows = json.loads(doc.read_text())["attenuation"]
+    assert {r["wavelength_nm"] for r in rows} == {460, 525}
+    for r in rows:
+        true_m = truth[str(r["wavelength_nm"])]["lambda_att_m"]
+        assert abs(r["lambda_att_m"] - true_m) < max(3 * r["stat_err_m"], 0.015 * true_m), (r, true_m)

@@ -11,7 +11,6 @@ import json
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from datetime import datetime
 from functools import partial
 from pathlib import Path
 
@@ -19,6 +18,7 @@ from analysis import FrameConfig
 from camcal.core.frameset import DAMAGED, ManifestRow, Setup, decode_text, parse_manifest, parse_setup
 from camcal.core.images import FrameReadError, decode_frame
 from camcal.core.parallel import process_pool
+from camcal.core.utctime import parse_utc_unix_s
 from camcal.core.wire.limits import TIME_MIN_UNIX_S
 from camcal.core.wire.models import is_id
 from camcal.core.wire.sensors import check_columns, check_rows
@@ -42,6 +42,8 @@ class ImportReport:
     analysed: int = 0
     problems: list[tuple[str, str]] = field(default_factory=list)
     gaps_filled: int = 0
+    #: Frames imported without a capture time in the manifest: stamped with the import's clock.
+    unstamped: int = 0
     #: Every frame of the folder now in the store (imported or already there): (module, boot, seq) -> URL
     #: of its file in the folder.
     sources: dict[tuple[str, str, int], str] = field(default_factory=dict)
@@ -147,7 +149,15 @@ def import_frame_set(
             report.already_present += 1
             report.sources[(row.camera, boot, seq)] = frames_dir.file_url(row.file)
             continue
-        stamped = _unix(row.timestamp)
+        try:
+            stamped = parse_utc_unix_s(row.timestamp) if row.timestamp else None
+        except ValueError as exc:
+            report.problems.append(
+                (row.file, f"timestamp {exc}: correct it in the manifest and import again")
+            )
+            continue
+        if stamped is None:
+            report.unstamped += 1
         captured = stamped - offsets.get(row.camera, 0.0) if stamped is not None else time.time()
         if captured < TIME_MIN_UNIX_S:
             report.problems.append((row.file, _unset_clock(row.camera, stamped or 0.0)))
@@ -290,12 +300,3 @@ def _shifted(row: object, i: int, shift_s: float) -> object:
     if not isinstance(row[i], int | float):
         return row
     return [*row[:i], row[i] - shift_s, *row[i + 1 :]]
-
-
-def _unix(text: str | None) -> float | None:
-    if not text:
-        return None
-    try:
-        return datetime.fromisoformat(text.replace("Z", "+00:00")).timestamp()
-    except ValueError:
-        return None

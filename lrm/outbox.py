@@ -41,6 +41,7 @@ from camcal.core.frameset import (
     decode_text,
     parse_manifest,
 )
+from camcal.core.utctime import parse_utc
 from camcal.core.wire.dialect import INT_MAX
 
 log = logging.getLogger("camcal.lrm")
@@ -356,9 +357,7 @@ class Outbox:
                 module=module,
                 boot=e.boot,
                 seq=e.seq,
-                captured_at=datetime.fromisoformat(row.timestamp.replace("Z", "+00:00"))
-                if row.timestamp
-                else wire.utc_now(),
+                captured_at=parse_utc(row.timestamp) if row.timestamp else wire.utc_now(),
                 camera=row.camera,
                 wavelength_nm=row.wavelength_nm,
                 exposure_s=row.exposure_s,

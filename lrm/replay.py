@@ -12,6 +12,7 @@ from typing import Any
 from camcal.core.frameset import ManifestRow, read_manifest
 from camcal.core.images import FrameReadError, decode_frame, encode_png
 from camcal.core.schedule import Shot
+from camcal.core.utctime import parse_utc
 from lrm.runner import Capture
 
 
@@ -127,7 +128,6 @@ def _parse_time(text: str | None) -> datetime | None:
     if not text:
         return None
     try:
-        t = datetime.fromisoformat(text.replace("Z", "+00:00"))
+        return parse_utc(text)
     except ValueError:
         return None
-    return t if t.tzinfo else t.replace(tzinfo=UTC)

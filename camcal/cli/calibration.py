@@ -23,12 +23,12 @@ def register(parent: typer.Typer) -> None:
 def _time(text: str | None, what: str) -> float | None:
     if not text:
         return None
+    from camcal.core.utctime import parse_utc_unix_s
+
     try:
-        return datetime.fromisoformat(text.replace("Z", "+00:00")).timestamp()
-    except ValueError:
-        raise fail(
-            f"{what}: {text!r} is not an ISO date/time, e.g. 2021-09-01 or 2021-09-01T00:00Z"
-        ) from None
+        return parse_utc_unix_s(text)
+    except ValueError as exc:
+        raise fail(f"{what}: {exc} (or a date, 2021-09-01; no zone means UTC)") from None
 
 
 @app.command("add")

@@ -125,6 +125,13 @@ def import_cmd(
         f"{report.gaps_filled} gaps closed",
         soft_wrap=True,
     )
+    if report.unstamped:
+        console.print(
+            f"[yellow]{report.unstamped} frames had no capture time (the manifest's timestamp column): "
+            "stamped with this import's clock. The dive's times, and its λ_att series over time, mean "
+            "nothing for them; add the times to the manifest to place them.[/]",
+            soft_wrap=True,
+        )
     if report.problems:
         t = Table(title=f"{len(report.problems)} not imported", title_justify="left")
         t.add_column("file")

@@ -403,6 +403,7 @@ def camera_module(
     """
     from camcal.cli.common import parse_floats
     from camcal.core.schedule import CameraLimits
+    from camcal.core.utctime import parse_utc
     from lrm.agent import Agent, AgentConfig
     from lrm.camera import CameraError, V4L2Camera
     from lrm.clock import SystemClock
@@ -418,9 +419,7 @@ def camera_module(
     lem = None
     if lem_epoch is not None:
         try:
-            epoch = datetime.fromisoformat(lem_epoch.replace("Z", "+00:00"))
-            if epoch.tzinfo is None:
-                epoch = epoch.replace(tzinfo=UTC)
+            epoch = parse_utc(lem_epoch)
             timetable = LEMTimetable(
                 tuple(int(w) for w in parse_floats(lem_wavelengths, "--lem-wavelengths")), lem_dwell_s
             )

@@ -6,7 +6,6 @@ import json
 import signal
 import threading
 import time
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -36,13 +35,12 @@ def parse_time(text: str | None, option: str) -> float | None:
     """ISO 8601 (``2026-11-20T10:00:00Z``; no zone means UTC) -> UNIX seconds."""
     if text is None:
         return None
+    from camcal.core.utctime import parse_utc_unix_s
+
     try:
-        t = datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
-    except ValueError:
-        raise fail(
-            f"{option}: expected an ISO 8601 UTC time such as 2026-11-20T10:00:00Z, got {text!r}"
-        ) from None
-    return (t if t.tzinfo else t.replace(tzinfo=UTC)).timestamp()
+        return parse_utc_unix_s(text)
+    except ValueError as exc:
+        raise fail(f"{option}: {exc} (no zone means UTC)") from None
 
 
 def parse_storage_options(items: list[str] | None) -> dict[str, Any]:

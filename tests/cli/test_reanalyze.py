@@ -173,7 +173,7 @@ def test_a_stored_dive_and_a_time_span_with_other_distances(
     ("args", "message"),
     [
         ([], "say what to re-analyse"),
-        (["--from", "yesterday"], "--from: expected an ISO 8601 UTC time"),
+        (["--from", "yesterday"], "--from: 'yesterday' is not an ISO 8601 time"),
         (["--from", "2026-01-02", "--to", "2026-01-01"], "--from must not be later than --to"),
         (["--dive", "nope"], "no camcal store here"),
         (["/nonexistent/set"], "no manifest.csv"),

@@ -51,7 +51,7 @@ def test_times_without_a_zone_are_utc_a_missing_one_is_said_and_a_garbled_one_na
     env = cli_env() | {"TZ": "Asia/Tokyo"}
     before = time.time()
     res = subprocess.run(
-        [sys.executable, "-c", "from camcal.cli import main; main()", "import", str(folder), "--data", str(data)],
+        [sys.executable, "-c", "from camcal.cli import main; main()", "import", str(folder), "--data", data],
         capture_output=True,
         text=True,
         timeout=120,

@@ -217,10 +217,14 @@ def visit_attenuation(
         sides = []
         for cam in (near_cam, far_cam):
             st = stacks[(cam, e, g)]
-            values = np.array([f.i_gray for f in st])
-            errors = np.array([f.i_err_gray for f in st])
+            t = np.array([f.t_s for f in st])
+            t_stack = float(t.mean())
+            # Each frame brought to the stack's mean time along the camera's trend: a water that
+            # changes during the visit moves the stack's frames apart, and that is no noise.
+            along = np.exp(-trends[cam].slope_per_s * (t - t_stack))
+            values = np.array([f.i_gray for f in st]) * along
+            errors = np.array([f.i_err_gray for f in st]) * along
             mean, err = stack_value(values, errors)
-            t_stack = float(np.mean([f.t_s for f in st]))
             sides.append((mean, err, len(st), t_stack))
         (i_n, e_n, n_n, t_n), (i_f, e_f, n_f, t_f) = sides
         shift = -trends[near_cam].slope_per_s * (t_mean - t_n) + trends[far_cam].slope_per_s * (t_mean - t_f)

@@ -44,6 +44,8 @@ class ImportReport:
     gaps_filled: int = 0
     #: Frames imported without a capture time in the manifest: stamped with the import's clock.
     unstamped: int = 0
+    #: λ_att visits of the run after the import (its series made again from all its frames).
+    visits: int = 0
     #: Every frame of the folder now in the store (imported or already there): (module, boot, seq) -> URL
     #: of its file in the folder.
     sources: dict[tuple[str, str, int], str] = field(default_factory=dict)
@@ -108,15 +110,27 @@ def import_frame_set(
     (behind: negative); its frames' and samples' times are corrected by it.
     A frame stamped before 2000 (a module clock never set) is reported, with
     the option that imports it, and not stored at a time that means nothing.
+
+    The frames are analysed as the live ingest analyses them, with the
+    dive's calibration (its live run's, else its own setup); a dive that has
+    neither takes the frame set's ``setup.json`` as its own. The run's λ_att
+    series is then made again from all its frames (`derive_run`): the
+    visits the imported frames fill or join.
     """
+    from ingest.reanalysis import derive_run, stored_setup
+
     offsets = clock_offsets_s or {}
     root = RemoteFolder(folder, storage_options)
     # a broken manifest or setup.json stops the import early
-    frames_dir, manifest, rows, _setup = read_frame_set(root)
+    frames_dir, manifest, rows, folder_setup = read_frame_set(root)
+    setup = stored_setup(store, dive_id)
+    if setup is None:
+        store.adopt_dive_setup(dive_id, folder_setup.to_json())
+        setup = folder_setup
     report = ImportReport(folder, dive_id)
     fallback = _fallback_boot(manifest)
     batch: list[FrameRow] = []
-    new: list[tuple[int, str]] = []
+    new: list[tuple[int, str, str]] = []
     touched: set[tuple[str, str]] = set()
 
     def flush() -> None:
@@ -126,7 +140,7 @@ def import_frame_set(
         report.imported += len(outcome.new_frames)
         report.already_present += len(outcome.duplicate_frames)
         by_key = {(f.module_id, f.boot, f.seq): f for f in batch}
-        new.extend((fid, by_key[k].path) for k, fid in outcome.new_frames.items())
+        new.extend((fid, by_key[k].path, by_key[k].module_id) for k, fid in outcome.new_frames.items())
         batch.clear()
 
     stored: dict[tuple[str, str], set[int]] = {}
@@ -238,28 +252,39 @@ def import_frame_set(
         seqs.seed(module, boot, store.call(queries.known_seqs, module, boot))
         report.gaps_filled += len(store.fill_gaps(module, boot, partial(seqs.covers, module, boot)))
     if analyse and new and run_id is not None:
-        report.analysed = analyse_frames(store, run_id, new, workers=workers)
+        report.analysed = analyse_frames(store, run_id, new, workers=workers, setup=setup)
+        report.visits = derive_run(store, dive_id, run_id, setup)
     return report
 
 
 def analyse_frames(
     store: Store,
     run_id: int,
-    frames: list[tuple[int, str]],
+    frames: list[tuple[int, str, str]],
     *,
     workers: int = 1,
-    config: FrameConfig | None = None,
+    setup: Setup | None = None,
 ) -> int:
-    """Analyse stored frames ``(frame_id, path)`` into a run, on ``workers`` processes."""
-    config = config or FrameConfig()
+    """Analyse stored frames ``(frame_id, path, camera)`` into a run, on ``workers`` processes,
+    each with its camera's settings (`Setup.frame_settings`: the linear range, the disk's size)."""
+    setup = setup or Setup()
+    configs: dict[str, FrameConfig] = {}
+
+    def config(camera: str) -> FrameConfig:
+        if camera not in configs:
+            configs[camera] = FrameConfig(**setup.frame_settings(camera))
+        return configs[camera]
+
     thumbs = store.files.root / "thumbs"
     results = []
     if workers <= 1:
-        for fid, path in frames:
+        for fid, path, camera in frames:
             results.append(
                 (
                     fid,
-                    analyse_stored_frame(str(store.files.resolve(path)), config, str(thumbs / f"{fid}.jpg")),
+                    analyse_stored_frame(
+                        str(store.files.resolve(path)), config(camera), str(thumbs / f"{fid}.jpg")
+                    ),
                 )
             )
     else:
@@ -270,11 +295,11 @@ def analyse_frames(
                     pool.submit(
                         analyse_stored_frame,
                         str(store.files.resolve(path)),
-                        config,
+                        config(camera),
                         str(thumbs / f"{fid}.jpg"),
                     ),
                 )
-                for fid, path in frames
+                for fid, path, camera in frames
             ]
             results = [(fid, f.result()) for fid, f in futures]
     rows = []

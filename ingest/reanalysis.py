@@ -156,12 +156,19 @@ def base_setup(store: Store, dive_id: int) -> Setup:
     """The calibration a dive was analysed with: its live run's, else the dive's own setup (an
     imported dive), else the default (T-REX). Never an earlier re-analysis's: each starts from the
     dive's own inputs, so two re-analyses with different overrides do not compound."""
+    return stored_setup(store, dive_id) or Setup()
+
+
+def stored_setup(store: Store, dive_id: int) -> Setup | None:
+    """The live run's calibration, else the dive's own setup; None if neither holds one."""
     with store.read() as s:
         dive = queries.dive_record(s, dive_id)
         live = next((r for r in queries.runs(s, dive_id) if r["kind"] == "live"), None)
     cal = (live["calibration"] if live else None) or (dive or {}).get("setup") or {}
+    if not cal:
+        return None
     try:
-        return parse_setup(cal, f"dive {dive_id}") if cal else Setup()
+        return parse_setup(cal, f"dive {dive_id}")
     except FrameSetError:
         return Setup()
 
@@ -279,7 +286,7 @@ def _reanalyse(
             )
         if progress:
             progress("attenuation", 0.7)
-        derive_run(store, dive_id, run_id, setup, options)
+        derive_run(store, dive_id, run_id, setup)
         store.finish_run(run_id, "done", n)
         if progress:
             progress("done", 1.0)
@@ -382,18 +389,23 @@ def one_at_a_time(
         pool.shutdown(wait=False, cancel_futures=True)
 
 
-def derive_run(store: Store, dive_id: int, run_id: int, setup: Setup, options: ReanalysisOptions) -> None:
+def derive_run(store: Store, dive_id: int, run_id: int, setup: Setup) -> int:
     """The per-visit λ_att series and the linearity fits of a run, from its stored frame results.
 
     The series is the one the live ingest builds from the same frames
-    (`ingest.rolling`), every visit final.
+    (`ingest.rolling`), every visit final; visits the run held that these
+    frames no longer make (two visits joined by frames an import added) are
+    deleted. Returns the number of visits.
     """
     rows = store.call(queries.result_rows, run_id, dive_id)
     try:
         points = series_rows((Sample.from_result(r) for r in rows), setup)
     except ValueError:  # fewer than two cameras with distances: no series
         points = []
-    store.save_visit_points(run_id, [{**p, "run_id": run_id, "dive_id": dive_id} for p in points])
+    gone = store.call(queries.visit_keys, run_id) - {str(p["visit_key"]) for p in points}
+    store.save_visit_points(
+        run_id, [{**p, "run_id": run_id, "dive_id": dive_id} for p in points], sorted(gone)
+    )
     result_rows = [result_row(r) for r in rows]
     lr = tuple(setup.linear_range)
     store.upsert_linearity(
@@ -403,3 +415,4 @@ def derive_run(store: Store, dive_id: int, run_id: int, setup: Setup, options: R
             for row in linearity_rows(pts, lr)  # type: ignore[arg-type]
         ]
     )
+    return len(points)

@@ -188,6 +188,13 @@ class Store(AnalysisWrites, OperationsWrites):
             s.flush()
             return dive
 
+    def adopt_dive_setup(self, dive_id: int, setup: dict[str, Any]) -> None:
+        """Give a dive that has no setup of its own this one (an imported frame set's setup.json)."""
+        with self.session() as s:
+            dive = s.get(Dive, dive_id)
+            if dive is not None and not dive.setup:
+                dive.setup = setup
+
     def end_dive(self, dive_id: int, t: float | None = None) -> None:
         with self.session() as s:
             s.execute(update(Dive).where(Dive.id == dive_id).values(ended_unix_s=t or now_unix_s()))

@@ -122,7 +122,7 @@ def import_cmd(
     console.print(
         f"dive {d.name}: {report.imported} frames imported, {report.already_present} already present, "
         f"{report.sensor_batches} sensor batches, {report.analysed} analysed, "
-        f"{report.gaps_filled} gaps closed",
+        f"{report.gaps_filled} gaps closed, {report.visits} λ_att visits",
         soft_wrap=True,
     )
     if report.unstamped:

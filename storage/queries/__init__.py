@@ -73,6 +73,7 @@ from storage.queries.series import (
     latest_sensors,
     linearity,
     sensor_series,
+    visit_keys,
 )
 
 __all__ = [
@@ -132,4 +133,5 @@ __all__ = [
     "sensor_series",
     "stored_checksums",
     "timeline",
+    "visit_keys",
 ]

@@ -124,6 +124,12 @@ def attenuation_series(
     return out
 
 
+def visit_keys(s: Session, run_id: int) -> set[str]:
+    """The visit keys of a run's λ_att points."""
+    q = select(AttenuationPoint.visit_key).where(AttenuationPoint.run_id == run_id)
+    return {str(k) for k in s.scalars(q) if k is not None}
+
+
 def attenuation_dict(p: AttenuationPoint) -> dict[str, Any]:
     total = None
     if p.stat_err_m is not None and p.sys_err_m is not None:

@@ -253,7 +253,8 @@ def import_frame_set(
         report.gaps_filled += len(store.fill_gaps(module, boot, partial(seqs.covers, module, boot)))
     if analyse and new and run_id is not None:
         report.analysed = analyse_frames(store, run_id, new, workers=workers, setup=setup)
-        report.visits = derive_run(store, dive_id, run_id, setup)
+        if report.unstamped < len(new):  # frames without capture times make no series over time
+            report.visits = derive_run(store, dive_id, run_id, setup)
     return report
 
 

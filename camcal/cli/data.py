@@ -129,7 +129,8 @@ def import_cmd(
         console.print(
             f"[yellow]{report.unstamped} frames had no capture time (the manifest's timestamp column): "
             "stamped with this import's clock. The dive's times, and its λ_att series over time, mean "
-            "nothing for them; add the times to the manifest to place them.[/]",
+            "nothing for them (with no time at all, no series is made: `camcal analyze` gives the set's "
+            "λ_att); add the times to the manifest to place them.[/]",
             soft_wrap=True,
         )
     if report.problems:

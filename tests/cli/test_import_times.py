@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from camcal.core.images import encode_png
-from tests.utils.live import cli_env
+from tests.utils.live import camcal_cli, cli_env
 from tests.utils.sim import SMALL_CAMERA, renderer
 
 TRUE = datetime(2021, 9, 5, 3, 12, 44, tzinfo=UTC).timestamp()
@@ -67,3 +67,23 @@ def test_times_without_a_zone_are_utc_a_missing_one_is_said_and_a_garbled_one_na
     assert set(times) == {1, 2, 3, 4, 5}
     assert [times[s] - TRUE for s in (1, 2, 3, 4)] == [0.0, 2.0, 4.0, 6.25]
     assert before <= times[5] <= time.time()
+
+
+def test_a_set_without_any_time_makes_no_series_over_time(tmp_path: Path) -> None:
+    folder = tmp_path / "untimed"
+    folder.mkdir()
+    with open(folder / "manifest.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["file", "camera", "wavelength_nm", "exposure_s", "gain_db"])
+        for cam, distance in (("A", 21.56), ("B", 41.62)):
+            render = renderer("trex", distance, far_side=cam == "B", camera=SMALL_CAMERA, camera_id=cam)
+            for k in range(3):
+                pixels, _ = render.render(460, 0.05, 8.0, rng=np.random.default_rng(k))
+                (folder / f"{cam}_{k}.png").write_bytes(encode_png(pixels))
+                w.writerow([f"{cam}_{k}.png", cam, 460, 0.05, 8.0])
+    res = camcal_cli("import", str(folder), "--data", str(tmp_path))
+    out = " ".join((res.stdout + res.stderr).split())
+    assert res.returncode == 0 and "6 frames imported" in out and "6 analysed" in out, out
+    assert "0 λ_att visits" in out and "no series is made" in out, out
+    with sqlite3.connect(tmp_path / "camcal.db") as db:
+        assert db.execute("SELECT COUNT(*) FROM attenuation_points").fetchone() == (0,)

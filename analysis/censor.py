@@ -37,6 +37,10 @@ MIN_ZERO_PIXELS = 50
 MIN_SIGMA_GRAY = 0.5
 #: Bands whose mean lies this many σ above zero are not clipped (their share of zeros is < 10⁻¹⁵).
 CLIPPED_WITHIN_SIGMAS = 8.0
+#: From this pixel noise [gray] on, `clipped_mean` takes its closed form.
+CLOSED_FORM_SIGMA = 1.5
+#: Newton steps of `unclipped_mean` (from above on a convex rise: 10⁻⁹ gray within five).
+_NEWTON_STEPS = 8
 #: Bisection steps (the bracket shrinks by 2⁻²⁶: 10⁻⁶ gray over a bracket of 60).
 _STEPS = 26
 #: Most bands that measure σ (evenly picked among those that may): enough for its median.
@@ -58,13 +62,22 @@ def ndtri(p: np.ndarray | float) -> np.ndarray:
 
 
 def clipped_mean(mu: np.ndarray | float, sigma: np.ndarray | float) -> np.ndarray:
-    """``E[max(round(X), 0)]`` for ``X ~ N(mu, sigma)`` (elementwise)."""
+    """``E[max(round(X), 0)]`` for ``X ~ N(mu, sigma)`` (elementwise).
+
+    From σ = 1.5 gray on, the sum's Euler-Maclaurin form
+    ``μ Φ(z) + σ φ(z) - φ(z)/(24σ)``, ``z = μ/σ``, is within 1.5·10⁻⁴ gray
+    of it (40 times cheaper); below, the sum itself.
+    """
     mu, sigma = np.broadcast_arrays(np.asarray(mu, dtype=np.float64), np.asarray(sigma, dtype=np.float64))
-    if mu.size == 0:
-        return np.zeros(mu.shape)
-    top = np.nanmax(mu + CLIPPED_WITHIN_SIGMAS * sigma)
-    k = np.arange(1, max(math.ceil(top) + 2, 2), dtype=np.float64)
-    return np.asarray(ndtr((mu[..., None] - k + 0.5) / sigma[..., None]).sum(axis=-1))
+    z = mu / sigma
+    phi = np.exp(-0.5 * z * z) / math.sqrt(2.0 * math.pi)
+    out = np.asarray(mu * ndtr(z) + sigma * phi - phi / (24.0 * sigma))
+    small = sigma < CLOSED_FORM_SIGMA
+    if small.any():
+        ms, ss = mu[small], sigma[small]
+        k = np.arange(1, max(math.ceil(np.nanmax(ms + CLIPPED_WITHIN_SIGMAS * ss)) + 2, 2), dtype=np.float64)
+        out[small] = ndtr((ms[..., None] - k + 0.5) / ss[..., None]).sum(axis=-1)
+    return out
 
 
 def band_sigma(mean: np.ndarray, zero_fraction: np.ndarray) -> np.ndarray:
@@ -94,10 +107,12 @@ def band_sigma(mean: np.ndarray, zero_fraction: np.ndarray) -> np.ndarray:
 def unclipped_mean(mean: np.ndarray, sigma: float) -> np.ndarray:
     """The μ whose clipped mean is ``mean`` (for each band), given the pixel noise σ.
 
-    ``clipped_mean`` grows with μ, so a bisection over ``[-4σ, mean + 1]``
-    finds it; a mean of (almost) nothing but zeros only bounds μ from above
-    and gives the bracket's lower end. Means more than
-    `CLIPPED_WITHIN_SIGMAS` σ above zero are returned as they are.
+    ``clipped_mean`` grows with μ and bends upward, so Newton's steps from
+    μ = mean (where it lies above the mean) come down to it without
+    overshooting (σ ≥ 1.5 gray; below, a bisection over ``[-4σ, mean + 1]``).
+    A mean of (almost) nothing but zeros only bounds μ from above: μ stops
+    at -4σ. Means more than `CLIPPED_WITHIN_SIGMAS` σ above zero are
+    returned as they are.
     """
     m = np.asarray(mean, dtype=np.float64)
     out = m.copy()
@@ -105,6 +120,14 @@ def unclipped_mean(mean: np.ndarray, sigma: float) -> np.ndarray:
     if not near.any():
         return out
     mn = m[near]
+    if sigma >= CLOSED_FORM_SIGMA:
+        mu = mn.copy()
+        for _ in range(_NEWTON_STEPS):
+            z = mu / sigma
+            slope = ndtr(z) + z * np.exp(-0.5 * z * z) / (math.sqrt(2.0 * math.pi) * 24.0 * sigma * sigma)
+            mu = np.maximum(mu - (clipped_mean(mu, sigma) - mn) / np.maximum(slope, 1e-12), -4.0 * sigma)
+        out[near] = mu
+        return out
     lo, hi = np.full_like(mn, -4.0 * sigma), mn + 1.0
     for _ in range(_STEPS):
         mid = 0.5 * (lo + hi)

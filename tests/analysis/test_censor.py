@@ -94,3 +94,11 @@ def test_a_few_dead_pixels_are_not_a_clipped_sensor() -> None:
     frame[dead[:, 0], dead[:, 1]] = 0
     r = analyze_frame(frame, CONFIG)
     assert r.ok and r.profile.unclipped is None
+
+
+def test_the_closed_form_of_the_clipped_mean_is_the_sum_it_stands_for() -> None:
+    mu = np.linspace(-5.0, 30.0, 400)
+    for sigma in (1.5, 2.5, 6.0):
+        z = (mu[:, None] - np.arange(1, 100) + 0.5) / sigma
+        exact = np.array([sum(0.5 * math.erfc(-x / math.sqrt(2)) for x in row) for row in z])
+        assert np.max(np.abs(clipped_mean(mu, sigma) - exact)) < 1.5e-4

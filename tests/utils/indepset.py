@@ -5,7 +5,7 @@ What it shares with camcal is only the frame-set format and the geometry
 its own and differs from `lrm.sim`/`lrm.dive` on purpose:
 
 * the water: λ_att of every wavelength steady, then falling linearly to
-  65 % over 12 min, steady, and back up to 90 % (the dive simulator's is a
+  65 % over 8 min, steady, and back up to 90 % (the dive simulator's is a
   smooth bump);
 * the LEM: a uniform disk whose brightness drifts down 4 % over the run
   and flickers 0.5 % from frame to frame; dark for 6 s between blocks of
@@ -40,7 +40,7 @@ DISTANCES_M = {"A": 21.56, "B": 41.62}
 RATIOS = {405: 1.04, 460: 1.27, 525: 1.23}
 BASE_LAMBDA_M = {405: 19.5, 460: 28.26, 525: 20.99}
 LEM_RADIUS_M = 0.215
-WIDTH_PX, HEIGHT_PX = 640, 560
+WIDTH_PX, HEIGHT_PX = 560, 480
 #: Exposures [s] at 8 dB: the near disk ~35-200 gray, the far ~8-150, in the linear range whatever the water.
 EXPOSURES_S = (0.01, 0.02, 0.03)
 GAIN_DB = 8.0
@@ -54,7 +54,7 @@ WAVELENGTHS = (405, 460, 525)
 
 def water_factor(t_s: float) -> float:
     """λ_att(t) / λ_att(0): steady, a linear fall to 0.65, steady, a rise to 0.9."""
-    points = [(0.0, 1.0), (480.0, 1.0), (1200.0, 0.65), (1680.0, 0.65), (2160.0, 0.9), (1e9, 0.9)]
+    points = [(0.0, 1.0), (320.0, 1.0), (800.0, 0.65), (1120.0, 0.65), (1440.0, 0.9), (1e9, 0.9)]
     for (t0, v0), (t1, v1) in itertools.pairwise(points):
         if t_s <= t1:
             return v0 + (v1 - v0) * (t_s - t0) / (t1 - t0)
@@ -83,7 +83,7 @@ class Station:
     """Draws the frames; ``seed`` fixes the noise, the jitter, the flicker and the hot pixels."""
 
     seed: int
-    duration_s: float = 2400.0
+    duration_s: float = 1600.0
 
     def __post_init__(self) -> None:
         self.rng = np.random.default_rng(self.seed)

@@ -13,6 +13,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
+from typing import Any
 
 from analysis import FrameConfig
 from camcal.core.frameset import DAMAGED, ManifestRow, Setup, decode_text, parse_manifest, parse_setup
@@ -28,6 +29,9 @@ from ingest.worker import analyse_stored_frame
 from storage import queries
 from storage.files import RemoteFolder, UnsafePath
 from storage.store import FrameRow, SensorBatchRow, Store
+
+#: Frame results an import stores at a time (a stopped import keeps what it analysed).
+SAVE_EVERY = 64
 
 
 @dataclass
@@ -251,11 +255,35 @@ def import_frame_set(
         seqs = SeqTracker()
         seqs.seed(module, boot, store.call(queries.known_seqs, module, boot))
         report.gaps_filled += len(store.fill_gaps(module, boot, partial(seqs.covers, module, boot)))
-    if analyse and new and run_id is not None:
-        report.analysed = analyse_frames(store, run_id, new, workers=workers, setup=setup)
-        if report.unstamped < len(new):  # frames without capture times make no series over time
-            report.visits = derive_run(store, dive_id, run_id, setup)
+    if analyse and run_id is not None:
+        # the new frames, and those of this folder an earlier import stored but did not analyse
+        # (it was stopped): nothing else analyses them
+        todo = new + unanalysed(store, dive_id, run_id, report.sources, {fid for fid, _, _ in new})
+        if todo:
+            both = (lambda k, n: progress(len(rows) + k, len(rows) + n)) if progress else None
+            report.analysed = analyse_frames(store, run_id, todo, workers=workers, setup=setup, progress=both)
+            if any(r.timestamp for r in rows):  # frames without capture times make no series over time
+                report.visits = derive_run(store, dive_id, run_id, setup)
     return report
+
+
+def unanalysed(
+    store: Store,
+    dive_id: int,
+    run_id: int,
+    keys: Mapping[tuple[str, str, int], object],
+    skip: set[int],
+) -> list[tuple[int, str, str]]:
+    """Frames of ``keys`` (module, boot, seq) stored in the dive without a result in the run."""
+    modules = sorted({module for module, _, _ in keys})
+    if not modules:
+        return []
+    pending = store.call(queries.frames_without_result, dive_id, run_id, modules=modules)
+    return [
+        (f.id, f.path, f.module_id)
+        for f in pending
+        if f.id not in skip and (f.module_id, f.boot, f.seq) in keys
+    ]
 
 
 def analyse_frames(
@@ -265,6 +293,7 @@ def analyse_frames(
     *,
     workers: int = 1,
     setup: Setup | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> int:
     """Analyse stored frames ``(frame_id, path, camera)`` into a run, on ``workers`` processes,
     each with its camera's settings (`Setup.frame_settings`: the linear range, the disk's size)."""
@@ -277,16 +306,30 @@ def analyse_frames(
         return configs[camera]
 
     thumbs = store.files.root / "thumbs"
-    results = []
+    saved = 0
+    rows: list[dict[str, Any]] = []
+    rows_done: list[int] = []
+
+    def take(fid: int, row: dict[str, Any]) -> None:
+        """Keep a result; store them SAVE_EVERY at a time, so that a stopped import keeps its work."""
+        nonlocal saved
+        for k in ("analysis_s", "width_px", "height_px"):
+            row.pop(k, None)
+        rows.append({**row, "frame_id": fid, "analysed_unix_s": time.time()})
+        if progress:
+            progress(len(rows_done) + len(rows), len(frames))
+        if len(rows) >= SAVE_EVERY:
+            saved += store.save_results(run_id, rows)
+            rows_done.extend(r["frame_id"] for r in rows)
+            rows.clear()
+
     if workers <= 1:
         for fid, path, camera in frames:
-            results.append(
-                (
-                    fid,
-                    analyse_stored_frame(
-                        str(store.files.resolve(path)), config(camera), str(thumbs / f"{fid}.jpg")
-                    ),
-                )
+            take(
+                fid,
+                analyse_stored_frame(
+                    str(store.files.resolve(path)), config(camera), str(thumbs / f"{fid}.jpg")
+                ),
             )
     else:
         with process_pool(workers) as pool:
@@ -302,13 +345,9 @@ def analyse_frames(
                 )
                 for fid, path, camera in frames
             ]
-            results = [(fid, f.result()) for fid, f in futures]
-    rows = []
-    for fid, row in results:
-        for k in ("analysis_s", "width_px", "height_px"):
-            row.pop(k, None)
-        rows.append({**row, "frame_id": fid, "analysed_unix_s": time.time()})
-    return store.save_results(run_id, rows)
+            for fid, f in futures:
+                take(fid, f.result())
+    return saved + store.save_results(run_id, rows)
 
 
 def _unset_clock(module: str, stamped_unix_s: float) -> str:

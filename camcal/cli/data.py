@@ -93,7 +93,7 @@ def import_cmd(
     try:
         d = pick_dive(store, dive, create_as=dive or folder.name)
         run = store.analysis_run(d.id, "live", software_version=__version__)
-        with progress_bar("importing") as update:
+        with progress_bar("importing, analysing") as update:
             report = import_frame_set(
                 store,
                 folder,

@@ -323,31 +323,35 @@ def analyse_frames(
             rows_done.extend(r["frame_id"] for r in rows)
             rows.clear()
 
-    if workers <= 1:
-        for fid, path, camera in frames:
-            take(
-                fid,
-                analyse_stored_frame(
-                    str(store.files.resolve(path)), config(camera), str(thumbs / f"{fid}.jpg")
-                ),
-            )
-    else:
-        with process_pool(workers) as pool:
-            futures = [
-                (
-                    fid,
-                    pool.submit(
-                        analyse_stored_frame,
-                        str(store.files.resolve(path)),
-                        config(camera),
-                        str(thumbs / f"{fid}.jpg"),
-                    ),
-                )
-                for fid, path, camera in frames
-            ]
-            for fid, f in futures:
-                take(fid, f.result())
-    return saved + store.save_results(run_id, rows)
+    try:
+        if workers <= 1:
+            for fid, path, camera in frames:
+                thumb = str(thumbs / f"{fid}.jpg")
+                take(fid, analyse_stored_frame(str(store.files.resolve(path)), config(camera), thumb))
+        else:
+            with process_pool(workers) as pool:
+                futures = [
+                    (
+                        fid,
+                        pool.submit(
+                            analyse_stored_frame,
+                            str(store.files.resolve(path)),
+                            config(camera),
+                            str(thumbs / f"{fid}.jpg"),
+                        ),
+                    )
+                    for fid, path, camera in frames
+                ]
+                try:
+                    for fid, f in futures:
+                        take(fid, f.result())
+                except BaseException:  # Ctrl-C: the frames not started are not waited for
+                    for _, f in futures:
+                        f.cancel()
+                    raise
+    finally:  # stopped or not, what was analysed is kept
+        saved += store.save_results(run_id, rows)
+    return saved
 
 
 def _unset_clock(module: str, stamped_unix_s: float) -> str:

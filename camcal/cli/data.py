@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 from typing import Annotated
 
@@ -90,6 +91,7 @@ def import_cmd(
 
     offsets = parse_mapping(clock_offset, "--clock-offset")
     store = open_store(data, db_url, create=True)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)  # `kill`, systemd: as Ctrl-C
     try:
         d = pick_dive(store, dive, create_as=dive or folder.name)
         run = store.analysis_run(d.id, "live", software_version=__version__)
@@ -106,6 +108,12 @@ def import_cmd(
             )
     except FrameSetError as exc:
         raise fail(str(exc)) from None
+    except KeyboardInterrupt:
+        raise fail(
+            "stopped: the frames stored so far are kept, and what was analysed; the same import again "
+            "takes the rest (frames already stored are skipped, those without a result analysed)",
+            code=130,
+        ) from None
     except Exception as exc:
         from ingest.faults import ships_fault
         from storage.db import error_line

@@ -1,4 +1,4 @@
-"""`camcal import` stopped or killed while it analyses: what it did is kept, the same import again finishes it.
+"""`camcal import` stopped or killed as it analyses: what it did is kept, the same import again finishes it.
 
 A real `camcal import` process on a real SQLite store, stopped with SIGTERM
 and killed with SIGKILL (the OOM killer) once results are stored. Before,

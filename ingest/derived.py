@@ -268,11 +268,15 @@ def dive_phase(
     return "station" if depth >= deepest - STATION_TOLERANCE_M else "stop"
 
 
+#: The dark level a setting's prediction assumes for a module none of whose frames measured it [gray].
+DEFAULT_BACKGROUND_GRAY = 2.5
+
+
 def predict_settings(
     rows: Iterable[ResultRow],
     settings: Iterable[tuple[int, float, float]],
     linear_range: tuple[float, float],
-    background_gray: float = 2.5,
+    background_gray: float | None = None,
 ) -> dict[str, list[dict[str, Any]]]:
     """What each setting of a schedule will look like, judged from the frames seen so far.
 
@@ -281,14 +285,26 @@ def predict_settings(
     10^(gain/20))`` over frames in the linear range; a setting then predicts
     ``background + brightness * exposure * gain factor``: ``too_dark``,
     ``ok`` or ``saturated`` against the linear range (``unknown`` without
-    usable frames at that wavelength).
+    usable frames at that wavelength). The background is each module's own,
+    the median of what its frames measured (centre gray - I_center: a camera
+    whose dark level sits at 0 and one at 10 gray judge their faint settings
+    alike), else ``background_gray``, else `DEFAULT_BACKGROUND_GRAY`.
     """
     lo, hi = linear_range
+    measured: dict[str, list[float]] = defaultdict(list)
+    for r in rows:
+        if r.status == "ok" and r.center_gray is not None and r.i_center_gray is not None:
+            measured[r.module].append(r.center_gray - r.i_center_gray)
+    fallback = DEFAULT_BACKGROUND_GRAY if background_gray is None else background_gray
+    backgrounds = {
+        m: float(np.median(v)) if background_gray is None else background_gray for m, v in measured.items()
+    }
     rates: dict[tuple[str, int], list[float]] = defaultdict(list)
     for r in rows:
         if r.center_gray is not None and lo <= r.center_gray <= hi:
             g = float(gain_factor(r.gain_db))
-            rates[(r.module, r.wavelength_nm)].append((r.center_gray - background_gray) / (r.exposure_s * g))
+            bg = backgrounds.get(r.module, fallback)
+            rates[(r.module, r.wavelength_nm)].append((r.center_gray - bg) / (r.exposure_s * g))
     modules = sorted({m for m, _ in rates})
     out: dict[str, list[dict[str, Any]]] = {}
     for m in modules:
@@ -306,7 +322,7 @@ def predict_settings(
                     }
                 )
                 continue
-            gray = background_gray + float(np.median(samples)) * exp * float(gain_factor(gain))
+            gray = backgrounds.get(m, fallback) + float(np.median(samples)) * exp * float(gain_factor(gain))
             verdict = "saturated" if gray > hi else ("too_dark" if gray < lo else "ok")
             preds.append(
                 {

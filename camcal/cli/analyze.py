@@ -104,6 +104,14 @@ def print_frame(an: FrameSetAnalysis) -> None:
         f"LEM at ({x:.1f}, {y:.1f}) px, radius {f.radius_px:.1f} px)",
         highlight=False,
     )
+    clipped = f.profile.unclipped if f.profile is not None else None
+    if clipped is not None:
+        console.print(
+            f"the camera's dark level sits at 0: its noise ({clipped.sigma_gray:.2f} gray) was clipped there "
+            f"({clipped.n_zero_pixels:.0f} dark pixels read 0); the band means were unclipped, by up to "
+            f"{clipped.max_shift_gray:.2f} gray (docs/series.md, 'A black level at zero')",
+            highlight=False,
+        )
 
 
 def print_summary(an: FrameSetAnalysis) -> None:

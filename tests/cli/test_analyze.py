@@ -249,3 +249,6 @@ def test_faint_frames_of_a_sensor_whose_black_level_is_zero_give_the_true_attenu
     for r in rows:
         true_m = truth[str(r["wavelength_nm"])]["lambda_att_m"]
         assert abs(r["lambda_att_m"] - true_m) < max(3 * r["stat_err_m"], 0.015 * true_m), (r, true_m)
+    one = runner.invoke(app, ["analyze", str(out / "B_460_00001.png")])
+    said = " ".join(one.output.split())
+    assert one.exit_code == 0 and "the camera's dark level sits at 0: its noise (2." in said, said

@@ -388,7 +388,11 @@ class Health(Open):
     server: dict[str, Any]
     database: dict[str, Any] = Field(description="``ok``, and ``error``: what to do when it cannot be used")
     ingest: dict[str, Any]
-    modules: dict[str, dict[str, Any]]
+    modules: dict[str, dict[str, Any]] = Field(
+        description="per module: link, ages, frame rates, schedule, outbox and device counts, "
+        "clock_offset_s (its clock minus the ship's, from its heartbeats; null before two), boot, "
+        "distance_m, phase"
+    )
 
 
 class LiveSnapshot(Open):

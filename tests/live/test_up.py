@@ -108,6 +108,13 @@ def test_nothing_of_camcal_up_outlives_it_and_its_ports_are_free_at_once(
     with camcal_up(tmp_path / "data", dive=dive, ports=up_ports) as system:
         print(f"{ending}: camcal up said it was up {time.monotonic() - t_start:.1f} s after its start")
         wait_until(lambda: streaming(system), 60, "frames from both modules")
+
+        def offsets() -> list[float | None]:  # each module's clock against the ship's, as the deck sees
+            modules = httpx.get(system.url("/api/health"), timeout=5).json()["modules"]
+            return [modules[m]["clock_offset_s"] for m in ("A", "B")]
+
+        wait_until(lambda: None not in offsets(), 15, "the modules' clock offsets on /api/health")
+        assert all(abs(o) < 2.0 for o in offsets() if o is not None)  # one host: one clock
         members = tree(system.mark)
         # camcal up, the ingest, its fork server, resource tracker and worker(s), two modules
         assert len(members) >= 7, members

@@ -48,8 +48,9 @@ class ImportReport:
     gaps_filled: int = 0
     #: Frames imported without a capture time in the manifest: stamped with the import's clock.
     unstamped: int = 0
-    #: λ_att visits of the run after the import (its series made again from all its frames).
-    visits: int = 0
+    #: λ_att visits of the run after the import (its series made again from all its frames), None
+    #: when the import analysed nothing (the series is as it was) or its frames carry no times.
+    visits: int | None = None
     #: Every frame of the folder now in the store (imported or already there): (module, boot, seq) -> URL
     #: of its file in the folder.
     sources: dict[tuple[str, str, int], str] = field(default_factory=dict)

@@ -130,7 +130,8 @@ def import_cmd(
     console.print(
         f"dive {d.name}: {report.imported} frames imported, {report.already_present} already present, "
         f"{report.sensor_batches} sensor batches, {report.analysed} analysed, "
-        f"{report.gaps_filled} gaps closed, {report.visits} λ_att visits",
+        f"{report.gaps_filled} gaps closed"
+        + (f", {report.visits} λ_att visits" if report.visits is not None else ""),
         soft_wrap=True,
     )
     if report.unstamped:

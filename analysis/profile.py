@@ -15,6 +15,8 @@ DEFAULT_CROP_PX = 300
 DEFAULT_CENTER_PIXELS = 100
 
 
+#: Centre pixels this many robust standard deviations from the centre's median are left out.
+CENTER_CLIP_SIGMAS = 5.0
 #: The crop reaches at least this many disk radii from the centroid (see `crop_half_size_px`).
 CROP_REACH_RADII = 2.5
 
@@ -307,6 +309,12 @@ def center_value(
 
     These pixels see the LEM's centre, so they carry the direct, unscattered
     light; their scatter over sqrt(n) is the statistical error of the mean.
+    A pixel further than `CENTER_CLIP_SIGMAS` robust standard deviations
+    (1.4826 × the median absolute deviation, at least half a gray value)
+    from their median is left out: a bioluminescence speck or a hot pixel
+    on the LEM's centre is not its light (a 3 × 3 speck of +120 gray made a
+    40-gray centre read 52 ± 3.8). Gaussian noise loses one pixel in 1.7
+    million to it.
     """
     reach = math.ceil(math.sqrt(n_pixels / math.pi)) + 2
     cx, cy = center_xy
@@ -322,6 +330,13 @@ def center_value(
         return CenterValue(float("nan"), float("nan"), 0)
     k = min(n_pixels, values.size)
     nearest = values[np.argsort(dist, kind="stable")[:k]].astype(np.float64)
+    if k >= 8:
+        median = float(np.median(nearest))
+        spread = max(1.4826 * float(np.median(np.abs(nearest - median))), 0.5)
+        keep = np.abs(nearest - median) <= CENTER_CLIP_SIGMAS * spread
+        if not keep.all():
+            nearest = nearest[keep]
+            k = nearest.size
     err = float(nearest.std(ddof=1) / math.sqrt(k)) if k > 1 else float("nan")
     # Integer gray values: never claim better than quantisation allows.
     err = max(err, 0.29 / math.sqrt(k))

@@ -137,6 +137,11 @@ def unclipped_mean(mean: np.ndarray, sigma: float) -> np.ndarray:
     return out
 
 
+def inversion_slope(mu: np.ndarray | float, sigma: float) -> np.ndarray:
+    """d E[Y] / d μ ≈ Φ((μ - ½)/σ), floored at 0.2: how much an error on the clipped mean grows."""
+    return np.maximum(ndtr((np.asarray(mu, dtype=np.float64) - 0.5) / sigma), 0.2)
+
+
 @dataclass(frozen=True)
 class Unclipping:
     """What the clipping at zero did to a profile: the pixel noise it was undone with, and where."""
@@ -177,7 +182,7 @@ def unclip_bands(
     if sigma < MIN_SIGMA_GRAY:
         return None
     mu = unclipped_mean(mean, sigma)
-    slope = np.maximum(ndtr((mu - 0.5) / sigma), 0.2)
+    slope = inversion_slope(mu, sigma)
     shift = np.where(np.isfinite(mu), mean - mu, 0.0)
     return mu, sem / slope, Unclipping(float(sigma), n_zero, float(np.max(np.abs(shift), initial=0.0)))
 

@@ -288,22 +288,24 @@ def _past_specks(
     and the next peak tried, up to `MAX_SPECKS` times; if none is the disk's
     size, the first component stands.
     """
-    first = (peak, component)
-    search = filtered
+
+    def disk_sized(c: np.ndarray) -> bool:
+        return math.sqrt(c.sum() / math.pi) >= SPECK_RADIUS_FRACTION * expected_radius_px
+
+    if disk_sized(component):
+        return peak, component
+    search = filtered.copy()
+    speck = component
     for _ in range(MAX_SPECKS):
-        if math.sqrt(component.sum() / math.pi) >= SPECK_RADIUS_FRACTION * expected_radius_px:
-            return peak, component
-        search = search.copy() if search is filtered else search
-        grown = cv2.dilate(component.view(np.uint8), _GROW_KERNEL).view(bool)
+        grown = cv2.dilate(speck.view(np.uint8), _GROW_KERNEL).view(bool)
         search[grown] = np.uint8(min(max(round(bg.level_gray), 0), 255))
         _, next_peak, _, (lx, ly) = cv2.minMaxLoc(search)
         if next_peak <= bg.level_gray:
             break
-        peak = float(next_peak)
-        component, _ = _component_at(search, (lx, ly), bg.level_gray + 0.5 * (peak - bg.level_gray))
-    if math.sqrt(component.sum() / math.pi) >= SPECK_RADIUS_FRACTION * expected_radius_px:
-        return peak, component
-    return first
+        speck, _ = _component_at(search, (lx, ly), bg.level_gray + 0.5 * (next_peak - bg.level_gray))
+        if disk_sized(speck):
+            return float(next_peak), speck
+    return peak, component
 
 
 @dataclass(frozen=True)

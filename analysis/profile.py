@@ -7,7 +7,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from analysis.censor import Unclipping, ndtr, unclip_bands, unclipped_mean
+from analysis.censor import Unclipping, inversion_slope, unclip_bands, unclipped_mean
 
 #: The crop of the T-REX analysis: 300 x 300 pixels around the centroid.
 DEFAULT_CROP_PX = 300
@@ -143,10 +143,8 @@ def radial_profile(
         var = np.maximum(total2 / count - mean**2, 0.0)
         sem = np.sqrt(var / np.maximum(count - 1, 1))
         zero_fraction = None
-        if zeros is not None:
-            z = zeros.ravel().astype(np.float64)
-            z[~finite] = 0.0
-            zero_fraction = np.bincount(idx, weights=z, minlength=n)[:max_radius_px] / count
+        if zeros is not None:  # (pixels outside the frame went to the dropped bin above)
+            zero_fraction = np.bincount(idx, weights=zeros.ravel(), minlength=n)[:max_radius_px] / count
     return RadialProfile(
         radius_px=np.arange(max_radius_px, dtype=np.float64) + 0.5,
         mean_gray=mean,
@@ -351,5 +349,4 @@ def unclip_center(center: CenterValue, read_noise_gray: float) -> CenterValue:
     """
     sigma = max(read_noise_gray, center.err_gray * math.sqrt(max(center.n_pixels, 1)))
     mean = float(unclipped_mean(np.array([center.mean_gray]), sigma)[0])
-    slope = max(float(ndtr((mean - 0.5) / sigma)), 0.2)
-    return CenterValue(mean, center.err_gray / slope, center.n_pixels)
+    return CenterValue(mean, center.err_gray / float(inversion_slope(mean, sigma)), center.n_pixels)

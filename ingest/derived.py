@@ -291,14 +291,14 @@ def predict_settings(
     alike), else ``background_gray``, else `DEFAULT_BACKGROUND_GRAY`.
     """
     lo, hi = linear_range
-    measured: dict[str, list[float]] = defaultdict(list)
-    for r in rows:
-        if r.status == "ok" and r.center_gray is not None and r.i_center_gray is not None:
-            measured[r.module].append(r.center_gray - r.i_center_gray)
+    rows = list(rows)
     fallback = DEFAULT_BACKGROUND_GRAY if background_gray is None else background_gray
-    backgrounds = {
-        m: float(np.median(v)) if background_gray is None else background_gray for m, v in measured.items()
-    }
+    measured: dict[str, list[float]] = defaultdict(list)
+    if background_gray is None:
+        for r in rows:
+            if r.status == "ok" and r.center_gray is not None and r.i_center_gray is not None:
+                measured[r.module].append(r.center_gray - r.i_center_gray)
+    backgrounds = {m: float(np.median(v)) for m, v in measured.items()}
     rates: dict[tuple[str, int], list[float]] = defaultdict(list)
     for r in rows:
         if r.center_gray is not None and lo <= r.center_gray <= hi:

@@ -307,21 +307,20 @@ def analyse_frames(
         return configs[camera]
 
     thumbs = store.files.root / "thumbs"
-    saved = 0
+    saved = done = 0
     rows: list[dict[str, Any]] = []
-    rows_done: list[int] = []
 
     def take(fid: int, row: dict[str, Any]) -> None:
         """Keep a result; store them SAVE_EVERY at a time, so that a stopped import keeps its work."""
-        nonlocal saved
+        nonlocal saved, done
         for k in ("analysis_s", "width_px", "height_px"):
             row.pop(k, None)
         rows.append({**row, "frame_id": fid, "analysed_unix_s": time.time()})
+        done += 1
         if progress:
-            progress(len(rows_done) + len(rows), len(frames))
+            progress(done, len(frames))
         if len(rows) >= SAVE_EVERY:
             saved += store.save_results(run_id, rows)
-            rows_done.extend(r["frame_id"] for r in rows)
             rows.clear()
 
     try:

@@ -141,7 +141,9 @@ class CropMeasurement:
         return math.hypot(self.center.err_gray, self.fit.background_err_gray)
 
 
-def measure_crop(crop: Crop, radius_px: float, center_pixels: int) -> CropMeasurement:
+def measure_crop(
+    crop: Crop, radius_px: float, center_pixels: int, center: CenterValue | None = None
+) -> CropMeasurement:
     """Band profile, exponential + constant background fit and centre mean of a crop.
 
     A sensor that clips its dark noise at zero (`analysis.censor`) has its
@@ -152,7 +154,8 @@ def measure_crop(crop: Crop, radius_px: float, center_pixels: int) -> CropMeasur
     r_min = fit_start_radius_px(radius_px)
     profile = unclip_profile(radial_profile(crop.pixels, crop.center_xy, zeros=crop.zeros), r_min)
     fit = fit_background(profile, r_min)
-    center = center_value(crop.pixels, crop.center_xy, center_pixels)
+    if center is None:  # (the frame's analysis has it already, from its linear-range check)
+        center = center_value(crop.pixels, crop.center_xy, center_pixels)
     if profile.unclipped is not None:
         center = unclip_center(center, profile.unclipped.sigma_gray)
     return CropMeasurement(profile, fit, center)
@@ -225,7 +228,7 @@ def analyze_frame(frame: np.ndarray, config: FrameConfig | None = None) -> Frame
             **located,
         )
 
-    m = measure_crop(crop, det.radius_px, config.center_pixels)
+    m = measure_crop(crop, det.radius_px, config.center_pixels, center)
     return FrameAnalysis(
         status="ok",
         background_gray=m.fit.background_gray,

@@ -30,12 +30,17 @@ test: $(STAMP)
 	$(BIN)/lint-imports
 	$(BIN)/deptry .
 	$(BIN)/mypy
-	# Both cores for every test but the simulated dives that keep wall-clock time and load both
-	# cores (marked solo: the browser tests, the station and the dive), which then run alone.
+	# Three workers on the two cores for every test but those marked solo (half of the tests'
+	# time is spent waiting on processes and sockets, not computing). Then the solo ones: the
+	# browser tests on their shared `camcal up`, and beside them (their log printed after) the
+	# paced dive and station, which use ~0.4 of a core; never two browser systems at once.
 	# One shared dive (tests/utils/dive_store.py) is streamed once for all of them.
 	cache=$$(mktemp -d) && export CAMCAL_TEST_CACHE=$$cache \
-	  && $(BIN)/python -m pytest -n 2 --dist loadfile -m "not solo" \
-	  && $(BIN)/python -m pytest -m solo tests/live tests/browser; \
+	  && $(BIN)/python -m pytest -n 3 --dist loadfile -m "not solo" \
+	  && { $(BIN)/python -m pytest -m solo tests/live > $$cache/paced.log 2>&1 & paced=$$!; \
+	       $(BIN)/python -m pytest -m solo tests/browser; browser=$$?; \
+	       wait $$paced; rc=$$?; echo "--- the paced dive and station (tests/live, solo):"; \
+	       cat $$cache/paced.log; [ $$browser -eq 0 ] && [ $$rc -eq 0 ]; }; \
 	  rc=$$?; rm -rf $$cache; exit $$rc
 
 # A module's install: the core alone (no extra), built and installed as `pip install camcal` would,

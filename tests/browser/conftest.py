@@ -103,8 +103,9 @@ FILE_ORDER = ("test_cold_start", "test_database_down", "test_control", "test_sec
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Every browser test runs alone in ``make test`` (marked solo: the shared system's simulated
-    dive loads both cores), in `FILE_ORDER`, then the other files in their own order."""
+    """Every browser test runs after the rest in ``make test`` (marked solo: the shared system's
+    simulated dive loads the cores; only the paced dive and station run beside them), in
+    `FILE_ORDER`, then the other files in their own order."""
     here = Path(__file__).parent
     slots = [i for i, item in enumerate(items) if here in item.path.parents]
     ours = [items[i] for i in slots]

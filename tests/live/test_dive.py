@@ -18,7 +18,7 @@ from storage.models import AttenuationPoint, AttitudeSample, Frame, FrameResult
 from tests.live.conftest import ingest_config
 from tests.live.test_ingest import wait_for
 
-pytestmark = pytest.mark.solo  # a whole dive in real time: runs alone in make test
+pytestmark = pytest.mark.solo  # a whole dive in real time: after the rest, beside the browser tests
 
 SPEED = 15.0
 

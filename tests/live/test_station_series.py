@@ -35,7 +35,7 @@ from tests.utils.live import camcal_cli, cli_env, link_keys
 from tests.utils.series_check import check_series
 from tests.utils.system import free_ports
 
-pytestmark = pytest.mark.solo  # a 90-minute station at 100x: runs alone in make test
+pytestmark = pytest.mark.solo  # a 90-minute station at 100x: after the rest, beside the browser tests
 
 SPEED = 100.0
 DIVE = dict(deck_s=5.0, winch_m_per_s=100.0, test_stop_s=200.0, station_s=5400.0)

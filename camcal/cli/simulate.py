@@ -69,7 +69,8 @@ def simulate_set(
     schedule: Annotated[
         str,
         typer.Option(
-            help="trex-subsampled (default), trex (full: 4200 shots), or custom via --exposures/--gains."
+            help="trex-subsampled (default) or trex (full: 4200 shots); --exposures, --gains, --repeats and"
+            " --wavelengths change it."
         ),
     ] = "trex-subsampled",
     exposures: Annotated[str | None, typer.Option(help="Exposures in seconds, e.g. 0.05,0.07,0.11.")] = None,

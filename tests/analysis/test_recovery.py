@@ -6,6 +6,8 @@ geometries (T-REX, and a nearer pair whose LEM needs a larger crop).
 
 from __future__ import annotations
 
+import zlib
+
 import pytest
 
 from analysis import EmissionRatio, Geometry, analyze_records
@@ -29,7 +31,11 @@ def test_lambda_att_recovered_within_3_percent_and_errors_cover_truth(water: str
         # two settings from the middle of the usable list
         mid = len(candidates) // 2
         settings += [(wl, e, g) for e, g in candidates[max(mid - 1, 0) : mid + 1]]
-    records = records_for(near, far, settings, repeats=3, seed=hash((water, geometry)) % 1000)
+    # A seed of its own per case, the same in every run (hash() of a str changes from one
+    # interpreter to the next: the frames were other ones each run, and now and then one drew a
+    # 3-sigma deviation of the short baseline's clear water: 3.1 % for ~1 % of stat. error).
+    seed = zlib.crc32(f"{water}/{geometry}".encode()) % 1000
+    records = records_for(near, far, settings, repeats=3, seed=seed)
     assert all(r.analysis.ok for r in records), [r.analysis.detail for r in records if not r.analysis.ok]
     geo = Geometry("A", "B", d_near, 0.02, d_far, 0.04)
     ratios = {wl: EmissionRatio(v, 0.03) for wl, v in RATIOS.items()}

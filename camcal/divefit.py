@@ -70,19 +70,21 @@ def pick_run(store: Store, dive_id: int, run_id: int | None = None) -> dict[str,
 
 
 def run_calibration(
-    store: Store, run: dict[str, Any], calibration: str | None = None
+    store: Store, dive_id: int, run: dict[str, Any], calibration: str | None = None
 ) -> tuple[Setup, dict[str, Any] | None]:
-    """The setup in force for a run, and the calibration record it came from (if any).
+    """The setup in force for a run of the dive, and the calibration record it came from (if any).
 
-    ``calibration`` (an id, ``name`` or ``name@version``) replaces the
-    run's own inputs with that record's.
+    The run's own inputs (`storage.queries.calibration_in_force`: an imported dive's setup.json
+    for its live run); ``calibration`` (an id, ``name`` or ``name@version``) replaces them with
+    that record's.
     """
     if calibration is not None:
         record = store.call(queries.calibration, calibration)
         if record is None:
             raise DiveLookupError(f"no calibration {calibration!r} (try `camcal calibration list`)")
         return setup_of(record), record
-    setup = parse_setup(run["calibration"], f"run {run['id']}") if run["calibration"] else Setup()
+    cal = store.call(queries.calibration_in_force, dive_id, run)
+    setup = parse_setup(cal, f"run {run['id']}") if cal else Setup()
     record = store.call(queries.calibration, run["calibration_id"]) if run.get("calibration_id") else None
     return setup, record
 
@@ -111,7 +113,7 @@ def dive_inputs(
         dive = queries.dive_record(s, dive_row.id)
     assert dive is not None
     run = pick_run(store, dive_row.id, run_id)
-    setup, record = run_calibration(store, run, calibration)
+    setup, record = run_calibration(store, dive_row.id, run, calibration)
     if overrides:
         setup = overrides.apply(setup)
     selected, span_info = (span or Span()).select(store.call(queries.result_rows, run["id"], dive_row.id))

@@ -194,6 +194,8 @@ def fit_entry(f: ChiSquareFit, chk: AttenuationCheck) -> dict[str, Any]:
         "att_check_agrees": chk.agrees,
         "att_check_flagged": chk.flagged,
         "att_check_advice": chk.advice,
+        "nuisance_check_flagged": chk.nuisances_flagged,
+        "nuisance_check_advice": chk.nuisance_advice,
         "chi2": _r(f.chi2, 2),
         "ndof": f.ndof,
         "mie_g": f.mie_g,

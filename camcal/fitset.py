@@ -23,6 +23,7 @@ from analysis.chisq import (
     ChiSquareFit,
     FitConfig,
     FitInputError,
+    Nuisance,
     SettingProfiles,
     collect_settings,
     fit_wavelength,
@@ -100,13 +101,21 @@ class FitOptions:
 
 @dataclass(frozen=True)
 class AttenuationCheck:
-    """The fit's 1/λ_abs + 1/λ_sca against the I_center λ_att of the same frames.
+    """The fit checked against what it did not fit: the I_center λ_att and the calibrations.
 
-    ``z`` is the difference over the errors added in quadrature (the fit's,
-    with its systematic part, and the I_center error with its systematic
-    part); ``agrees`` when |z| <= 2; ``flagged`` when |z| exceeds
+    ``z`` is the fit's 1/λ_abs + 1/λ_sca against the I_center λ_att of the
+    same frames, the difference over the errors added in quadrature (the
+    fit's, with its systematic part, and the I_center error with its
+    systematic part); ``agrees`` when |z| <= 2; ``flagged`` when |z| exceeds
     `ATT_CHECK_FLAG_SIGMA` (3): the two methods disagree beyond their
     errors, and ``advice`` says what to look at next.
+
+    ``strained`` holds the nuisances the fit moved beyond
+    `NUISANCE_FLAG_SIGMA` (3) of their calibrations (I0'/I0 pulled to half
+    its lab value, a distance metres off): the frames do not follow the
+    model with the calibration as given, whatever the λ_att check says
+    (a wide systematic error on the fit's λ_att can hide it there).
+    ``nuisance_advice`` says so and what to look at.
     """
 
     lambda_att_fit_m: float
@@ -114,6 +123,7 @@ class AttenuationCheck:
     lambda_att_icenter_m: float | None
     lambda_att_icenter_err_m: float | None
     z: float | None
+    strained: tuple[Nuisance, ...] = ()
 
     @property
     def agrees(self) -> bool | None:
@@ -144,6 +154,45 @@ class AttenuationCheck:
             "set to what the water is known to have."
         )
 
+    @property
+    def nuisances_flagged(self) -> bool:
+        return bool(self.strained)
+
+    @property
+    def nuisance_advice(self) -> str | None:
+        """What to do about nuisances pulled beyond their calibrations (None when none is)."""
+        if not self.strained:
+            return None
+        moved = "; ".join(_moved(n) for n in self.strained)
+        return (
+            f"the fit moved {moved}: the frames do not follow the model with the calibration as "
+            "given, so do not quote λ_abs and λ_sca from this fit. Check the values it moved where they "
+            "were set (setup.json; a dive's calibration: `camcal calibration list`), whether the water "
+            "changed while the frames were taken (λ_att per visit in `camcal export`: the fit takes one "
+            "water), and the profile residuals for light the model cannot make (a double image, stray "
+            "light)."
+        )
+
+
+#: How a nuisance reads in a sentence, and how its shift is written.
+_NUISANCE_WORDS = {
+    "distance_near": "the near camera's distance",
+    "distance_far": "the far camera's distance",
+    "emission_ratio": "I0'/I0",
+    "psf_sigma": "the PSF's width",
+    "focal_scale": "the focal length",
+    "halo_scale": "the halo's scale",
+}
+
+
+def _moved(n: Nuisance) -> str:
+    what = _NUISANCE_WORDS.get(n.name, n.name)
+    if n.unit == "rel":
+        by, prior = f"{100 * n.shift:+.1f} %", f"±{100 * n.sigma:.1f} %"
+    else:
+        by, prior = f"{n.shift:+.3g} {n.unit}", f"±{n.sigma:.3g} {n.unit}"
+    return f"{what} by {by} ({n.pull:+.1f}σ of its {prior})"
+
 
 @dataclass(frozen=True)
 class FolderFit:
@@ -170,8 +219,9 @@ class FolderFit:
 
 def _check(fit: ChiSquareFit, att: AttenuationResult | None) -> AttenuationCheck:
     fit_err = math.hypot(fit.lambda_att_err_m, fit.lambda_att_sys_err_m)
+    strained = fit.strained_nuisances
     if att is None or att.lambda_att_m is None or att.total_err_m is None:
-        return AttenuationCheck(fit.lambda_att_m, fit_err, None, None, None)
+        return AttenuationCheck(fit.lambda_att_m, fit_err, None, None, None, strained)
     err = math.hypot(fit_err, att.total_err_m)
     z = float((fit.lambda_att_m - att.lambda_att_m) / err) if err > 0 else None
     return AttenuationCheck(
@@ -180,6 +230,7 @@ def _check(fit: ChiSquareFit, att: AttenuationResult | None) -> AttenuationCheck
         float(att.lambda_att_m),
         float(att.total_err_m),
         z,
+        strained,
     )
 
 

@@ -162,9 +162,8 @@ def base_setup(store: Store, dive_id: int) -> Setup:
 def stored_setup(store: Store, dive_id: int) -> Setup | None:
     """The live run's calibration, else the dive's own setup; None if neither holds one."""
     with store.read() as s:
-        dive = queries.dive_record(s, dive_id)
         live = next((r for r in queries.runs(s, dive_id) if r["kind"] == "live"), None)
-    cal = (live["calibration"] if live else None) or (dive or {}).get("setup") or {}
+        cal = queries.calibration_in_force(s, dive_id, live or {})
     if not cal:
         return None
     try:

@@ -18,6 +18,9 @@ DCHI2_2D_95 = 6.18
 DCHI2_LIMIT_95 = 2.706
 #: A fit's λ_att that differs from the I_center λ_att by more than this many σ is flagged.
 ATT_CHECK_FLAG_SIGMA = 3.0
+#: A floated nuisance (I0'/I0, a distance, the PSF, ...) moved further than this many σ of its prior
+#: says the frames do not follow the model with the calibration as given: the fit is flagged.
+NUISANCE_FLAG_SIGMA = 3.0
 
 
 @dataclass(frozen=True)
@@ -344,6 +347,12 @@ class ChiSquareFit:
     @property
     def chi2_ndof(self) -> float:
         return self.chi2 / self.ndof if self.ndof > 0 else float("nan")
+
+    @property
+    def strained_nuisances(self) -> tuple[Nuisance, ...]:
+        """The nuisances the fit moved beyond `NUISANCE_FLAG_SIGMA` of their priors, worst first."""
+        strained = [n for n in self.nuisances if abs(n.pull) > NUISANCE_FLAG_SIGMA]
+        return tuple(sorted(strained, key=lambda n: -abs(n.pull)))
 
     def with_budget(self, budget: SystematicBudget) -> ChiSquareFit:
         """This fit with the systematic budget attached and its sums as the systematic errors.

@@ -264,6 +264,9 @@ def print_fits(result: FolderFit) -> None:
             colour = "green" if chk.agrees else ("bold red" if chk.flagged else "yellow")
             word = "agrees" if chk.agrees else ("FLAGGED" if chk.flagged else "differs")
             verdict = f"[{colour}]{word}[/] ({chk.z:+.1f}σ)"
+        if chk.nuisances_flagged:  # a calibration pulled beyond 3σ: said below the table
+            flag = "[bold red]calibration FLAGGED[/]"
+            verdict = flag if verdict == "—" else f"{verdict}\n{flag}"
         scaled = f" [yellow](errors ×{f.error_scale:.2f})[/]" if f.error_scale > 1 else ""
         table.add_row(
             str(wl),
@@ -288,6 +291,8 @@ def print_fits(result: FolderFit) -> None:
     for wl, chk in sorted(result.checks.items()):
         if chk.flagged:
             console.print(f"[bold red]{wl} nm flagged:[/] {chk.advice}")
+        if chk.nuisances_flagged:
+            console.print(f"[bold red]{wl} nm flagged:[/] {chk.nuisance_advice}")
     for wl, why in sorted(result.notes.items()):
         console.print(f"[yellow]{wl} nm:[/] {why}")
     for wl, why in sorted(result.skipped.items()):

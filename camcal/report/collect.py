@@ -72,7 +72,7 @@ def collect(store: Store, dive_name: str, run_id: int | None = None) -> ReportDa
             names = ", ".join(x["name"] for x in queries.dives(s)[:5]) or "none"
         raise DiveLookupError(f"no dive named {dive_name!r} (dives in the store: {names})")
     run = pick_run(store, d.id, run_id)
-    setup, record = run_calibration(store, run)
+    setup, record = run_calibration(store, d.id, run)
     rows = store.call(queries.result_rows, run["id"], d.id)
     span, table = attenuation_over_span(rows, setup, Span())
     with store.read() as s:

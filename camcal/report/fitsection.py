@@ -38,6 +38,8 @@ def fit_section(d: ReportData) -> str:
             verdict = f'<span class="bad"><b>flagged</b> ({z:+.1f}σ)</span>'
         else:
             verdict = f'<span class="bad">differs ({z:+.1f}σ)</span>'
+        if f.get("nuisance_check_flagged"):
+            verdict += '<br><span class="bad"><b>flagged</b>: a calibration pulled &gt; 3σ</span>'
         scale = f.get("error_scale") or 1.0
         rows.append(
             (
@@ -66,7 +68,8 @@ def fit_section(d: ReportData) -> str:
         "over the template samples its refits used) ± the fit's error (statistical and the "
         "floated nuisances, multiplied by √(χ²/ndof) where that exceeds 1) ± the systematic error, or a "
         "one-sided 95 % CL limit where the data only bound it. The check compares 1/λ_abs + 1/λ_sca with "
-        "the I_center λ_att of the same frames (agrees within 2σ; flagged beyond 3σ).</p>"
+        "the I_center λ_att of the same frames (agrees within 2σ; flagged beyond 3σ); a fit that moved a "
+        "calibrated nuisance (I0'/I0, a distance, the PSF) beyond 3σ of its calibration is flagged too.</p>"
     )
     poor = [f"{f['wavelength_nm']} nm" for f in fits if f["ndof"] and f["chi2"] / f["ndof"] > 2]
     if poor:
@@ -82,6 +85,9 @@ def fit_section(d: ReportData) -> str:
     for f in fits:
         if f.get("att_check_flagged") and f.get("att_check_advice"):
             body += note(f"<b>{f['wavelength_nm']} nm flagged.</b> {esc(f['att_check_advice'])}")
+        if f.get("nuisance_check_flagged") and f.get("nuisance_check_advice"):
+            advice = f["nuisance_check_advice"]
+            body += note(f"<b>{f['wavelength_nm']} nm flagged.</b> {esc(advice[0].upper() + advice[1:])}")
     body += table(
         [
             "wavelength",

@@ -47,6 +47,7 @@ from storage.queries.operations import (
 )
 from storage.queries.runs import (
     RunLookupError,
+    calibration_in_force,
     chisq_fit_dict,
     chisq_fits,
     chosen_run,
@@ -90,6 +91,7 @@ __all__ = [
     "audit",
     "calibration",
     "calibration_dict",
+    "calibration_in_force",
     "calibrations",
     "chisq_fit_dict",
     "chisq_fits",

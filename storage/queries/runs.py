@@ -102,6 +102,20 @@ def dive_record(s: Session, dive_id: int) -> dict[str, Any] | None:
     return {**rows[0], "setup": dive.setup if dive else {}}
 
 
+def calibration_in_force(s: Session, dive_id: int, run: dict[str, Any]) -> dict[str, Any]:
+    """The setup.json values a run of the dive was analysed with (``{}``: the defaults, T-REX's).
+
+    The run's own calibration; else the dive's own setup: the live run of an imported dive stores
+    none, and its frames were analysed with the setup.json its frame set brought (the dive adopted
+    it). Every reader of a run's calibration (the API's tables, the report, ``camcal fit --dive``,
+    a re-analysis's start) takes it from here, so none falls back to T-REX's values alone.
+    """
+    if run.get("calibration"):
+        return dict(run["calibration"])
+    dive = s.get(Dive, dive_id)
+    return dict(dive.setup) if dive is not None and dive.setup else {}
+
+
 def dive_by_name(s: Session, name: str) -> Dive | None:
     return s.scalars(select(Dive).where(Dive.name == name)).first()
 

@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from analysis.chisq import LOWER_LIMIT, MEASURED, FitConfig, SettingProfiles, fit_wavelength
+from analysis.chisq import LOWER_LIMIT, MEASURED, FitConfig, Nuisance, SettingProfiles, fit_wavelength
 from analysis.chisq.limits import error_scale, estimate
 from analysis.chisq.posterior import marginal_posterior
 from analysis.chisq.results import Estimate, SystematicBudget, SystematicShift, sys_text
@@ -269,6 +269,28 @@ def test_a_disagreement_beyond_three_sigma_is_flagged_with_what_to_do() -> None:
     near = AttenuationCheck(30.0, 1.0, 28.0, 0.8, 2.5)
     assert not near.flagged and not near.agrees and near.advice is None
     assert AttenuationCheck(30.0, 1.0, None, None, None).flagged is False
+
+
+def test_a_calibration_pulled_beyond_three_sigma_is_flagged_worst_first(
+    grids: dict[str, TemplateGrid], profiles: dict[str, list]
+) -> None:
+    """The independent station (tests/utils/indepset.py) fitted: I0'/I0 pulled to half its lab value
+    (-17σ) while the λ_att check "agreed" (+1.9σ, the fit's λ_att ±12 m of systematics)."""
+    fit = fit_wavelength(WAVELENGTH_NM, profiles["clear"], grids["clear"], GEOMETRY, EMISSION_RATIO, QUICK)
+    assert fit.strained_nuisances == ()  # the frames follow the model: nothing pulled beyond 3σ
+    ratio = Nuisance("emission_ratio", "rel", -0.50291, 0.02885)
+    near = Nuisance("distance_near", "m", 0.0676, 0.02)
+    far = Nuisance("distance_far", "m", -0.119, 0.04)  # 2.98σ: within
+    pulled = replace(fit, nuisances=(far, near, ratio))
+    assert pulled.strained_nuisances == (ratio, near)
+    chk = AttenuationCheck(39.9, 12.0, 16.8, 0.6, 1.9, pulled.strained_nuisances)
+    assert chk.agrees and not chk.flagged and chk.nuisances_flagged
+    advice = chk.nuisance_advice or ""
+    assert advice.startswith("the fit moved I0'/I0 by -50.3 % (-17.4σ of its ±2.9 %); the near camera's"), (
+        advice
+    )
+    assert "+0.0676 m (+3.4σ of its ±0.02 m)" in advice and "do not quote" in advice
+    assert AttenuationCheck(30.0, 1.0, 28.0, 0.8, 2.5).nuisance_advice is None
 
 
 def test_the_values_quoted_are_the_mean_over_the_template_samples() -> None:

@@ -7,6 +7,7 @@ import json
 import math
 import shutil
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 from typer.testing import CliRunner
@@ -15,6 +16,7 @@ from analysis.scattering import WaterOptics
 from camcal.cli import app
 from camcal.core.schedule import Schedule
 from camcal.fitdoc import estimate_text
+from camcal.report.fitsection import fit_section
 from lrm.sim.camera import CameraModel
 from lrm.sim.render import TransportHalo
 from lrm.sim.scene import Water
@@ -128,6 +130,8 @@ def test_fit_reports_lengths_within_their_errors(fitted: tuple[int, str, Path]) 
     assert doc["inputs"]["geometry"]["distance_far_m"] == 41.62
     assert doc["software"]["name"] == "camcal"
     assert "460" in output and "agrees" in output
+    assert res["nuisance_check_flagged"] is False and res["nuisance_check_advice"] is None
+    assert "flagged" not in output.lower()
     # Made with --no-systematics: no "± 0.00 (sys)" anywhere, the entry and the table say so.
     for key in ("lambda_abs", "lambda_sca"):
         assert res[key]["systematics"] == "no budget" and res[key]["sys_err_m"] is None
@@ -243,6 +247,43 @@ def assert_one_line_error(code: int, output: str, *phrases: str) -> None:
     assert "Traceback" not in output
     for p in phrases:
         assert p in output, output
+
+
+def test_a_distance_the_frames_contradict_is_flagged_in_the_json_the_cli_and_the_report(
+    frameset: Path, cache_dir: Path, tmp_path: Path
+) -> None:
+    """setup.json puts the near camera 0.34 m (1.6 %) further than the frames were taken from: the
+    disk's size still passes the focal-length check, I_center's λ_att moves with it and the fit's
+    1/λ_abs + 1/λ_sca "agrees" with it, but λ_abs came out 164 m for 100 (a value, not a limit).
+    The fit pulls both distances ~9σ off their ±0.02/0.04 m to make the profiles fit: that is
+    flagged (beyond 3σ) with what to do, wherever the fit is shown."""
+    folder = Path(shutil.copytree(frameset, tmp_path / "wrong-distance"))
+    setup = json.loads((folder / "setup.json").read_text())
+    setup["cameras"]["A"]["distance_m"] = 21.9
+    (folder / "setup.json").write_text(json.dumps(setup))
+    code, output = run(*fit_args(folder, cache_dir, NO_BUDGET, "--json", str(tmp_path / "fit.json")))
+    assert code == 0, output
+    doc = json.loads((tmp_path / "fit.json").read_text())
+    (res,) = doc["fits"]
+    pulls = {n["name"]: n["pull"] for n in res["nuisances"]}
+    assert pulls["distance_near"] < -3, pulls
+    assert res["nuisance_check_flagged"] is True
+    advice = res["nuisance_check_advice"]
+    assert "the near camera's distance by -0.1" in advice and "σ of its ±0.02 m" in advice, advice
+    assert "do not quote λ_abs and λ_sca" in advice and "setup.json" in advice
+    said = " ".join(output.split())
+    assert "460 nm flagged: the fit moved the near camera's distance" in said, said
+    report = fit_section(
+        SimpleNamespace(
+            dive={"name": "wrong-distance"},
+            data_dir="DATA",
+            fit={"result": doc, "id": 1, "created_unix_s": 0, "software_version": "test", "run_id": 1,
+                 "span": {"n_frames": 32, "depth_min_m": 3000.0}},
+            run={"id": 1},
+        )  # type: ignore[arg-type]
+    )  # fmt: skip
+    assert "a calibration pulled &gt; 3σ" in report
+    assert "460 nm flagged.</b> The fit moved the near camera&#x27;s distance" in report, report[:3000]
 
 
 def test_one_camera_missing(frameset: Path, cache_dir: Path, tmp_path: Path) -> None:

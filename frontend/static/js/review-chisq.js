@@ -26,7 +26,16 @@ function errCell(text, value, bold) {
   return el("td", { class: "r", style }, text ? text.replace(/^± /, "") : fmt(value, 3));
 }
 
+/** The λ_att check's word, and under it a calibration the fit pulled beyond 3σ (said below the table). */
 function checkCell(f) {
+  const cell = attCheckCell(f);
+  if (f.nuisance_check_flagged) {
+    cell.append(el("div", { class: "chisq-cal-flag", style: { color: "var(--major)", fontWeight: 700 } }, "calibration FLAGGED"));
+  }
+  return cell;
+}
+
+function attCheckCell(f) {
   const z = f.att_check_z;
   if (z === null || z === undefined) return el("td", { class: "muted" }, "–");
   const sz = `${z >= 0 ? "+" : ""}${fmt(z, 1)}σ`;
@@ -141,6 +150,9 @@ export async function showChisqFit(box, dive, runId) {
   for (const f of fits) {
     if (f.att_check_flagged && f.att_check_advice) {
       parts.push(el("p", { class: "error-msg chisq-flag", "data-wl": f.wavelength_nm, style: { whiteSpace: "normal" } }, `${f.wavelength_nm} nm flagged: ${f.att_check_advice}`));
+    }
+    if (f.nuisance_check_flagged && f.nuisance_check_advice) {
+      parts.push(el("p", { class: "error-msg chisq-flag", "data-wl": f.wavelength_nm, style: { whiteSpace: "normal" } }, `${f.wavelength_nm} nm flagged: ${f.nuisance_check_advice}`));
     }
   }
   for (const f of fits) if (f.systematics) parts.push(budgetTable(f));

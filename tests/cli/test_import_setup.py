@@ -1,0 +1,74 @@
+"""An imported frame set brings its own setup.json: everything that reads the dive afterwards uses it.
+
+A set taken 10 m and 25 m from the LEM (not T-REX's 21.56/41.62 m), imported with the real `camcal
+import`. The import analysed it with its setup.json, but the dive's readers took the run's
+calibration, which an imported dive's live run does not store, and fell back to T-REX's values: the
+review page's λ_att table (`/api/dives/{id}/attenuation`), the report and `camcal fit --dive` put
+the LEM 21.56/41.62 m away and gave λ_att ~35 % long.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+from camcal.divefit import dive_inputs
+from camcal.report.collect import collect
+from server.app import create_app
+from server.settings import ServerSettings
+from storage.store import Store
+from tests.utils.live import camcal_cli
+
+DISTANCES_M = {"A": 10.0, "B": 25.0}
+
+
+@pytest.fixture(scope="module")
+def imported(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
+    root = tmp_path_factory.mktemp("own-setup")
+    folder, data = root / "near-set", root / "data"
+    made = camcal_cli(
+        "simulate-set", str(folder), "--width", "640", "--height", "512", "--exposures", "0.02,0.03",
+        "--gains", "2,8", "--repeats", "2", "--distance", "A=10", "--distance", "B=25", "--seed", "3",
+    )  # fmt: skip
+    assert made.returncode == 0, made.stderr
+    done = camcal_cli("import", str(folder), "--data", str(data), "--workers", "1")
+    assert done.returncode == 0, done.stdout + done.stderr
+    truth = json.loads((folder / "truth.json").read_text())
+    return {
+        "data": data,
+        "dive": "near-set",
+        "truth": {int(k): v["lambda_att_m"] for k, v in truth["water"].items()},
+    }
+
+
+def test_the_review_pages_table_uses_the_sets_distances(imported: dict[str, object]) -> None:
+    data, truth = imported["data"], imported["truth"]
+    assert isinstance(data, Path) and isinstance(truth, dict)
+    with TestClient(create_app(ServerSettings(data_dir=data, events=None))) as client:
+        (dive,) = [d for d in client.get("/api/dives").json() if d["name"] == imported["dive"]]
+        table = client.get(f"/api/dives/{dive['id']}/attenuation").json()
+    cameras = table["calibration"]["cameras"]
+    assert {c: cameras[c]["distance_m"] for c in DISTANCES_M} == DISTANCES_M
+    rows = {r["wavelength_nm"]: r for r in table["rows"]}
+    assert set(rows) == set(truth)
+    for wl, lam in truth.items():
+        assert rows[wl]["lambda_att_m"] == pytest.approx(lam, rel=0.03), (wl, rows[wl], lam)
+
+
+def test_the_report_and_the_dive_fit_use_the_sets_setup(imported: dict[str, object]) -> None:
+    data, truth = imported["data"], imported["truth"]
+    assert isinstance(data, Path) and isinstance(truth, dict)
+    store = Store.open(data, run_migrations=False)
+    try:
+        report = collect(store, str(imported["dive"]))
+        inputs = dive_inputs(store, str(imported["dive"]))
+    finally:
+        store.close()
+    for setup in (report.setup, inputs.setup):
+        assert {c: setup.cameras[c].distance_m for c in DISTANCES_M} == DISTANCES_M
+    for row in report.attenuation:
+        lam = truth[row["wavelength_nm"]]
+        assert row["lambda_att_m"] == pytest.approx(lam, rel=0.03), (row, lam)

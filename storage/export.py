@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
 from functools import partial
 from pathlib import Path
@@ -13,6 +14,9 @@ import pyarrow.parquet as pq
 from sqlalchemy import select
 
 from camcal.core.files import write_whole
+from camcal.core.frameset import Setup, parse_setup
+from storage import queries
+from storage.base import now_unix_s
 from storage.models import (
     Alarm,
     AttenuationPoint,
@@ -77,13 +81,18 @@ def _table(names: list[str], rows: Sequence[Any]) -> pa.Table:
 def export_dive(
     store: Store, dive_id: int, out: Path, formats: tuple[str, ...] = FORMATS, run_id: int | None = None
 ) -> list[Path]:
-    """Write each table as ``<out>/<table>.csv`` and/or ``.parquet``; returns the files."""
+    """Write each table as ``<out>/<table>.csv`` and/or ``.parquet``; returns the files.
+
+    With a run, also ``setup.json`` (what its numbers were computed with: distances, I0'/I0, the
+    linear range, the series' settings, in the frame-set format) and ``run.json`` (which dive and
+    run the tables hold, the calibration record, the software, when exported).
+    """
     unknown = set(formats) - set(FORMATS)
     if unknown:
         raise ValueError(f"unknown export format(s) {sorted(unknown)}; choose from {', '.join(FORMATS)}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    written = []
+    written = [] if run_id is None else _write_run(store, dive_id, run_id, out)
     for name, table in dive_tables(store, dive_id, run_id).items():
         # Each table whole or not at all: a full disk leaves no half-written file, and an older
         # export's file is replaced only by a whole one.
@@ -94,3 +103,32 @@ def export_dive(
             write_whole(out / f"{name}.parquet", partial(pq.write_table, table))
             written.append(out / f"{name}.parquet")
     return written
+
+
+def _write_run(store: Store, dive_id: int, run_id: int, out: Path) -> list[Path]:
+    """``setup.json`` and ``run.json`` of the exported run (each whole or not at all)."""
+    with store.read() as s:
+        dive = queries.dive_record(s, dive_id) or {}
+        run = queries.chosen_run(s, dive_id, run_id)
+        cal = queries.calibration_in_force(s, dive_id, run)
+    setup = parse_setup(cal, f"run {run_id}") if cal else Setup()
+    about = {
+        "dive": {"id": dive_id, "name": dive.get("name")},
+        "run": {
+            k: run[k] for k in ("id", "kind", "label", "calibration_id", "software_version", "created_unix_s")
+        },
+        "setup_from": "the run's calibration"
+        if run.get("calibration")
+        else ("the dive's own setup (imported)" if cal else "the defaults (T-REX)"),
+        "exported_unix_s": now_unix_s(),
+    }
+    files = []
+    for name, doc in (("setup.json", setup.to_json()), ("run.json", about)):
+        text = json.dumps(doc, indent=2, ensure_ascii=False) + "\n"
+        write_whole(out / name, partial(_write_text, text))
+        files.append(out / name)
+    return files
+
+
+def _write_text(text: str, path: Path) -> None:
+    path.write_text(text, encoding="utf-8")

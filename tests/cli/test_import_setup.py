@@ -72,3 +72,16 @@ def test_the_report_and_the_dive_fit_use_the_sets_setup(imported: dict[str, obje
     for row in report.attenuation:
         lam = truth[row["wavelength_nm"]]
         assert row["lambda_att_m"] == pytest.approx(lam, rel=0.03), (row, lam)
+
+
+def test_the_export_says_what_its_numbers_were_computed_with(
+    imported: dict[str, object], tmp_path: Path
+) -> None:
+    out = tmp_path / "export"
+    done = camcal_cli("export", "--data", str(imported["data"]), "--out", str(out), "--format", "csv")
+    assert done.returncode == 0, done.stderr
+    setup = json.loads((out / "setup.json").read_text())
+    assert {c: setup["cameras"][c]["distance_m"] for c in DISTANCES_M} == DISTANCES_M
+    about = json.loads((out / "run.json").read_text())
+    assert about["dive"]["name"] == imported["dive"] and about["run"]["kind"] == "live"
+    assert about["setup_from"] == "the dive's own setup (imported)"

@@ -124,7 +124,8 @@ def print_summary(an: FrameSetAnalysis) -> None:
     if an.result is not None:
         for wl, res in sorted(an.result.attenuation.items()):
             if res.lambda_att_m is None:
-                table.add_row(f"{wl} nm", "—", "—", "—", str(res.n_pairs), f"{res.chi2_ndof:.2f}")
+                chi2 = _chi2_text(res.n_pairs, res.chi2_ndof)
+                table.add_row(f"{wl} nm", "—", "—", "—", str(res.n_pairs), chi2)
                 continue
             table.add_row(
                 f"{wl} nm",
@@ -132,7 +133,7 @@ def print_summary(an: FrameSetAnalysis) -> None:
                 f"± {res.stat_err_m:.2f}",
                 f"± {res.sys_err_m:.2f}",
                 str(res.n_pairs),
-                f"{res.chi2_ndof:.2f}",
+                _chi2_text(res.n_pairs, res.chi2_ndof),
             )
     console.print(table)
     if an.problem:
@@ -150,3 +151,8 @@ def print_summary(an: FrameSetAnalysis) -> None:
         if reason != "ok":
             frames.add_row(reason, str(n), REASON_HELP.get(reason, ""))
     console.print(frames)
+
+
+def _chi2_text(n_pairs: int, chi2_ndof: float) -> str:
+    """The pairs' agreement; with one pair there is none to measure (no degree of freedom), not 0.00."""
+    return f"{chi2_ndof:.2f}" if n_pairs > 1 else "—"

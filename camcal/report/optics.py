@@ -24,7 +24,7 @@ def attenuation(d: ReportData) -> str:
             num(r["sys_err_m"]),
             num(r["total_err_m"]),
             r["n_pairs"],
-            num(r["chi2_ndof"]),
+            num(r["chi2_ndof"]) if r["n_pairs"] > 1 else "–",  # one pair: no degree of freedom
             f"{r['emission_ratio']:.3f} ± {r['emission_ratio_err']:.3f}",
             r["note"] or "",
         )

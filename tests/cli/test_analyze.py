@@ -252,3 +252,22 @@ def test_faint_frames_of_a_sensor_whose_black_level_is_zero_give_the_true_attenu
     one = runner.invoke(app, ["analyze", str(out / "B_460_00001.png")])
     said = " ".join(one.output.split())
     assert one.exit_code == 0 and "the camera's dark level sits at 0: its noise (2." in said, said
+
+
+def test_one_pair_has_no_chi2_to_show(tmp_path: Path) -> None:
+    """One exposure and gain per wavelength: one near/far pair each, whose agreement no χ² measures.
+    The table said "0.00" (a perfect fit, it read); it says "—"."""
+    out = tmp_path / "one-setting"
+    made = CliRunner().invoke(
+        app,
+        ["simulate-set", str(out), "--width", "640", "--height", "512", "--exposures", "0.05",
+         "--gains", "8", "--repeats", "2", "--seed", "5"],
+    )  # fmt: skip
+    assert made.exit_code == 0, made.output
+    res = CliRunner().invoke(app, ["analyze", str(out)])
+    assert res.exit_code == 0, res.output
+    rows = [line for line in res.output.splitlines() if " nm " in line and "±" in line]
+    assert len(rows) == 3, res.output
+    for line in rows:
+        cells = [c.strip() for c in line.strip("│┃ ").split("│")]
+        assert cells[-2:] == ["1", "—"], line  # pairs, χ²/ndof

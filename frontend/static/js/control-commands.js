@@ -2,7 +2,7 @@
 // accepted, in progress, done or rejected with the module's reason) and the module's command list.
 
 import { utc } from "./format.js";
-import { el } from "./ui.js";
+import { el, lrm } from "./ui.js";
 
 export const FINAL = new Set(["done", "rejected"]);
 const STEPS = ["pending", "sent", "accepted", "in_progress", "done"];
@@ -29,7 +29,7 @@ export function applyText(apply) {
 }
 
 function stateText(c, module) {
-  const m = `LRM-${c.module}`;
+  const m = `${lrm(c.module)}`;
   switch (c.state) {
     case "pending":
       return module && module.link !== "up"
@@ -73,7 +73,7 @@ export function renderTracker(box, c, module) {
     el(
       "div",
       { class: "tracker-head" },
-      el("strong", {}, `${commandWhat(c)} → LRM-${c.module}`),
+      el("strong", {}, `${commandWhat(c)} → ${lrm(c.module)}`),
       el("span", { class: "muted" }, ` · issued by ${c.issued_by} at ${utc(c.issued_unix_s, { date: false })} UTC · #${c.id.slice(0, 8)}`),
     ),
     el(

@@ -3,7 +3,7 @@
 // seen so far predict: ok, too dark, saturated, or unknown (no usable frame at that wavelength yet).
 
 import { fmt, fmtExposure, plural } from "./format.js";
-import { el } from "./ui.js";
+import { el, lrm } from "./ui.js";
 
 export const VERDICTS = {
   ok: "ok",
@@ -113,12 +113,12 @@ export function renderPreview(box, p, { modules, selected, error }) {
     const gains = [...new Set(settings.map((s) => s.gain_db))].sort((a, b) => a - b);
     const body = preds
       ? el("div", { class: "grids" }, ...wls.map((wl) => grid(m, wl, settings.filter((s) => s.wavelength_nm === wl), exposures, gains)))
-      : el("p", { class: "muted" }, `No analysed frames from LRM-${m} yet: every setting is unknown.`);
+      : el("p", { class: "muted" }, `No analysed frames from ${lrm(m)} yet: every setting is unknown.`);
     sections.push(
       el(
         "div",
         { class: `preview-module${m === selected ? " selected" : ""}`, "data-module": m },
-        el("h4", {}, `LRM-${m}${m === selected ? " (selected)" : ""} `, summaryLine(m, p.summary?.[m] || { unknown: 0 }, settings.length)),
+        el("h4", {}, `${lrm(m)}${m === selected ? " (selected)" : ""} `, summaryLine(m, p.summary?.[m] || { unknown: 0 }, settings.length)),
         body,
       ),
     );

@@ -4,6 +4,7 @@
 // that name: the page says which.
 
 import { plural, utc } from "./format.js";
+import { lrm } from "./ui.js";
 
 const ABOUT = {
   trex: "the full T-REX schedule: 7 exposures × 10 gains × 20 frames at each wavelength",
@@ -18,12 +19,12 @@ function current(m, commands, presets) {
   if (!sch) return null;
   const cmd = commands.find((c) => c.action === "set_schedule" && c.state === "done" && c.target_version === sch.version);
   if (cmd?.payload?.schedule) {
-    return { spec: cmd.payload.schedule, note: `As sent to LRM-${m.id} by ${cmd.issued_by} at ${utc(cmd.issued_unix_s)} UTC.` };
+    return { spec: cmd.payload.schedule, note: `As sent to ${lrm(m.id)} by ${cmd.issued_by} at ${utc(cmd.issued_unix_s)} UTC.` };
   }
   if (presets[sch.name]) {
     return {
       spec: presets[sch.name],
-      note: `LRM-${m.id} reports only the name and version of the schedule it started with: this is the preset of that name.`,
+      note: `${lrm(m.id)} reports only the name and version of the schedule it started with: this is the preset of that name.`,
     };
   }
   return null;
@@ -40,7 +41,7 @@ export function scheduleSources(m, commands, presets) {
   if (cur) byValue.set("current", cur);
   const groups = [
     {
-      label: `LRM-${m.id} now`,
+      label: `${lrm(m.id)} now`,
       options: [
         {
           value: "current",
@@ -57,7 +58,7 @@ export function scheduleSources(m, commands, presets) {
       options: sent.map((c) => {
         byValue.set(`cmd:${c.id}`, {
           spec: c.payload.schedule,
-          note: `As sent to LRM-${m.id} by ${c.issued_by} at ${utc(c.issued_unix_s)} UTC (${c.state}).`,
+          note: `As sent to ${lrm(m.id)} by ${c.issued_by} at ${utc(c.issued_unix_s)} UTC (${c.state}).`,
         });
         return {
           value: `cmd:${c.id}`,

@@ -2,7 +2,7 @@
 // frames (with the schedule version they were taken under), and which buttons an operator may press.
 
 import { fmt, fmtExposure, utc } from "./format.js";
-import { $, el, setText } from "./ui.js";
+import { $, el, lrm, setText } from "./ui.js";
 
 const LINK_DOT = { up: "●", down: "○", unknown: "◌" };
 
@@ -18,7 +18,7 @@ export function renderTabs(tabs, modules, selected, onSelect) {
         "button",
         { type: "button", role: "tab", "aria-selected": String(id === selected), "data-module": id, onclick: () => onSelect(id) },
         el("span", { class: `dot link-${m.link}`, title: `link ${m.link}` }, LINK_DOT[m.link] || "◌"),
-        `LRM-${id}`,
+        `${lrm(id)}`,
         el("small", {}, m.schedule ? ` ${m.schedule.name} v${m.schedule.version}` : ""),
       );
     }),
@@ -30,7 +30,7 @@ export function renderStatus(box, list, m) {
     box.replaceChildren(el("p", { class: "empty" }, "Waiting for the modules to report…"));
     return;
   }
-  setText($("#module-title"), `LRM-${m.id}${m.distance_m ? ` · ${fmt(m.distance_m, 2)} m from the LEM` : ""}`);
+  setText($("#module-title"), `${lrm(m.id)}${m.distance_m ? ` · ${fmt(m.distance_m, 2)} m from the LEM` : ""}`);
   const s = m.schedule;
   const up = m.link === "up";
   box.replaceChildren(
@@ -85,13 +85,13 @@ export function renderPermissions(m, op) {
   if (send) {
     send.disabled = !op || !m;
     send.title = op ? "check the schedule, then confirm before it is sent" : "log in as operator to send a schedule";
-    setText(send, m ? `Send to LRM-${m.id}…` : "Send…");
+    setText(send, m ? `Send to ${lrm(m.id)}…` : "Send…");
   }
   const st = m?.schedule?.state;
   const allowed = allowedActions(st);
   for (const b of document.querySelectorAll("#actions [data-action]")) {
     const a = b.dataset.action;
     b.disabled = !op || !m || !allowed[a];
-    b.title = !op ? "log in as operator to control the module" : !allowed[a] ? `LRM-${m?.id} is ${st}` : b.dataset.title;
+    b.title = !op ? "log in as operator to control the module" : !allowed[a] ? `${lrm(m?.id)} is ${st}` : b.dataset.title;
   }
 }

@@ -12,7 +12,7 @@ import { scheduleSources } from "./control-sources.js";
 import { renderPermissions, renderStatus, renderTabs } from "./control-status.js";
 import { plural } from "./format.js";
 import { LiveSocket } from "./livesocket.js";
-import { $, confirmDialog, initTheme, mountOperator, setText, toast } from "./ui.js";
+import { $, confirmDialog, initTheme, lrm, mountOperator, setText, toast } from "./ui.js";
 
 const RECENT_FRAMES = 8;
 const PREVIEW_DELAY_MS = 350;
@@ -241,7 +241,7 @@ function renderPreviewBox() {
 
 // ------------------------------------------------------------------ sending
 function offlineNote(m) {
-  return m.link === "up" ? null : `LRM-${m.id} is offline (link ${m.link}): the command waits, pending, until it reconnects.`;
+  return m.link === "up" ? null : `${lrm(m.id)} is offline (link ${m.link}): the command waits, pending, until it reconnects.`;
 }
 
 async function sendSchedule(ev) {
@@ -279,11 +279,11 @@ async function sendSchedule(ev) {
         .join(", ")
     : "no frames of this module to judge from yet";
   const ok = await confirmDialog({
-    title: `Send a schedule to LRM-${m.id}?`,
+    title: `Send a schedule to ${lrm(m.id)}?`,
     message: `Module ${m.id} will switch ${from}to ${spec.name} v${version} ${applyText(apply)}.`,
     details: [
       `One pass: ${plural(p.n_frames, "frame")}, about ${fmtDuration(p.pass_duration_s)}.`,
-      `Settings predicted for LRM-${m.id}: ${judged}.`,
+      `Settings predicted for ${lrm(m.id)}: ${judged}.`,
       `Its frames will carry schedule version ${version}.`,
       offlineNote(m),
     ].filter(Boolean),
@@ -314,12 +314,12 @@ async function sendSchedule(ev) {
 
 const ACTION_CONFIRM = {
   pause: (m, s) => ({
-    title: `Pause LRM-${m.id}?`,
+    title: `Pause ${lrm(m.id)}?`,
     message: `Module ${m.id} will pause ${s} after the frame it is taking: no frames until you resume it.`,
     okLabel: `Pause ${m.id}`,
   }),
   stop: (m, s) => ({
-    title: `Stop LRM-${m.id}?`,
+    title: `Stop ${lrm(m.id)}?`,
     message: `Module ${m.id} will stop ${s}: no frames until you start it again, and Start begins the pass from its first setting.`,
     okLabel: `Stop ${m.id}`,
     danger: true,

@@ -2,7 +2,7 @@
 // the camera's current setting, depth and phase, attitude and housing, frame quality.
 
 import { fmt, fmtAge, fmtExposure, qualityClass, utc } from "./format.js";
-import { el, setText } from "./ui.js";
+import { el, lrm, setText } from "./ui.js";
 
 const SVG = "http://www.w3.org/2000/svg";
 
@@ -54,12 +54,12 @@ export function createCard(mid) {
     el(
       "div",
       { class: "card-head" },
-      el("h2", {}, `LRM-${mid} `, el("span", { class: "dist", "data-field": "distance" })),
+      el("h2", {}, `${lrm(mid)} `, el("span", { class: "dist", "data-field": "distance" })),
       el("span", { class: "pill sev-INVALID", "data-field": "severity" }, "INVALID"),
       el("span", { class: "link-state", "data-field": "link", "data-link": "unknown" }, "link –"),
       el(
         "a",
-        { class: "control-link", href: `/control#module=${encodeURIComponent(mid)}`, title: `LRM-${mid}'s schedule and commands (control page)` },
+        { class: "control-link", href: `/control#module=${encodeURIComponent(mid)}`, title: `${lrm(mid)}'s schedule and commands (control page)` },
         el("span", { "data-field": "schedule" }),
         " ▸",
       ),
@@ -145,7 +145,7 @@ export function updateCard(card, m, { now, staleAfter, severity }) {
   const age = m.lastPacketAt === null ? null : (now - m.lastPacketAt) / 1000;
   const stale = age === null || age > staleAfter;
   card.classList.toggle("stale", stale);
-  setText(f(card, "stale"), stale ? `INVALID — no data from LRM-${m.id} for ${fmtAge(age)} (stale after ${staleAfter} s)` : "");
+  setText(f(card, "stale"), stale ? `INVALID — no data from ${lrm(m.id)} for ${fmtAge(age)} (stale after ${staleAfter} s)` : "");
   setText(f(card, "distance"), m.distance_m ? `${fmt(m.distance_m, 2)} m from the LEM` : "");
   const sev = f(card, "severity");
   sev.className = `pill sev-${severity}`;

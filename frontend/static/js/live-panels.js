@@ -2,7 +2,7 @@
 
 import { WAVELENGTHS, SEVERITY_RANK as RANK, fmt, plural, utc, wlColor } from "./format.js";
 import { drawVisitSeries } from "./lambda-profile.js";
-import { el, toast } from "./ui.js";
+import { el, lrm, toast } from "./ui.js";
 
 /** The alarm list: active ones first (worst, then newest), then the five last cleared. */
 /** The ingest's refused connections, in one line: counted, never shown as modules or alarms. */
@@ -37,7 +37,7 @@ export function renderAlarms(list, alarms, { operator, onAck }) {
       el(
         "span",
         { class: "msg" },
-        `${a.module ? `LRM-${a.module}: ` : ""}${a.message}`,
+        `${a.module ? `${lrm(a.module)}: ` : ""}${a.message}`,
         el(
           "div",
           { class: "meta" },

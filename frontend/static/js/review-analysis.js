@@ -1,11 +1,11 @@
 // Review: the λ_att table and series of a run, the linearity fits per module, attitude and housing.
 
 import { api, query } from "./api.js";
-import { fmt, fmtExposure, wlColor } from "./format.js";
+import { fmt, fmtExposure, plural, wlColor } from "./format.js";
 import { drawVisitSeries } from "./lambda-profile.js";
 import { showChisqFit } from "./review-chisq.js";
 import { draw, linearityFigure, stackedFigure } from "./plots.js";
-import { $, el, setText, toast } from "./ui.js";
+import { $, el, lrm, setText, toast } from "./ui.js";
 
 const MODULE_COLORS = ["#5cc8ff", "#ff9f43", "#c46bff", "#52e07a"];
 
@@ -90,7 +90,7 @@ export function attenuationTable(table, { caption } = {}) {
         el("td", { class: "r" }, fmt(r.sys_err_m, 2)),
         el("td", { class: "r" }, fmt(r.total_err_m, 2)),
         el("td", { class: "r" }, r.n_pairs),
-        el("td", { class: "r" }, fmt(r.chi2_ndof, 2)),
+        el("td", { class: "r", title: r.n_pairs > 1 ? "" : "one pair: no degree of freedom" }, r.n_pairs > 1 ? fmt(r.chi2_ndof, 2) : "–"),
         el("td", { class: "r" }, `${fmt(r.emission_ratio, 3)} ± ${fmt(r.emission_ratio_err, 3)}`),
         el("td", { class: "muted" }, r.note || ""),
       ),
@@ -106,7 +106,7 @@ export function attenuationTable(table, { caption } = {}) {
             el(
               "details",
               {},
-              el("summary", { class: "muted" }, `${r.pairs.length} near/far pairs of ${r.wavelength_nm} nm`),
+              el("summary", { class: "muted" }, `${plural(r.pairs.length, "near/far pair")} of ${r.wavelength_nm} nm`),
               pairsTable(r.pairs),
             ),
           ),
@@ -209,7 +209,7 @@ export async function showLinearity(ctx) {
   const jobs = [];
   for (const m of modules) {
     const checks = data.checks.filter((c) => c.module === m);
-    const panel = el("div", { class: "panel", "data-module": m }, el("h2", {}, `LRM-${m}: linearity of the centre gray`));
+    const panel = el("div", { class: "panel", "data-module": m }, el("h2", {}, `${lrm(m)}: linearity of the centre gray`));
     const plots = el("div", { class: "grid-2" });
     panel.append(plots);
     for (const sweep of ["exposure", "gain"]) {
@@ -276,7 +276,7 @@ export async function showAttitude(ctx) {
     return;
   }
   const color = (i) => MODULE_COLORS[i % MODULE_COLORS.length];
-  const series = (data, key) => data.map((d, i) => ({ name: `LRM-${modules[i]}`, t: d.t_unix_s, y: d[key], color: color(i) }));
+  const series = (data, key) => data.map((d, i) => ({ name: `${lrm(modules[i])}`, t: d.t_unix_s, y: d[key], color: color(i) }));
   const a = stackedFigure([
     { title: "tilt (°)", series: series(att, "tilt_deg") },
     { title: "rotation (°/s)", series: series(att, "rotation_rate_dps") },

@@ -4,7 +4,7 @@
 
 import { api, query } from "./api.js";
 import { utc } from "./format.js";
-import { $, el } from "./ui.js";
+import { $, el, lrm } from "./ui.js";
 
 const KINDS = {
   "": "everything",
@@ -23,7 +23,7 @@ function kindOf(a) {
 }
 
 const shortId = (id) => (id ? `#${String(id).slice(0, 8)}` : "");
-const moduleOf = (target) => (String(target || "").startsWith("module:") ? `LRM-${target.slice(7)}` : target);
+const moduleOf = (target) => (String(target || "").startsWith("module:") ? `${lrm(target.slice(7))}` : target);
 
 function scheduleText(s) {
   if (!s) return "a schedule";

@@ -5,7 +5,7 @@ import { api, query } from "./api.js";
 import { REASONS, fmt, fmtExposure, fromLocalInput, fromPlotDate, plotDate, utc } from "./format.js";
 import { drawOverlay } from "./live-cards.js";
 import { draw, emptyPlot, profileFigure } from "./plots.js";
-import { $, el, setText, toast } from "./ui.js";
+import { $, el, lrm, setText, toast } from "./ui.js";
 
 const MODULE_COLORS = ["#5cc8ff", "#ff9f43", "#c46bff", "#52e07a"];
 const SEV_COLORS = { MAJOR: "#ff4d4d", MINOR: "#ffb020" };
@@ -48,7 +48,7 @@ function fillSelect(select, values, label = (v) => String(v)) {
 function setupForm(ctx) {
   const f = form();
   const s = ctx.settings || {};
-  fillSelect(f.module, s.modules || [], (m) => `LRM-${m}`);
+  fillSelect(f.module, s.modules || [], (m) => `${lrm(m)}`);
   fillSelect(f.wavelength_nm, s.wavelengths_nm || [], (w) => `${w} nm`);
   fillSelect(f.exposure_s, s.exposures_s || [], fmtExposure);
   fillSelect(f.gain_db, s.gains_db || [], (g) => `${fmt(g, 0)} dB`);
@@ -209,16 +209,16 @@ async function drawTimeline() {
       customdata: fs.map((f) => f.id),
       type: "scatter",
       mode: "markers",
-      name: `frames LRM-${m}`,
+      name: `frames ${lrm(m)}`,
       marker: { size: 6, color: MODULE_COLORS[i % MODULE_COLORS.length], symbol: i ? "diamond" : "circle" },
-      hovertemplate: `LRM-${m} frame #%{customdata}<br>%{x}<br>%{y:.0f} m<extra></extra>`,
+      hovertemplate: `${lrm(m)} frame #%{customdata}<br>%{x}<br>%{y:.0f} m<extra></extra>`,
     });
   });
   if (tl.alarms.length) {
     traces.push({
       x: tl.alarms.map((a) => plotDate(a.raised_unix_s)),
       y: tl.alarms.map(() => 0),
-      text: tl.alarms.map((a) => `${a.severity} ${a.module ? `LRM-${a.module} ` : ""}${a.message}`),
+      text: tl.alarms.map((a) => `${a.severity} ${a.module ? `${lrm(a.module)} ` : ""}${a.message}`),
       type: "scatter",
       mode: "markers",
       name: "alarms",
@@ -292,7 +292,7 @@ export async function openFrame(id) {
     el(
       "div",
       { class: "card-head" },
-      el("h2", { style: { margin: 0 } }, `Frame #${fr.id} · LRM-${fr.module} · ${utc(fr.captured_unix_s, { ms: true })}`),
+      el("h2", { style: { margin: 0 } }, `Frame #${fr.id} · ${lrm(fr.module)} · ${utc(fr.captured_unix_s, { ms: true })}`),
       el("span", { class: "spacer", style: { flex: 1 } }),
       el("button", { type: "button", disabled: idx <= 0, onclick: () => nav(-1) }, "← Previous frame"),
       el("button", { type: "button", disabled: idx < 0 || idx >= view.items.length - 1, onclick: () => nav(1) }, "Next frame →"),

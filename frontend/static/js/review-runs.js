@@ -4,7 +4,7 @@
 import { api, operator, query } from "./api.js";
 import { fmt, utc, wlColor } from "./format.js";
 import { mountSpan, runLabel, spanParams } from "./review-analysis.js";
-import { $, el, toast } from "./ui.js";
+import { $, el, lrm, toast } from "./ui.js";
 
 let poll = null;
 let current = null;
@@ -69,7 +69,7 @@ function buildForm(ctx, from = null) {
         el("legend", {}, "Distances to the LEM"),
         ...Object.keys(cams)
           .sort()
-          .map((m) => pair(`LRM-${m}`, `cam-${m}`, cams[m].distance_m, cams[m].distance_err_m, "m")),
+          .map((m) => pair(`${lrm(m)}`, `cam-${m}`, cams[m].distance_m, cams[m].distance_err_m, "m")),
       ),
       el(
         "fieldset",
@@ -81,8 +81,8 @@ function buildForm(ctx, from = null) {
             el(
               "div",
               { class: "pair", title: "a module clock that was off (the ship's clock alarm says how far): its frames are paired with the other camera's at the corrected times; behind: negative" },
-              el("span", {}, `LRM-${m}`),
-              el("input", { type: "number", name: `clock-${m}`, value: cams[m].clock_offset_s ?? 0, step: "any", min: -1e9, max: 1e9, required: true, "aria-label": `LRM-${m} clock offset` }),
+              el("span", {}, `${lrm(m)}`),
+              el("input", { type: "number", name: `clock-${m}`, value: cams[m].clock_offset_s ?? 0, step: "any", min: -1e9, max: 1e9, required: true, "aria-label": `${lrm(m)} clock offset` }),
               el("span", {}, "s"),
             ),
           ),

@@ -28,6 +28,12 @@ export function el(tag, attrs = {}, ...children) {
 
 export const $ = (sel, root = document) => root.querySelector(sel);
 
+/** A module's name as the crew says it: "LRM-A" for id "A"; an id that already names itself ("LRM-far") as it is. */
+export function lrm(id) {
+  const s = String(id ?? "");
+  return /^lrm/i.test(s) ? s : `LRM-${s}`;
+}
+
 /** Set text only when it changed (cheap to call on every render). */
 export function setText(node, text) {
   const s = String(text);

@@ -16,7 +16,15 @@ from pathlib import Path
 from typing import Any
 
 from analysis import FrameConfig
-from camcal.core.frameset import DAMAGED, ManifestRow, Setup, decode_text, parse_manifest, parse_setup
+from camcal.core.frameset import (
+    DAMAGED,
+    SETUP,
+    ManifestRow,
+    Setup,
+    decode_text,
+    parse_manifest,
+    parse_setup,
+)
 from camcal.core.images import FrameReadError, decode_frame
 from camcal.core.parallel import process_pool
 from camcal.core.utctime import parse_utc_unix_s
@@ -54,6 +62,9 @@ class ImportReport:
     #: Every frame of the folder now in the store (imported or already there): (module, boot, seq) -> URL
     #: of its file in the folder.
     sources: dict[tuple[str, str, int], str] = field(default_factory=dict)
+    #: The folder's setup.json where it differs from the calibration the dive keeps (and analysed
+    #: with): its URL and the values that differ, e.g. ``["cameras.A.distance_m 21.9 -> 21.56"]``.
+    setup_ignored: tuple[str, list[str]] | None = None
 
 
 def _frames_folder(folder: RemoteFolder) -> RemoteFolder:
@@ -72,7 +83,7 @@ def read_frame_set(folder: RemoteFolder) -> tuple[RemoteFolder, bytes, list[Mani
 
     Raises `FrameSetError` for a missing or unusable manifest or setup.
     """
-    from camcal.core.frameset import MANIFEST, SETUP, FrameSetError
+    from camcal.core.frameset import MANIFEST, FrameSetError
 
     frames_dir = _frames_folder(folder)
     try:
@@ -129,10 +140,12 @@ def import_frame_set(
     # a broken manifest or setup.json stops the import early
     frames_dir, manifest, rows, folder_setup = read_frame_set(root)
     setup = stored_setup(store, dive_id)
+    report = ImportReport(folder, dive_id)
     if setup is None:
         store.adopt_dive_setup(dive_id, folder_setup.to_json())
         setup = folder_setup
-    report = ImportReport(folder, dive_id)
+    elif frames_dir.exists(SETUP) and (changes := setup_changes(setup.to_json(), folder_setup.to_json())):
+        report.setup_ignored = (f"{frames_dir.url}/{SETUP}", changes)
     fallback = _fallback_boot(manifest)
     batch: list[FrameRow] = []
     new: list[tuple[int, str, str]] = []
@@ -369,3 +382,15 @@ def _shifted(row: object, i: int, shift_s: float) -> object:
     if not isinstance(row[i], int | float):
         return row
     return [*row[:i], row[i] - shift_s, *row[i + 1 :]]
+
+
+def setup_changes(kept: dict[str, Any], other: dict[str, Any], prefix: str = "") -> list[str]:
+    """The values of ``other`` that differ from ``kept``'s, as ``"key.path old -> new"`` lines."""
+    out: list[str] = []
+    for key in sorted(set(kept) | set(other)):
+        a, b, name = kept.get(key), other.get(key), f"{prefix}{key}"
+        if isinstance(a, dict) and isinstance(b, dict):
+            out += setup_changes(a, b, f"{name}.")
+        elif a != b:
+            out.append(f"{name} {a} -> {b}")
+    return out

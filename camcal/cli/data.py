@@ -142,6 +142,15 @@ def import_cmd(
             "λ_att); add the times to the manifest to place them.[/]",
             soft_wrap=True,
         )
+    if report.setup_ignored:
+        where, changes = report.setup_ignored
+        shown = "; ".join(changes[:4]) + (f" and {len(changes) - 4} more" if len(changes) > 4 else "")
+        console.print(
+            f"[yellow]dive {d.name} keeps the calibration it was analysed with: {where} differs ({shown}) "
+            f"and was not used. To analyse the dive with it: camcal reanalyze --dive {d.name} --setup "
+            f"{where}" + (f" --data {data}" if data else "") + "[/]",
+            soft_wrap=True,
+        )
     if report.problems:
         t = Table(title=f"{len(report.problems)} not imported", title_justify="left")
         t.add_column("file")

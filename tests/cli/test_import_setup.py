@@ -10,6 +10,7 @@ the LEM 21.56/41.62 m away and gave λ_att ~35 % long.
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -19,6 +20,7 @@ from camcal.divefit import dive_inputs
 from camcal.report.collect import collect
 from server.app import create_app
 from server.settings import ServerSettings
+from storage import queries
 from storage.store import Store
 from tests.utils.live import camcal_cli
 
@@ -40,6 +42,7 @@ def imported(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
     return {
         "data": data,
         "dive": "near-set",
+        "folder": folder,
         "truth": {int(k): v["lambda_att_m"] for k, v in truth["water"].items()},
     }
 
@@ -85,3 +88,37 @@ def test_the_export_says_what_its_numbers_were_computed_with(
     about = json.loads((out / "run.json").read_text())
     assert about["dive"]["name"] == imported["dive"] and about["run"]["kind"] == "live"
     assert about["setup_from"] == "the dive's own setup (imported)"
+
+
+def test_a_set_imported_again_with_another_setup_says_the_dive_keeps_its_own(
+    imported: dict[str, object], tmp_path: Path
+) -> None:
+    """A corrected setup.json and the same frames imported again: nothing is imported, and the dive's
+    numbers stay those of its calibration. Before, silently so; now the import says which values
+    differ and the re-analysis that uses them, which then does."""
+    folder, data = imported["folder"], imported["data"]
+    assert isinstance(folder, Path) and isinstance(data, Path)
+    again = Path(shutil.copytree(folder, tmp_path / "near-set"))
+    setup = json.loads((again / "setup.json").read_text())
+    setup["cameras"]["A"]["distance_m"] = 10.5
+    (again / "setup.json").write_text(json.dumps(setup))
+    done = camcal_cli("import", str(again), "--data", str(data), "--dive", str(imported["dive"]))
+    said = " ".join((done.stdout + done.stderr).split())
+    assert done.returncode == 0, said
+    assert "0 frames imported" in said and "keeps the calibration it was analysed with" in said, said
+    assert "cameras.A.distance_m 10.0 -> 10.5" in said, said
+    words = said.split("To analyse the dive with it: ")[1].split()
+    command = words[: words.index("--data") + 2]  # the command, with this store's --data
+    assert command[:5] == ["camcal", "reanalyze", "--dive", "near-set", "--setup"], command
+    redone = camcal_cli(*command[1:], "--label", "A at 10.5 m")
+    assert redone.returncode == 0, redone.stdout + redone.stderr
+    store = Store.open(data, run_migrations=False)
+    try:
+        runs = {
+            r["label"]: r for r in store.call(queries.runs, store.call(queries.dive_by_name, "near-set").id)
+        }
+        assert runs["A at 10.5 m"]["calibration"]["cameras"]["A"]["distance_m"] == 10.5
+        live = dive_inputs(store, "near-set")  # the live run keeps the dive's own
+        assert live.setup.cameras["A"].distance_m == 10.0
+    finally:
+        store.close()

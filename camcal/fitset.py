@@ -11,7 +11,7 @@ import math
 import os
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -48,7 +48,8 @@ RADIUS_TOLERANCE = 0.03
 class FitOptions:
     """Choices of ``camcal fit`` beyond the frame set's own setup.
 
-    The templates: camera ``focal_px``, scattering-length nodes, Mie
+    The templates: camera ``focal_px`` (None: the setup's, the cameras' own where it names
+    them), scattering-length nodes, Mie
     ⟨cos θ⟩, Rayleigh share, refractive index, Monte Carlo photons per node
     and seed, the cache directory (None: the default). ``min_frames``
     accepted frames per camera and wavelength are required; only
@@ -56,7 +57,7 @@ class FitOptions:
     settings.
     """
 
-    focal_px: float = TREX_FOCAL_PX
+    focal_px: float | None = None
     lambda_sca_nodes_m: tuple[float, ...] = DEFAULT_LAMBDA_SCA_NODES_M
     mie_g: float = 0.93
     rayleigh_fraction: float = 0.17
@@ -71,7 +72,7 @@ class FitOptions:
     systematics: SystematicsConfig | None = field(default_factory=SystematicsConfig)
 
     def __post_init__(self) -> None:
-        if not self.focal_px > 0:
+        if self.focal_px is not None and not self.focal_px > 0:
             raise ValueError(f"focal_px must be > 0, got {self.focal_px}")
         if not -1 < self.mie_g < 1:
             raise ValueError(f"mie_g (<cos theta>) must lie in (-1, 1), got {self.mie_g}")
@@ -88,7 +89,7 @@ class FitOptions:
         return TemplateSettings.near_far(
             geometry.distance_near_m,
             geometry.distance_far_m,
-            self.focal_px,
+            self.focal_px if self.focal_px is not None else TREX_FOCAL_PX,
             n_bands=n_bands,
             rayleigh_fraction=self.rayleigh_fraction,
             refractive_index=self.refractive_index,
@@ -273,6 +274,24 @@ def _map(
     return out
 
 
+def _setup_focal_px(an: FrameSetAnalysis, geometry: Geometry) -> float:
+    """The focal length the setup gives both cameras (its own, or a camera's where it names one).
+
+    Raises `FitInputError` when the two cameras' differ: the templates take one focal length.
+    """
+    cams = an.setup.cameras
+    near, far = (
+        (cams[c].focal_px if c in cams else None) or an.setup.focal_px
+        for c in (geometry.near_camera, geometry.far_camera)
+    )
+    if abs(near - far) > 1e-6 * near:
+        raise FitInputError(
+            f"the setup gives the cameras different focal lengths ({geometry.near_camera}: {near:.0f} px, "
+            f"{geometry.far_camera}: {far:.0f} px) and the templates take one: pass --focal-px"
+        )
+    return float(near)
+
+
 def _check_disk_radii(an: FrameSetAnalysis, geometry: Geometry, focal_px: float) -> None:
     """Refuse a focal length that does not reproduce the measured LEM disks (the templates would not fit)."""
     for cam, dist in (
@@ -290,9 +309,10 @@ def _check_disk_radii(an: FrameSetAnalysis, geometry: Geometry, focal_px: float)
         expected = disk_radius_px(dist, LEM_RADIUS_M, focal_px)
         if abs(measured / expected - 1.0) > RADIUS_TOLERANCE:
             raise FitInputError(
-                f"camera {cam}: the LEM's disk measures {measured:.1f} px but --focal-px {focal_px:.0f} "
-                f"and {dist} m give {expected:.1f} px; pass the camera's focal length in pixels "
-                f"(about {focal_px * measured / expected:.0f})"
+                f"camera {cam}: the LEM's disk measures {measured:.1f} px but a focal length of "
+                f"{focal_px:.0f} px (--focal-px, else the setup's focal_px) and {dist} m give "
+                f"{expected:.1f} px; pass the camera's focal length in pixels (about "
+                f"{focal_px * measured / expected:.0f}) with --focal-px or in setup.json"
             )
 
 
@@ -345,6 +365,9 @@ def fit_analysis(
     if an.geometry is None or an.result is None:
         raise FitInputError(an.problem or "no camera geometry")
     geometry = an.geometry
+    if options.focal_px is None:
+        options = replace(options, focal_px=_setup_focal_px(an, geometry))
+    assert options.focal_px is not None
     _check_disk_radii(an, geometry, options.focal_px)
     ratios = {wl: EmissionRatio(r.value, r.err) for wl, r in an.setup.emission_ratio.items()}
     wavelengths = sorted({r.wavelength_nm for r in an.rows if not r.error and r.wavelength_nm})

@@ -13,7 +13,6 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextC
 from rich.table import Table
 
 from camcal.cli.common import DataOption, DbUrlOption, console, err_console, fail, parse_floats
-from camcal.cli.defaults import TREX_FOCAL_PX
 from camcal.cli.overrides import DistanceErrOption, DistanceOption, RatioOption, overrides_from
 from camcal.core.files import write_atomic
 
@@ -80,8 +79,12 @@ def fit(
         Path | None, typer.Option(help="Write contour and fit figures (PNG) into this folder.")
     ] = None,
     focal_px: Annotated[
-        float, typer.Option(help="Camera focal length in pixels (T-REX: 8709, 16° over 2448 px in water).")
-    ] = TREX_FOCAL_PX,
+        float | None,
+        typer.Option(
+            help="Camera focal length in pixels (default: the setup's focal_px; T-REX: 8709, 16° over "
+            "2448 px in water)."
+        ),
+    ] = None,
     mie_g: Annotated[float, typer.Option(help="Mie <cos theta> of the templates (held fixed).")] = 0.93,
     rayleigh_fraction: Annotated[float, typer.Option(help="Share of scattering that is Rayleigh.")] = 0.17,
     refractive_index: Annotated[

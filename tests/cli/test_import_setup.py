@@ -122,3 +122,21 @@ def test_a_set_imported_again_with_another_setup_says_the_dive_keeps_its_own(
         assert live.setup.cameras["A"].distance_m == 10.0
     finally:
         store.close()
+
+
+def test_the_dive_fit_takes_the_sets_focal_length(imported: dict[str, object], tmp_path: Path) -> None:
+    """The set's cameras see 16° over 640 px (focal 2277 px, in its setup.json): `camcal fit` held
+    T-REX's 8709 px unless --focal-px said otherwise, and refused the dive ("the LEM's disk measures
+    49 px but ... 187 px"). It takes the setup's now."""
+    data = imported["data"]
+    setup = json.loads((Path(str(imported["folder"])) / "setup.json").read_text())
+    done = camcal_cli(
+        "fit", "--dive", str(imported["dive"]), "--data", str(data), "--wavelength", "460",
+        "--photons", "20000", "--sca-nodes", "40,70", "--cache-dir", str(tmp_path / "templates"),
+        "--workers", "2", "--quiet", "--no-systematics", "--no-store", "--json", str(tmp_path / "fit.json"),
+        timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    doc = json.loads((tmp_path / "fit.json").read_text())
+    assert doc["inputs"]["templates"]["focal_px"] == pytest.approx(setup["focal_px"])
+    assert [f["wavelength_nm"] for f in doc["fits"]] == [460]

@@ -20,7 +20,7 @@ from typing import Any
 from analysis.chisq import FitInputError
 from camcal.core import __version__
 from camcal.core.calibrations import setup_of
-from camcal.core.frameset import FrameSetError, ManifestRow, Setup, parse_setup
+from camcal.core.frameset import FrameSetError, ManifestRow, Setup
 from camcal.fitdoc import to_json
 from camcal.fitset import FitOptions, FolderFit, fit_analysis
 from camcal.pipeline import Overrides, analyze_rows
@@ -83,8 +83,7 @@ def run_calibration(
         if record is None:
             raise DiveLookupError(f"no calibration {calibration!r} (try `camcal calibration list`)")
         return setup_of(record), record
-    cal = store.call(queries.calibration_in_force, dive_id, run)
-    setup = parse_setup(cal, f"run {run['id']}") if cal else Setup()
+    setup = store.call(queries.setup_in_force, dive_id, run)
     record = store.call(queries.calibration, run["calibration_id"]) if run.get("calibration_id") else None
     return setup, record
 

@@ -12,6 +12,8 @@ import time
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from camcal.core.frameset import CLOCK_OFFSET_MAX_S
 from camcal.core.wire.limits import TIME_MIN_UNIX_S
 
@@ -322,12 +324,8 @@ def _slope_per_min(samples: list[tuple[float, float]]) -> float:
     0.3 %/min of noise on the rise, and a sealed housing's flat humidity raised the 0.5 %/min MAJOR
     leak alarm now and then (at `camcal up`'s start, cleared a second later).
     """
-    n = len(samples)
-    t_mean = sum(t for t, _ in samples) / n
-    v_mean = sum(v for _, v in samples) / n
-    stt = sum((t - t_mean) ** 2 for t, _ in samples)
-    stv = sum((t - t_mean) * (v - v_mean) for t, v in samples)
-    return 60.0 * stv / stt if stt > 0 else 0.0
+    t, v = np.array(samples, dtype=np.float64).T
+    return 60.0 * float(np.polyfit(t - t[0], v, 1)[0])  # as `ingest.derived` takes a depth rate
 
 
 def utc_minute(t_unix_s: float) -> str:

@@ -14,7 +14,6 @@ import pyarrow.parquet as pq
 from sqlalchemy import select
 
 from camcal.core.files import write_whole
-from camcal.core.frameset import Setup, parse_setup
 from storage import queries
 from storage.base import now_unix_s
 from storage.models import (
@@ -111,7 +110,7 @@ def _write_run(store: Store, dive_id: int, run_id: int, out: Path) -> list[Path]
         dive = queries.dive_record(s, dive_id) or {}
         run = queries.chosen_run(s, dive_id, run_id)
         cal = queries.calibration_in_force(s, dive_id, run)
-    setup = parse_setup(cal, f"run {run_id}") if cal else Setup()
+        setup = queries.setup_in_force(s, dive_id, run)
     about = {
         "dive": {"id": dive_id, "name": dive.get("name")},
         "run": {

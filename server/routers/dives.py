@@ -95,8 +95,7 @@ def run_setup(store: Store, dive_id: IdPath, run_id: int | None) -> tuple[int, S
         run = store.call(queries.chosen_run, dive_id, run_id)
     except queries.RunLookupError as exc:
         raise NotFound(str(exc)) from None
-    cal = store.call(queries.calibration_in_force, dive_id, run)
-    return run["id"], parse_setup(cal, f"run {run['id']}") if cal else Setup()
+    return run["id"], store.call(queries.setup_in_force, dive_id, run)
 
 
 @router.get("/api/dives/{dive_id}/attenuation", response_model=AttenuationTable)

@@ -61,6 +61,7 @@ from storage.queries.runs import (
     live_run_id,
     result_rows,
     runs,
+    setup_in_force,
     timeline,
 )
 from storage.queries.series import (
@@ -133,6 +134,7 @@ __all__ = [
     "runs",
     "schedule_version",
     "sensor_series",
+    "setup_in_force",
     "stored_checksums",
     "timeline",
     "visit_keys",

@@ -8,6 +8,7 @@ from typing import Any
 from sqlalchemy import and_, func, select
 from sqlalchemy.orm import Session
 
+from camcal.core.frameset import Setup, parse_setup
 from camcal.core.owner import gone
 from storage.base import now_unix_s
 from storage.models import (
@@ -114,6 +115,12 @@ def calibration_in_force(s: Session, dive_id: int, run: dict[str, Any]) -> dict[
         return dict(run["calibration"])
     dive = s.get(Dive, dive_id)
     return dict(dive.setup) if dive is not None and dive.setup else {}
+
+
+def setup_in_force(s: Session, dive_id: int, run: dict[str, Any]) -> Setup:
+    """`calibration_in_force` as the setup it describes (T-REX's where it is empty)."""
+    cal = calibration_in_force(s, dive_id, run)
+    return parse_setup(cal, f"run {run.get('id')}") if cal else Setup()
 
 
 def dive_by_name(s: Session, name: str) -> Dive | None:

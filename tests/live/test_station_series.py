@@ -220,7 +220,7 @@ def test_the_streamed_series_follows_the_drifting_water_with_honest_errors(stati
     assert min(p["n_frames"] for p in table) >= 2
 
 
-def test_the_check_fails_a_constant_series_and_one_with_errors_halved(station: dict[str, Any]) -> None:
+def test_the_check_fails_a_constant_series_and_errors_halved_or_doubled(station: dict[str, Any]) -> None:
     table = pq.read_table(station["export"] / "attenuation.parquet").to_pylist()
     sim = _simulation(station["epoch"])
     epoch = station["epoch"]
@@ -236,7 +236,9 @@ def test_the_check_fails_a_constant_series_and_one_with_errors_halved(station: d
     constant = [{**p, "lambda_att_m": means[p["wavelength_nm"]]} for p in table]
     halved = [{**p, "stat_err_m": p["stat_err_m"] / 2} for p in table]
     assert not check_series(constant, truth).passed
+    doubled = [{**p, "stat_err_m": p["stat_err_m"] * 2} for p in table]
     assert not check_series(halved, truth).passed
+    assert not check_series(doubled, truth).passed
 
 
 def test_reanalyze_gives_the_identical_series_from_the_same_frames(station: dict[str, Any]) -> None:

@@ -3,7 +3,10 @@
 The check of issue 12: per wavelength the RMS relative deviation from the
 truth is at most 2 % and at least 90 % of the points lie within 5 % of it;
 over all points 80-98 % lie within 2 σ (their statistical error) of it, so
-that errors neither claim too much (fewer within) nor too little (more); and
+that errors neither claim too much (fewer within) nor too little (more) -
+widened, for a sample of n points, to what honest errors (a true pull RMS
+of 0.8-1.25, i.e. 89-98.8 % within 2 σ) give in 99 % of samples: with 87
+points, 87 of 87 within is such a sample (the fixed band failed 9 % of honest synthetic samples); and
 the pulls (value − truth)/error have an RMS of 0.8-1.25 over all points, and
 per wavelength one that a true RMS of 0.8-1.25 gives in 99 % of samples of
 that many points (with 25 points a pull RMS is only known to ±14 %).
@@ -16,7 +19,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from scipy.stats import chi2
+from scipy.stats import binom, chi2, norm
 
 
 @dataclass(frozen=True)
@@ -52,8 +55,12 @@ class SeriesCheck:
             lo, hi = pull_rms_band(f.n)
             if not lo <= f.pull_rms <= hi:
                 out.append(f"{wl} nm: pull RMS {f.pull_rms:.2f} over {f.n} points (not {lo:.2f}-{hi:.2f})")
-        if not 0.80 <= self.within_2sigma <= 0.98:
-            out.append(f"{100 * self.within_2sigma:.1f} % of points within 2 σ (not 80-98 %)")
+        lo, hi = within_2sigma_band(self.n)
+        if not lo <= self.within_2sigma <= hi:
+            out.append(
+                f"{100 * self.within_2sigma:.1f} % of {self.n} points within 2 σ "
+                f"(not {100 * lo:.1f}-{100 * hi:.1f} %)"
+            )
         if not 0.8 <= self.pull_rms <= 1.25:
             out.append(f"pull RMS {self.pull_rms:.2f} over all {self.n} points (not 0.8-1.25)")
         return out
@@ -83,6 +90,19 @@ def pull_rms_band(n: int) -> tuple[float, float]:
     return (
         0.8 * math.sqrt(float(chi2.ppf(0.005, n)) / n),
         1.25 * math.sqrt(float(chi2.ppf(0.995, n)) / n),
+    )
+
+
+def within_2sigma_band(n: int) -> tuple[float, float]:
+    """The share of ``n`` points within 2 σ: 80-98 %, widened to what a sample of ``n`` shows in
+    99 % of cases when the true pull RMS is 0.8-1.25 (a true share of 89.0-98.8 %)."""
+    if n < 1:
+        return 0.0, 1.0
+    share_lo = 2.0 * float(norm.cdf(2.0 / 1.25)) - 1.0
+    share_hi = 2.0 * float(norm.cdf(2.0 / 0.8)) - 1.0
+    return (
+        min(0.80, float(binom.ppf(0.005, n, share_lo)) / n),
+        max(0.98, float(binom.ppf(0.995, n, share_hi)) / n),
     )
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
@@ -95,7 +95,12 @@ class RunPublic(BaseModel):
     id: int
     kind: str
     label: str
-    calibration: dict[str, Any]
+    calibration: dict[str, Any] = Field(description="the calibration the run stores ({}: none of its own)")
+    setup: dict[str, Any] = Field(
+        description="the setup.json values the run was analysed with: its calibration, else the dive's "
+        "own setup (an imported frame set's), else the defaults (T-REX's)"
+    )
+    setup_from: Literal["run", "dive", "defaults"]
     calibration_id: int | None
     software_version: str
     created_unix_s: float

@@ -109,16 +109,17 @@ def _write_run(store: Store, dive_id: int, run_id: int, out: Path) -> list[Path]
     with store.read() as s:
         dive = queries.dive_record(s, dive_id) or {}
         run = queries.chosen_run(s, dive_id, run_id)
-        cal = queries.calibration_in_force(s, dive_id, run)
         setup = queries.setup_in_force(s, dive_id, run)
     about = {
         "dive": {"id": dive_id, "name": dive.get("name")},
         "run": {
             k: run[k] for k in ("id", "kind", "label", "calibration_id", "software_version", "created_unix_s")
         },
-        "setup_from": "the run's calibration"
-        if run.get("calibration")
-        else ("the dive's own setup (imported)" if cal else "the defaults (T-REX)"),
+        "setup_from": {
+            "run": "the run's calibration",
+            "dive": "the dive's own setup (imported)",
+            "defaults": "the defaults (T-REX)",
+        }[run["setup_from"]],
         "exported_unix_s": now_unix_s(),
     }
     files = []

@@ -111,10 +111,20 @@ def calibration_in_force(s: Session, dive_id: int, run: dict[str, Any]) -> dict[
     it). Every reader of a run's calibration (the API's tables, the report, ``camcal fit --dive``,
     a re-analysis's start) takes it from here, so none falls back to T-REX's values alone.
     """
-    if run.get("calibration"):
-        return dict(run["calibration"])
     dive = s.get(Dive, dive_id)
-    return dict(dive.setup) if dive is not None and dive.setup else {}
+    values, source = _in_force(run.get("calibration") or {}, dive.setup if dive is not None else {})
+    return values if source != "defaults" else {}
+
+
+def _in_force(own: dict[str, Any], dive_setup: dict[str, Any] | None) -> tuple[dict[str, Any], str]:
+    """The setup.json values in force for a run and where they came from: ``run`` (its own
+    calibration), ``dive`` (the dive's own setup: an imported frame set's) or ``defaults`` (T-REX's,
+    written out whole so that a reader sees the values, not an empty record)."""
+    if own:
+        return dict(own), "run"
+    if dive_setup:
+        return dict(dive_setup), "dive"
+    return Setup().to_json(), "defaults"
 
 
 def setup_in_force(s: Session, dive_id: int, run: dict[str, Any]) -> Setup:
@@ -133,8 +143,9 @@ def runs(s: Session, dive_id: int) -> list[dict[str, Any]]:
     now = now_unix_s()
     out = []
     rows = s.scalars(select(AnalysisRun).where(AnalysisRun.dive_id == dive_id).order_by(AnalysisRun.id)).all()
-    # A re-analysis under way (or stopped) counts the results it has stored so far: its progress.
-    counting = [r.id for r in rows if r.kind != "live" and r.status != "done"]
+    # A re-analysis under way (or stopped) counts the results it has stored so far (its progress);
+    # the live run, never finished, the results the ingest and imports have stored.
+    counting = [r.id for r in rows if r.kind == "live" or r.status != "done"]
     stored = dict(
         s.execute(
             select(FrameResult.run_id, func.count())
@@ -144,14 +155,20 @@ def runs(s: Session, dive_id: int) -> list[dict[str, Any]]:
         if counting
         else []
     )
+    dive = s.get(Dive, dive_id)
+    dive_setup = dive.setup if dive is not None and isinstance(dive.setup, dict) else {}
     for r in rows:
         status, note = run_status(r, now)
+        own = r.calibration if isinstance(r.calibration, dict) else {}
+        setup, setup_from = _in_force(own, dive_setup)
         out.append(
             {
                 "id": r.id,
                 "kind": r.kind,
                 "label": r.label,
-                "calibration": r.calibration if isinstance(r.calibration, dict) else {},
+                "calibration": own,
+                "setup": setup,
+                "setup_from": setup_from,
                 "calibration_id": r.calibration_id,
                 "software_version": r.software_version,
                 "created_unix_s": r.created_unix_s,

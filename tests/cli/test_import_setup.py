@@ -61,6 +61,21 @@ def test_the_review_pages_table_uses_the_sets_distances(imported: dict[str, obje
         assert rows[wl]["lambda_att_m"] == pytest.approx(lam, rel=0.03), (wl, rows[wl], lam)
 
 
+def test_the_runs_say_what_the_live_run_analysed_and_with_what(imported: dict[str, object]) -> None:
+    # The live run read "0 frames" for every dive: the count was only kept for re-analyses. And an
+    # imported dive's live run stores no calibration of its own: the review page's runs table showed
+    # no distances and its re-analysis form ("start from the live run's calibration") came up empty.
+    data = imported["data"]
+    assert isinstance(data, Path)
+    with TestClient(create_app(ServerSettings(data_dir=data, events=None))) as client:
+        (dive,) = [d for d in client.get("/api/dives").json() if d["name"] == imported["dive"]]
+        (live,) = [r for r in client.get(f"/api/dives/{dive['id']}/runs").json() if r["kind"] == "live"]
+    assert dive["n_frames"] == 48
+    assert live["n_frames"] == 48
+    assert live["calibration"] == {} and live["setup_from"] == "dive"
+    assert {c: v["distance_m"] for c, v in live["setup"]["cameras"].items()} == DISTANCES_M
+
+
 def test_the_report_and_the_dive_fit_use_the_sets_setup(imported: dict[str, object]) -> None:
     data, truth = imported["data"], imported["truth"]
     assert isinstance(data, Path) and isinstance(truth, dict)

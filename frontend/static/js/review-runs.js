@@ -2,7 +2,7 @@
 // their progress, and two runs' λ_att side by side.
 
 import { api, operator, query } from "./api.js";
-import { fmt, utc, wlColor } from "./format.js";
+import { fmt, plural, utc, wlColor } from "./format.js";
 import { mountSpan, runLabel, spanParams } from "./review-analysis.js";
 import { $, el, lrm, toast } from "./ui.js";
 
@@ -28,12 +28,15 @@ function pair(label, name, value, err, unit) {
   );
 }
 
+/** Where a run's values came from, when not from the run itself. */
+const FROM = { dive: " (the frame set's setup.json)", defaults: " (T-REX's defaults)" };
+
 /** The form, filled with the live run's calibration: change what you want to try. */
 function buildForm(ctx, from = null) {
   const f = $("#reanalysis-form");
   const live = ctx.runs.find((r) => r.id === ctx.liveRunId) || ctx.runs[0];
   const record = from === null ? null : calibrations.find((c) => c.id === from);
-  const cal = record ? record.values?.setup || {} : live?.calibration || {};
+  const cal = record ? record.values?.setup || {} : live?.setup || live?.calibration || {};
   const cams = cal.cameras || {};
   const ratios = cal.emission_ratio || {};
   const [lo, hi] = cal.linear_range || [5, 240];
@@ -41,7 +44,7 @@ function buildForm(ctx, from = null) {
   const start = el(
     "select",
     { name: "from", "aria-label": "start from", onchange: (ev) => buildForm(ctx, ev.target.value ? Number(ev.target.value) : null) },
-    el("option", { value: "" }, "the live run's calibration"),
+    el("option", { value: "" }, `the live run's calibration${FROM[live?.setup_from] || ""}`),
     ...calibrations.map((c) => el("option", { value: c.id }, `calibration record ${c.name} v${c.version}${c.source ? ` (${c.source})` : ""}`)),
   );
   start.value = record ? String(record.id) : "";
@@ -162,7 +165,7 @@ async function start(ctx, body, button) {
 
 /** The same re-analysis again, for one that did not finish: its calibration, its record, its name. */
 function runAgain(ctx, r) {
-  const c = r.calibration || {};
+  const c = r.setup || r.calibration || {};
   const body = {
     label: `${r.label || `run #${r.id}`} (again)`.slice(0, 200),
     cameras: Object.fromEntries(
@@ -209,7 +212,7 @@ function renderRuns(ctx) {
       "tbody",
       {},
       ...ctx.runs.map((r) => {
-        const c = r.calibration || {};
+        const c = r.setup || r.calibration || {};
         return el(
           "tr",
           { "data-run-id": r.id },
@@ -218,7 +221,7 @@ function renderRuns(ctx) {
           el("td", {}, r.label || "–"),
           el("td", {}, utc(r.created_unix_s)),
           statusCell(ctx, r),
-          el("td", { class: "r" }, r.kind === "live" ? "–" : progress(ctx, r)),
+          el("td", { class: "r" }, r.kind === "live" ? `${r.n_frames} of ${plural(ctx.dive.n_frames || 0, "frame")}` : progress(ctx, r)),
           el("td", { style: { whiteSpace: "normal" } }, Object.entries(c.cameras || {}).map(([m, d]) => `${m} ${fmt(d.distance_m, 2)}±${fmt(d.distance_err_m, 2)}` + (d.clock_offset_s ? ` (clock ${d.clock_offset_s > 0 ? "+" : ""}${fmt(d.clock_offset_s, 1)} s)` : "")).join(", ")),
           el("td", { style: { whiteSpace: "normal" } }, Object.entries(c.emission_ratio || {}).map(([wl, e]) => `${wl}: ${fmt(e.value, 2)}`).join(", ")),
           el("td", {}, c.linear_range ? `${c.linear_range[0]}–${c.linear_range[1]}` : "–"),

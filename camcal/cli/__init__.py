@@ -97,6 +97,7 @@ COMMANDS: tuple[tuple[str, str, str], ...] = (
         "calibrate",
         "Lab calibrations of the camera system: one subcommand per experiment, each on a frame set.",
     ),
+    ("dive", "dive", "The dives in the store: list them, end one."),
     ("calibration", "calibration", "Versioned calibration records: add, list, show."),
     ("config", "config", "The configuration: CAMCAL_ environment variables and an optional TOML file."),
 )

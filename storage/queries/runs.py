@@ -94,6 +94,14 @@ def dives(s: Session, dive_id: int | None = None) -> list[dict[str, Any]]:
     ]
 
 
+def last_received_unix_s(s: Session, dive_id: int) -> float | None:
+    """When the ship last received a frame of the dive over the link (None: never; imports do not
+    count): a recent one says an ingest is recording into it."""
+    return s.scalar(
+        select(func.max(Frame.received_unix_s)).where(Frame.dive_id == dive_id, Frame.source != "import")
+    )
+
+
 def dive_record(s: Session, dive_id: int) -> dict[str, Any] | None:
     """One dive as `dives` lists it (frame count, time range, deepest depth), with its setup."""
     rows = dives(s, dive_id)

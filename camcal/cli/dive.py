@@ -1,0 +1,135 @@
+"""``camcal dive``: the dives in the store, and ending one so that the next deployment is a new dive.
+
+An ingest (and ``camcal up``) without a dive name records into the open
+dive, the newest one not ended, and starts a new one only when there is
+none: without an end, the next deployment's frames join the last one's.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from camcal.cli.common import DataOption, DbUrlOption, console, fail
+from camcal.cli.data import open_store, store_location
+
+app = typer.Typer(help="The dives in the store: list them, end one.", no_args_is_help=True)
+
+#: Frames received into a dive this recently may come from an ingest still recording into it.
+RECORDING_S = 120.0
+
+
+def register(parent: typer.Typer) -> None:
+    parent.add_typer(app, name="dive")
+
+
+def _recording_here(data: Path) -> list[str]:
+    """The ``camcal ingest`` and ``camcal up`` processes on this machine that may record into the
+    store of ``data`` (one naming another ``--data`` folder does not), as "pid N: camcal ..."."""
+    from camcal.core import procinfo
+
+    out = []
+    for c in procinfo.camcal_processes():
+        if c.kind not in ("camcal ingest", "camcal up") or c.leftover:
+            continue
+        words = c.args.split()
+        if "--data" in words[:-1] and Path(words[words.index("--data") + 1]).resolve() != data.resolve():
+            continue
+        out.append(f"pid {c.process.pid}: camcal {procinfo.short(c.args, 60)}")
+    return out
+
+
+def _utc(t: float | None) -> str:
+    return time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime(t)) if t else "—"
+
+
+@app.command("list")
+def list_cmd(
+    data: DataOption = None,
+    db_url: DbUrlOption = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the dives as JSON.")] = False,
+) -> None:
+    """Every dive, newest first: frames, time span, deepest frame, open or ended."""
+    from storage import queries
+
+    store = open_store(data, db_url)
+    try:
+        dives = store.call(queries.dives)
+    finally:
+        store.close()
+    if as_json:
+        print(json.dumps(dives, indent=1))
+        return
+    t = Table(title="dives", title_justify="left")
+    for col in ("id", "name", "frames", "first frame (UTC)", "last frame (UTC)", "deepest", "state"):
+        t.add_column(col)
+    for d in dives:
+        t.add_row(
+            str(d["id"]),
+            d["name"],
+            str(d["n_frames"]),
+            _utc(d["first_frame_unix_s"]),
+            _utc(d["last_frame_unix_s"]),
+            f"{d['max_depth_m']:.0f} m" if d["max_depth_m"] is not None else "—",
+            f"ended {_utc(d['ended_unix_s'])}" if d["ended_unix_s"] else "open",
+        )
+    console.print(t)
+
+
+@app.command("end")
+def end(
+    name: Annotated[str | None, typer.Argument(help="The dive to end (default: the open one).")] = None,
+    force: Annotated[
+        bool, typer.Option(help="End it although frames are still arriving into it (an ingest is running).")
+    ] = False,
+    actor: Annotated[str, typer.Option(help="Who ends it (for the audit log).")] = "cli",
+    data: DataOption = None,
+    db_url: DbUrlOption = None,
+) -> None:
+    """End a dive: the next ingest or `camcal up` without a dive name records into a new one."""
+    from storage import queries
+
+    store = open_store(data, db_url)
+    try:
+        dive = store.call(queries.dive_by_name, name) if name else store.current_dive(create=False)
+        if dive is None:
+            raise fail(f"no dive named {name!r} (`camcal dive list` lists them)" if name else "no open dive")
+        if dive.ended_unix_s:
+            console.print(f"dive {dive.name} ended at {_utc(dive.ended_unix_s)} UTC already: nothing to do")
+            return
+        record = store.call(queries.dive_record, dive.id) or {}
+        recorders = _recording_here(store_location(data, db_url)[0])
+        if recorders and not force:
+            raise fail(
+                f"an ingest on this machine may be recording into dive {dive.name} "
+                f"({'; '.join(recorders)}): stop it first (Ctrl-C on `camcal up` or `camcal ingest`), then "
+                "end the dive; --force ends it anyway (the running ingest keeps recording into it until it "
+                "restarts)",
+                code=1,
+            )
+        received = store.call(queries.last_received_unix_s, dive.id)
+        store.end_dive(dive.id)
+        store.audit(
+            actor,
+            "dive.end",
+            dive.name,
+            {"n_frames": record.get("n_frames", 0), "last_frame_unix_s": record.get("last_frame_unix_s")},
+        )
+    finally:
+        store.close()
+    ago = time.time() - received if received else None
+    if ago is not None and ago < RECORDING_S and not recorders:
+        console.print(
+            f"note: its last frame arrived {ago:.0f} s ago; an ingest on another machine (a shared "
+            "database) keeps recording into it until that ingest restarts"
+        )
+    console.print(
+        f"dive {dive.name} ended ({record.get('n_frames', 0)} frames, the last at "
+        f"{_utc(record.get('last_frame_unix_s'))} UTC): the next `camcal up` or `camcal ingest` without a "
+        "dive name records into a new dive"
+    )

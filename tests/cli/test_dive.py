@@ -1,0 +1,88 @@
+"""`camcal dive list` and `camcal dive end` against a real ingest process and a module streaming to it.
+
+Without an end, an ingest (and `camcal up`) started for the next deployment recorded into the
+last dive still open: two deployments' frames in one dive. `camcal dive end` ends it, refusing
+while an ingest on this machine serves the store, and the next ingest starts a new dive.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+from pathlib import Path
+
+from storage import queries
+from storage.store import Store
+from tests.live.test_faults import free_port
+from tests.utils.live import camcal_cli, make_agent, start_ingest, wait_for
+
+
+def _stop(proc: subprocess.Popen[bytes]) -> None:
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(20)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(5)
+
+
+def _dives(data: Path) -> list[dict[str, object]]:
+    done = camcal_cli("dive", "list", "--json", "--data", str(data))
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout)
+
+
+def test_a_dive_ends_once_its_ingest_stopped_and_the_next_ingest_starts_a_new_one(tmp_path: Path) -> None:
+    data = tmp_path / "data"
+    port, events = free_port(), free_port()
+    ingest = start_ingest(data, port, events)
+    agent, _ = make_agent("A", f"tcp://127.0.0.1:{port}", tmp_path / "outbox", keys_dir=data / "keys")
+    try:
+        agent.start()
+        assert wait_for(lambda: agent.counters["acked"] >= 4, 60), (tmp_path / "ingest.log").read_text()
+        (first,) = _dives(data)
+        assert first["ended_unix_s"] is None and first["n_frames"] >= 4
+
+        refused = camcal_cli("dive", "end", "--data", str(data))
+        assert refused.returncode == 1
+        said = " ".join(refused.stderr.split())
+        assert f"pid {ingest.pid}" in said and "stop it first" in said, said
+        assert _dives(data)[0]["ended_unix_s"] is None
+    finally:
+        agent.stop()
+        _stop(ingest)
+
+    ended = camcal_cli("dive", "end", "--data", str(data))
+    assert ended.returncode == 0, ended.stderr
+    assert f"dive {first['name']} ended" in " ".join(ended.stdout.split())
+    (d,) = _dives(data)
+    assert d["ended_unix_s"] is not None
+    again = camcal_cli("dive", "end", str(first["name"]), "--data", str(data))
+    assert again.returncode == 0 and "already" in again.stdout
+    store = Store.open(data)
+    try:
+        (entry,) = [a for a in store.call(queries.audit) if a["action"] == "dive.end"]
+        assert entry["target"] == first["name"] and entry["details"]["n_frames"] == d["n_frames"]
+    finally:
+        store.close()
+
+    ingest = start_ingest(data, port, events, log="ingest-2.log")
+    try:
+        assert wait_for(lambda: len(_dives(data)) == 2, 60), (tmp_path / "ingest-2.log").read_text()
+    finally:
+        _stop(ingest)
+    new, old = _dives(data)
+    assert old["name"] == first["name"] and old["n_frames"] == d["n_frames"] >= first["n_frames"]
+    assert new["name"] != first["name"] and new["ended_unix_s"] is None
+
+
+def test_ending_names_what_it_cannot_end(tmp_path: Path) -> None:
+    data = tmp_path / "data"
+    Store.open(data).close()  # a store without a dive
+    none = camcal_cli("dive", "end", "--data", str(data))
+    assert none.returncode == 2 and "no open dive" in none.stderr
+    unknown = camcal_cli("dive", "end", "leg-9", "--data", str(data))
+    assert unknown.returncode == 2 and "no dive named 'leg-9'" in unknown.stderr
+    assert "camcal dive list" in unknown.stderr

@@ -46,7 +46,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from analysis import FrameRecord, Setting, analyze_frame, stack_by_setting
 from analysis.attenuation import EmissionRatio, Geometry
-from analysis.chisq import FitConfig, FitInputError, SettingProfiles, collect_settings, fit_wavelength
+from analysis.chisq import (
+    NUISANCE_FLAG_SIGMA,
+    FitConfig,
+    FitInputError,
+    SettingProfiles,
+    collect_settings,
+    fit_wavelength,
+)
 from analysis.chisq.systematics import SystematicsConfig, systematic_budget, variation_settings
 from analysis.scattering import WaterOptics
 from analysis.transport.cache import TemplateCache
@@ -249,6 +256,12 @@ def run_job(job: Job) -> dict[str, object]:
                 },
                 "chi2_ndof": fit.chi2_ndof,
                 "error_scale": fit.error_scale,
+                # How far the fit moved each calibration it floats, in σ of its prior: beyond
+                # NUISANCE_FLAG_SIGMA `camcal fit` flags the wavelength ("calibration FLAGGED").
+                "nuisance_pulls": {n.name: n.pull for n in fit.nuisances},
+                "nuisance_strained": bool(fit.strained_nuisances),
+                "nuisance_flagged": fit.calibration_flagged,
+                "phase_relief": fit.phase_relief,
                 "truth_phase": list(phase),
             }
         )
@@ -287,6 +300,8 @@ def summarise(res: dict[str, object]) -> dict[str, object]:
             s[f"{key}_pull_rms"] = float(np.sqrt(np.mean(pulls**2)))
             s[f"{key}_rel_err"] = float(np.mean(tot) / truth)
     s["chi2_ndof_median"] = float(statistics.median(r["chi2_ndof"] for r in fits)) if fits else float("nan")
+    s["nuisance_flagged"] = sum(bool(r.get("nuisance_flagged")) for r in fits)
+    s["nuisance_strained"] = sum(bool(r.get("nuisance_strained")) for r in fits)
     return s
 
 
@@ -422,6 +437,7 @@ def report(results: list[dict[str, object]], t_fit: float, t_var: float, args: a
         "χ²/ndof med",
         "abs limits",
         "σ_tot abs/sca",
+        "calibration flagged (strained at nominal phase)",
     )
     print("| " + " | ".join(head) + " |")
     print("|" + "---|" * len(head))
@@ -435,7 +451,8 @@ def report(results: list[dict[str, object]], t_fit: float, t_var: float, args: a
         print(
             f"| {res['water']} | {res['wavelength_nm']} | {a:g}/{sc:g} | {_pct(s, 'abs_bias')} | "
             f"{_pct(s, 'sca_bias')} | {_pull(s, 'abs')} | {_pull(s, 'sca')} | {s['chi2_ndof_median']:.2f} | "
-            f"{s['abs_limits']} ({s['abs_limits_correct']} correct) | {errs} |"
+            f"{s['abs_limits']} ({s['abs_limits_correct']} correct) | {errs} | "
+            f"{s['nuisance_flagged']}/{s['n']} ({s['nuisance_strained']}) |"
         )
         for name, ok in verdicts(res, s):
             n_all += 1
@@ -444,6 +461,7 @@ def report(results: list[dict[str, object]], t_fit: float, t_var: float, args: a
     print()
     print("\n".join(lines))
     print(f"\n{n_pass}/{n_all} targets met")
+    nuisance_report(results)
     fit_s = [r.get("fit_seconds") for r in results if r.get("fit_seconds")]
     bud_s = [r.get("budget_seconds") for r in results if r.get("budget_seconds")]
     if fit_s and bud_s:
@@ -451,6 +469,25 @@ def report(results: list[dict[str, object]], t_fit: float, t_var: float, args: a
             f"one wavelength: fit {statistics.median(fit_s):.1f} s + budget {statistics.median(bud_s):.1f} s "
             f"(median; three wavelengths run on {args.workers} workers); templates: fit {t_fit:.0f} s, "
             f"budget variants {t_var:.0f} s (one-off)"
+        )
+
+
+def nuisance_report(results: list[dict[str, object]]) -> None:
+    """How far the fits moved each floated calibration (σ of its prior) over all frame sets: honest
+    fits of frames the fit did not make should rarely pass NUISANCE_FLAG_SIGMA."""
+    pulls: dict[str, list[float]] = {}
+    for res in results:
+        for r in res["fits"]:  # type: ignore[attr-defined]
+            for name, q in r.get("nuisance_pulls", {}).items():
+                pulls.setdefault(name, []).append(float(q))
+    if not pulls:
+        return
+    print(f"\nnuisance pulls over all fits (flag beyond {NUISANCE_FLAG_SIGMA:g}σ):")
+    for name, qs in sorted(pulls.items()):
+        arr = np.array(qs)
+        print(
+            f"  {name:16s} n {arr.size:3d}  mean {arr.mean():+.2f}  RMS {np.sqrt(np.mean(arr**2)):.2f}  "
+            f"max |pull| {np.max(np.abs(arr)):.2f}  beyond: {int(np.sum(np.abs(arr) > NUISANCE_FLAG_SIGMA))}"
         )
 
 

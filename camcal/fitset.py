@@ -116,7 +116,10 @@ class AttenuationCheck:
     its lab value, a distance metres off): the frames do not follow the
     model with the calibration as given, whatever the λ_att check says
     (a wide systematic error on the fit's λ_att can hide it there).
-    ``nuisance_advice`` says so and what to look at.
+    ``nuisance_advice`` says so and what to look at. Unless ``relief``
+    (`SystematicBudget.phase_relief`): a phase function the data allow keeps
+    every calibration within 3σ, so the phase function, which the budget's
+    phase line covers, moved them; not flagged, and the advice says so.
     """
 
     lambda_att_fit_m: float
@@ -125,6 +128,7 @@ class AttenuationCheck:
     lambda_att_icenter_err_m: float | None
     z: float | None
     strained: tuple[Nuisance, ...] = ()
+    relief: tuple[str, float, float] | None = None
 
     @property
     def agrees(self) -> bool | None:
@@ -157,7 +161,7 @@ class AttenuationCheck:
 
     @property
     def nuisances_flagged(self) -> bool:
-        return bool(self.strained)
+        return bool(self.strained) and self.relief is None
 
     @property
     def nuisance_advice(self) -> str | None:
@@ -165,6 +169,15 @@ class AttenuationCheck:
         if not self.strained:
             return None
         moved = "; ".join(_moved(n) for n in self.strained)
+        if self.relief is not None:
+            case, dchi2, pull = self.relief
+            g, _, share = case.partition("/")
+            return (
+                f"at the nominal phase function the fit moved {moved}; refitted at ⟨cos θ⟩ {g}, Rayleigh "
+                f"share {share} (the data allow it: Δχ² {dchi2:+.1f}) every calibration stays within "
+                f"{pull:.1f}σ: the phase function moved them, and the budget's phase line covers it. Not "
+                "flagged; a water whose ⟨cos θ⟩ is known makes the fit tighter (--mie-g)."
+            )
         return (
             f"the fit moved {moved}: the frames do not follow the model with the calibration as "
             "given, so do not quote λ_abs and λ_sca from this fit. Check the values it moved where they "
@@ -222,7 +235,7 @@ def _check(fit: ChiSquareFit, att: AttenuationResult | None) -> AttenuationCheck
     fit_err = math.hypot(fit.lambda_att_err_m, fit.lambda_att_sys_err_m)
     strained = fit.strained_nuisances
     if att is None or att.lambda_att_m is None or att.total_err_m is None:
-        return AttenuationCheck(fit.lambda_att_m, fit_err, None, None, None, strained)
+        return AttenuationCheck(fit.lambda_att_m, fit_err, None, None, None, strained, fit.phase_relief)
     err = math.hypot(fit_err, att.total_err_m)
     z = float((fit.lambda_att_m - att.lambda_att_m) / err) if err > 0 else None
     return AttenuationCheck(
@@ -232,6 +245,7 @@ def _check(fit: ChiSquareFit, att: AttenuationResult | None) -> AttenuationCheck
         float(att.total_err_m),
         z,
         strained,
+        fit.phase_relief,
     )
 
 

@@ -262,6 +262,12 @@ class SystematicBudget:
     #: the mean over the nominal and the template samples (the ``template_sample`` line), whose
     #: error that line carries.
     sample_move_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: A phase function the data allow (its refit within Δχ²/s² ≤ 2.30 of the nominal) at which every
+    #: floated calibration stays within `NUISANCE_FLAG_SIGMA`: (case "⟨cos θ⟩/Rayleigh share",
+    #: Δχ²/s², the largest |nuisance pull| there). None: no phase refit does that, or none was made.
+    #: Nuisances strained at the nominal phase function but not there are the phase function's doing
+    #: (the budget's phase line covers it), not a calibration's.
+    phase_relief: tuple[str, float, float] | None = None
 
     def _sum(self, attr: str) -> float:
         return _quadrature([getattr(i, attr) for i in self.items if not i.profiled])
@@ -353,6 +359,17 @@ class ChiSquareFit:
         """The nuisances the fit moved beyond `NUISANCE_FLAG_SIGMA` of their priors, worst first."""
         strained = [n for n in self.nuisances if abs(n.pull) > NUISANCE_FLAG_SIGMA]
         return tuple(sorted(strained, key=lambda n: -abs(n.pull)))
+
+    @property
+    def phase_relief(self) -> tuple[str, float, float] | None:
+        """`SystematicBudget.phase_relief` of the budget attached (None without one)."""
+        return None if self.systematics is None else self.systematics.phase_relief
+
+    @property
+    def calibration_flagged(self) -> bool:
+        """Nuisances strained beyond `NUISANCE_FLAG_SIGMA` that no phase function the data allow
+        relieves: the frames do not follow the model with the calibration as given."""
+        return bool(self.strained_nuisances) and self.phase_relief is None
 
     def with_budget(self, budget: SystematicBudget) -> ChiSquareFit:
         """This fit with the systematic budget attached and its sums as the systematic errors.

@@ -56,14 +56,16 @@ import numpy as np
 from analysis.attenuation import EmissionRatio
 from analysis.chisq.data import SettingProfiles
 from analysis.chisq.posterior import marginal_posterior
+from analysis.chisq.refit import Refitter
 from analysis.chisq.results import (
+    DCHI2_2D_68,
     LOWER_LIMIT,
+    NUISANCE_FLAG_SIGMA,
     UPPER_LIMIT,
     ChiSquareFit,
     SystematicBudget,
     SystematicShift,
 )
-from analysis.chisq.wavelength import make_objective
 from analysis.transport.templates import TemplateGrid, TemplateSettings
 
 
@@ -202,60 +204,6 @@ def variation_settings(
 SAMPLE_SEED_STEP = 7919
 
 
-class _Refitter:
-    """Refits of one wavelength's data from the nominal minimum, with some inputs replaced."""
-
-    def __init__(self, fit: ChiSquareFit, settings: Sequence[SettingProfiles], grid: TemplateGrid) -> None:
-        self.settings = settings
-        self.inputs: dict[str, object] = {
-            "grid": grid,
-            "geometry": fit.geometry,
-            "ratio": fit.emission_ratio,
-            "config": fit.config,
-        }
-        self.start = np.log([fit.lambda_abs_m, fit.lambda_sca_m])
-        # A length the fit only bounds gets no shift: its minimum sits on the grid's edge.
-        self.mask = np.array(
-            [1.0 if fit.lambda_abs.measured else np.nan, 1.0 if fit.lambda_sca.measured else np.nan, 1.0, 1.0]
-        )
-        self.n_refits = 0
-        self.edge_hits = 0
-        self._refs: dict[str, np.ndarray] = {}
-        self._disks: dict = {}  # type: ignore[type-arg]
-
-    def __call__(self, **replaced: object) -> np.ndarray:
-        """(λ_abs, λ_sca, λ_att, χ²) of the minimum with ``replaced`` inputs, found from the nominal one."""
-        kw = {**self.inputs, **replaced}
-        obj = make_objective(
-            self.settings,
-            kw["grid"],  # type: ignore[arg-type]
-            kw["geometry"],  # type: ignore[arg-type]
-            kw["ratio"],  # type: ignore[arg-type]
-            kw["config"],  # type: ignore[arg-type]
-            self._disks,
-        )
-        p = obj.minimise(self.start, near=True)
-        best = np.exp(p)
-        self.n_refits += 1
-        if obj.on_edge(float(p[1]), 1) or obj.on_edge(float(p[0]), 0):
-            self.edge_hits += 1
-        return np.array([best[0], best[1], 1.0 / (1.0 / best[0] + 1.0 / best[1]), obj(p)])
-
-    def reference(self, **replaced: object) -> np.ndarray:
-        key = repr(sorted(replaced.items()))
-        if key not in self._refs:
-            self._refs[key] = self(**replaced)
-        return self._refs[key]
-
-    def shifts(
-        self, cases: Sequence[tuple[str, Mapping[str, object]]], reference: Mapping[str, object] | None = None
-    ) -> np.ndarray:
-        """(case, [Δλ_abs, Δλ_sca, Δλ_att, Δχ²]) against the reference refit (NaN for a bounded length)."""
-        ref = self.reference(**(reference or {}))
-        # Every case goes through the same memo: a case equal to the reference is not refitted.
-        return np.array([(self.reference(**kw) - ref) * self.mask for _, kw in cases])
-
-
 def _shift_item(
     name: str,
     label: str,
@@ -332,10 +280,11 @@ def systematic_budget(
     """
     config = config or SystematicsConfig()
     t0 = time.perf_counter()
-    refit = _Refitter(fit, settings, grid)
+    refit = Refitter(fit, settings, grid)
     cfg = fit.config
     items: list[SystematicShift] = []
     limits: tuple[float | None, float | None] = (None, None)
+    relief: tuple[str, float, float] | None = None
     move = (0.0, 0.0, 0.0)
     g0, r0 = fit.mie_g, grid.settings.rayleigh_fraction
     gs, rs = config.mie_g_values(g0), config.rayleigh_values(r0)
@@ -369,6 +318,7 @@ def systematic_budget(
         if refit.edge_hits > hits:
             note += EDGE_NOTE
         limits = phase_limits(fit, [refit.reference(**kw) for _, kw in cases])
+        relief = _phase_relief(fit, refit, cases, d)
         for k, lim in enumerate(limits):
             if lim is not None:
                 name = ("λ_abs", "λ_sca")[k]
@@ -421,7 +371,29 @@ def systematic_budget(
     label = "templates' accuracy (quadrature near the limb, MC normalisation)"
     items.append(_shift_item("template_accuracy", label, [(f"±{100 * rel:g} %", {})], acc, _largest(acc)))
     items += _profiled_impacts(fit, refit)
-    return SystematicBudget(tuple(items), time.perf_counter() - t0, limits, move)
+    return SystematicBudget(tuple(items), time.perf_counter() - t0, limits, move, relief)
+
+
+def _phase_relief(
+    fit: ChiSquareFit,
+    refit: Refitter,
+    cases: Sequence[tuple[str, Mapping[str, object]]],
+    d: np.ndarray,
+) -> tuple[str, float, float] | None:
+    """Where the fit strained a calibration at the nominal phase function: the data-allowed phase
+    refit (Δχ²/s² ≤ `DCHI2_2D_68`, two parameters) with the smallest largest nuisance pull, if that
+    one keeps every nuisance within `NUISANCE_FLAG_SIGMA` (`SystematicBudget.phase_relief`)."""
+    if not fit.strained_nuisances:
+        return None
+    best: tuple[str, float, float] | None = None
+    for (case, kw), row in zip(cases, d, strict=True):
+        dchi2 = float(row[3]) / fit.error_scale**2
+        if not dchi2 <= DCHI2_2D_68:
+            continue
+        pull = refit.max_pull(**kw)
+        if pull <= NUISANCE_FLAG_SIGMA and (best is None or pull < best[2]):
+            best = (case, dchi2, pull)
+    return best
 
 
 def template_sample_mean(d: np.ndarray, *, average: bool = True) -> tuple[np.ndarray, np.ndarray]:
@@ -441,7 +413,7 @@ def template_sample_mean(d: np.ndarray, *, average: bool = True) -> tuple[np.nda
     return np.where(ok, one / math.sqrt(n + 1), one), move
 
 
-def _profiled_impacts(fit: ChiSquareFit, refit: _Refitter) -> list[SystematicShift]:
+def _profiled_impacts(fit: ChiSquareFit, refit: Refitter) -> list[SystematicShift]:
     """Impacts of the floated nuisances: held at nominal ± 1σ, against held at nominal."""
     geo, ratio, cfg = fit.geometry, fit.emission_ratio, fit.config
     out = []

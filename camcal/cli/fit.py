@@ -296,6 +296,8 @@ def print_fits(result: FolderFit) -> None:
             console.print(f"[bold red]{wl} nm flagged:[/] {chk.advice}")
         if chk.nuisances_flagged:
             console.print(f"[bold red]{wl} nm flagged:[/] {chk.nuisance_advice}")
+        elif chk.nuisance_advice:  # strained at the nominal phase function only
+            console.print(f"[yellow]{wl} nm note:[/] {chk.nuisance_advice}")
     for wl, why in sorted(result.notes.items()):
         console.print(f"[yellow]{wl} nm:[/] {why}")
     for wl, why in sorted(result.skipped.items()):

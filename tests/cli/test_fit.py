@@ -286,6 +286,25 @@ def test_a_distance_the_frames_contradict_is_flagged_in_the_json_the_cli_and_the
     assert "460 nm flagged.</b> The fit moved the near camera&#x27;s distance" in report, report[:3000]
 
 
+def test_a_wrong_distance_stays_flagged_when_the_phase_function_is_varied(
+    frameset: Path, cache_dir: Path, tmp_path: Path
+) -> None:
+    """The budget refits at other phase functions may relieve a calibration the nominal fit strained
+    (then the phase function moved it: not flagged). A distance 0.34 m off is not the phase
+    function's doing: no data-allowed refit keeps every calibration within 3σ, so it stays flagged."""
+    folder = Path(shutil.copytree(frameset, tmp_path / "wrong-distance"))
+    setup = json.loads((folder / "setup.json").read_text())
+    setup["cameras"]["A"]["distance_m"] = 21.9
+    (folder / "setup.json").write_text(json.dumps(setup))
+    cache = shutil.copytree(cache_dir, tmp_path / "cache")
+    args = fit_args(folder, cache, "--json", str(tmp_path / "fit.json"), "--sys-photon-factor", "0.5")
+    code, output = run(*args)
+    assert code == 0, output
+    (res,) = json.loads((tmp_path / "fit.json").read_text())["fits"]
+    assert res["nuisance_check_relief"] is None
+    assert res["nuisance_check_flagged"] is True, res["nuisance_check_advice"]
+
+
 def test_one_camera_missing(frameset: Path, cache_dir: Path, tmp_path: Path) -> None:
     only_a = subset(frameset, tmp_path / "a", lambda r: r["camera"] == "A")
     code, output = run(*fit_args(only_a, cache_dir))

@@ -110,7 +110,7 @@ def up(
     logs = data_dir / "logs"
     try:
         logs.mkdir(parents=True, exist_ok=True)
-        dive = up_dive(s)  # creates or migrates the database before anyone uses it
+        dive, dive_line = up_dive(s)  # creates or migrates the database before anyone uses it
     except Exception as exc:
         http_sock.close()
         raise fail(f"cannot open the store in {data_dir}: {exc}", code=supervise.EXIT_NOT_STARTED) from None
@@ -129,6 +129,7 @@ def up(
     code = supervise.EXIT_OK
     parts = "the ingest, the dashboard" + (f" and modules {' and '.join(MODULES)}" if profile else "")
     console.print(f"starting {parts} (data in {data_dir}) ...")
+    console.print(dive_line)
     try:
         t_spawn = time.monotonic()
         ingest = sup.spawn(
@@ -187,18 +188,28 @@ def ingest_args(data_dir: Path, bind: str, events: str, dive: str) -> list[str]:
     return ["ingest", "--data", str(data_dir), "--bind", bind, "--events", events, "--dive", dive]
 
 
-def up_dive(settings: Settings) -> str:
+def up_dive(settings: Settings) -> tuple[str, str]:
     """The dive ``camcal up`` records into (the configured one, else the open one, else a new one),
-    named to the ingest and the simulated modules alike: a module refuses an ingest of another dive."""
+    named to the ingest and the simulated modules alike: a module refuses an ingest of another dive;
+    and a line saying whether it is new or continued (with how to start a new one)."""
+    from storage import queries
     from storage.store import Store
 
     store = Store.open(settings.data_dir, settings.database_url)  # also creates or migrates it
     try:
         dive = store.current_dive(create=True, name=settings.dive)
         assert dive is not None
-        return dive.name
+        record = store.call(queries.dive_record, dive.id) or {}
     finally:
         store.close()
+    n, last = record.get("n_frames", 0), record.get("last_frame_unix_s")
+    if not n:
+        return dive.name, f"dive {dive.name}: new"
+    ago_h = (time.time() - last) / 3600.0 if last else 0.0
+    line = f"dive {dive.name}: continued ({n} frame{'s' if n != 1 else ''}, the last {ago_h:.1f} h ago)"
+    if settings.dive is None:
+        line += "; a new deployment? stop, run `camcal dive end`, start again"
+    return dive.name, line
 
 
 def module_args(

@@ -11,10 +11,13 @@ import json
 import os
 import signal
 import subprocess
+import time
 from pathlib import Path
 
+from camcal.cli.up import up_dive
+from camcal.core.settings import Settings
 from storage import queries
-from storage.store import Store
+from storage.store import FrameRow, Store
 from tests.live.test_faults import free_port
 from tests.utils.live import camcal_cli, make_agent, start_ingest, wait_for
 
@@ -86,3 +89,26 @@ def test_ending_names_what_it_cannot_end(tmp_path: Path) -> None:
     unknown = camcal_cli("dive", "end", "leg-9", "--data", str(data))
     assert unknown.returncode == 2 and "no dive named 'leg-9'" in unknown.stderr
     assert "camcal dive list" in unknown.stderr
+
+
+def test_camcal_up_says_whether_it_continues_a_dive_and_how_to_start_a_new_one(tmp_path: Path) -> None:
+    settings = Settings(data_dir=tmp_path / "data")
+    first, line = up_dive(settings)
+    assert line == f"dive {first}: new"
+    store = Store.open(settings.data_dir)
+    try:
+        dive = store.current_dive(create=False)
+        assert dive is not None and dive.name == first
+        t = time.time() - 2 * 3600
+        row = FrameRow("A", "b1", 1, t, t, 460, 0.05, 6.0, 3420.0, 64, 64, "f.png", 10, "0" * 64)
+        store.commit_batch(dive.id, [row])
+    finally:
+        store.close()
+    again, line = up_dive(settings)
+    assert again == first
+    assert line == f"dive {first}: continued (1 frame, the last 2.0 h ago); a new deployment? stop, run " \
+        "`camcal dive end`, start again"  # fmt: skip
+    done = camcal_cli("dive", "end", "--data", str(settings.data_dir))
+    assert done.returncode == 0, done.stderr
+    new, line = up_dive(settings)
+    assert new != first and line == f"dive {new}: new"

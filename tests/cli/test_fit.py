@@ -19,7 +19,7 @@ from camcal.fitdoc import estimate_text
 from camcal.report.fitsection import fit_section
 from lrm.sim.camera import CameraModel
 from lrm.sim.render import TransportHalo
-from lrm.sim.scene import Water
+from lrm.sim.scene import TREX_PLACEMENTS, Placement, Water
 from lrm.simset import SimulationSpec, simulate_frame_set
 
 FOCAL_PX = 1224.0 / math.tan(math.radians(8.0))
@@ -31,10 +31,17 @@ def small_camera() -> CameraModel:
 
 
 def simulate(
-    out: Path, exposures: tuple[float, ...], gains: tuple[float, ...], repeats: int, halo: str, cache: Path
+    out: Path,
+    exposures: tuple[float, ...],
+    gains: tuple[float, ...],
+    repeats: int,
+    halo: str,
+    cache: Path,
+    placements: tuple[Placement, ...] = TREX_PLACEMENTS,
 ) -> Path:
     spec = SimulationSpec(
         water=Water({460: TRUTH}, name="clear"),
+        placements=placements,
         camera=small_camera(),
         schedule=Schedule(
             name="test", exposures_s=exposures, gains_db=gains, repeats=repeats, wavelengths_nm=(460,)
@@ -59,6 +66,13 @@ def frameset(tmp_path_factory: pytest.TempPathFactory, cache_dir: Path) -> Path:
     return simulate(
         tmp_path_factory.mktemp("set") / "fs", (0.01, 0.02), (14.0, 18.0), 4, "transport", cache_dir
     )
+
+
+@pytest.fixture(scope="module")
+def budget_cache(frameset: Path, cache_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The fit's templates and, once the first budget test made them, the budget's variants (kept
+    out of the shared cache; both budget tests fit T-REX's distances)."""
+    return Path(shutil.copytree(cache_dir, tmp_path_factory.mktemp("budget") / "cache"))
 
 
 def run(*args: str) -> tuple[int, str]:
@@ -158,12 +172,10 @@ def test_templates_went_to_the_cache_directory(fitted: tuple[int, str, Path], ca
 
 @pytest.mark.slow
 def test_fit_with_its_systematic_budget(
-    fitted: tuple[int, str, Path], frameset: Path, cache_dir: Path, tmp_path: Path
+    fitted: tuple[int, str, Path], frameset: Path, budget_cache: Path, tmp_path: Path
 ) -> None:
     """The default fit: what it holds fixed varied, the shifts in the JSON, the table and the report."""
-    cache = shutil.copytree(
-        cache_dir, tmp_path / "cache"
-    )  # the variants' templates stay out of the shared one
+    cache = budget_cache
     code, output = run(
         *fit_args(frameset, cache, "--json", str(tmp_path / "fit.json"), "--sys-photon-factor", "0.5")
     )
@@ -287,20 +299,23 @@ def test_a_distance_the_frames_contradict_is_flagged_in_the_json_the_cli_and_the
 
 
 def test_a_wrong_distance_stays_flagged_when_the_phase_function_is_varied(
-    frameset: Path, cache_dir: Path, tmp_path: Path
+    cache_dir: Path, budget_cache: Path, tmp_path: Path
 ) -> None:
     """The budget refits at other phase functions may relieve a calibration the nominal fit strained
     (then the phase function moved it: not flagged). A distance 0.34 m off is not the phase
-    function's doing: no data-allowed refit keeps every calibration within 3σ, so it stays flagged."""
-    folder = Path(shutil.copytree(frameset, tmp_path / "wrong-distance"))
+    function's doing: no data-allowed refit keeps every calibration within 3σ, so it stays flagged.
+    (The frames taken 0.34 m nearer than setup.json says, so that the fit's templates, T-REX's
+    distances, are the budget test's.)"""
+    near = (Placement("A", 21.22, 0.02), *TREX_PLACEMENTS[1:])
+    folder = simulate(tmp_path / "off", (0.01, 0.02), (14.0, 18.0), 4, "transport", cache_dir, near)
     setup = json.loads((folder / "setup.json").read_text())
-    setup["cameras"]["A"]["distance_m"] = 21.9
+    setup["cameras"]["A"]["distance_m"] = 21.56
     (folder / "setup.json").write_text(json.dumps(setup))
-    cache = shutil.copytree(cache_dir, tmp_path / "cache")
-    args = fit_args(folder, cache, "--json", str(tmp_path / "fit.json"), "--sys-photon-factor", "0.5")
+    args = fit_args(folder, budget_cache, "--json", str(tmp_path / "fit.json"), "--sys-photon-factor", "0.5")
     code, output = run(*args)
     assert code == 0, output
     (res,) = json.loads((tmp_path / "fit.json").read_text())["fits"]
+    assert {n["name"]: n["pull"] for n in res["nuisances"]}["distance_near"] < -3
     assert res["nuisance_check_relief"] is None
     assert res["nuisance_check_flagged"] is True, res["nuisance_check_advice"]
 

@@ -13,7 +13,6 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.table import Table
 
 from camcal.cli.common import DataOption, DbUrlOption, console, fail
 from camcal.cli.data import open_store, store_location
@@ -44,6 +43,14 @@ def _recording_here(data: Path) -> list[str]:
     return out
 
 
+def _span(t0: float | None, t1: float | None) -> str:
+    """``2026-11-27 22:28–22:30`` (the end's date too when it is another day)."""
+    if not t0 or not t1:
+        return "—"
+    a, b = _utc(t0)[:16], _utc(t1)[:16]
+    return f"{a}–{b[11:] if a[:10] == b[:10] else b}"
+
+
 def _utc(t: float | None) -> str:
     return time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime(t)) if t else "—"
 
@@ -65,20 +72,25 @@ def list_cmd(
     if as_json:
         print(json.dumps(dives, indent=1))
         return
-    t = Table(title="dives", title_justify="left")
-    for col in ("id", "name", "frames", "first frame (UTC)", "last frame (UTC)", "deepest", "state"):
-        t.add_column(col)
+    rows = [("id", "name", "frames", "taken (UTC)", "deepest", "state")]
     for d in dives:
-        t.add_row(
-            str(d["id"]),
-            d["name"],
-            str(d["n_frames"]),
-            _utc(d["first_frame_unix_s"]),
-            _utc(d["last_frame_unix_s"]),
-            f"{d['max_depth_m']:.0f} m" if d["max_depth_m"] is not None else "—",
-            f"ended {_utc(d['ended_unix_s'])}" if d["ended_unix_s"] else "open",
+        rows.append(
+            (
+                str(d["id"]),
+                d["name"],
+                str(d["n_frames"]),
+                _span(d["first_frame_unix_s"], d["last_frame_unix_s"]),
+                f"{d['max_depth_m']:.0f} m" if d["max_depth_m"] is not None else "—",
+                f"ended {_utc(d['ended_unix_s'])[:16]}" if d["ended_unix_s"] else "open",
+            )
         )
-    console.print(t)
+    widths = [max(len(r[k]) for r in rows) for k in range(len(rows[0]))]
+    right = {0, 2, 4}  # numbers
+    for r in rows:  # plain columns: a table squeezed into 80 columns cut the names
+        cells = [
+            c.rjust(w) if k in right else c.ljust(w) for k, (c, w) in enumerate(zip(r, widths, strict=True))
+        ]
+        console.print("  ".join(cells).rstrip(), highlight=False, soft_wrap=True)
 
 
 @app.command("end")
@@ -103,7 +115,9 @@ def end(
             console.print(f"dive {dive.name} ended at {_utc(dive.ended_unix_s)} UTC already: nothing to do")
             return
         record = store.call(queries.dive_record, dive.id) or {}
-        recorders = _recording_here(store_location(data, db_url)[0])
+        folder, url = store_location(data, db_url)
+        shared = url is not None and not url.startswith("sqlite")  # other machines may record into it
+        recorders = _recording_here(folder)
         if recorders and not force:
             raise fail(
                 f"an ingest on this machine may be recording into dive {dive.name} "
@@ -123,7 +137,7 @@ def end(
     finally:
         store.close()
     ago = time.time() - received if received else None
-    if ago is not None and ago < RECORDING_S and not recorders:
+    if shared and ago is not None and ago < RECORDING_S and not recorders:
         console.print(
             f"note: its last frame arrived {ago:.0f} s ago; an ingest on another machine (a shared "
             "database) keeps recording into it until that ingest restarts"

@@ -79,6 +79,10 @@ def test_a_dive_ends_once_its_ingest_stopped_and_the_next_ingest_starts_a_new_on
     new, old = _dives(data)
     assert old["name"] == first["name"] and old["n_frames"] == d["n_frames"] >= first["n_frames"]
     assert new["name"] != first["name"] and new["ended_unix_s"] is None
+    listed = camcal_cli("dive", "list", "--data", str(data)).stdout.splitlines()
+    assert listed[0].split() == ["id", "name", "frames", "taken", "(UTC)", "deepest", "state"]
+    assert listed[1].split()[1:3] == [str(new["name"]), "0"] and listed[1].endswith("open")
+    assert listed[2].split()[1:3] == [str(old["name"]), str(old["n_frames"])] and " ended " in listed[2]
 
 
 def test_ending_names_what_it_cannot_end(tmp_path: Path) -> None:

@@ -162,7 +162,7 @@ def base_setup(store: Store, dive_id: int) -> Setup:
 def stored_setup(store: Store, dive_id: int) -> Setup | None:
     """The live run's calibration, else the dive's own setup; None if neither holds one."""
     with store.read() as s:
-        live = next((r for r in queries.runs(s, dive_id) if r["kind"] == "live"), None)
+        live = next((r for r in queries.runs(s, dive_id, count_results=False) if r["kind"] == "live"), None)
         cal = queries.calibration_in_force(s, dive_id, live or {})
     if not cal:
         return None

@@ -36,13 +36,18 @@ class Refitter:
         )
         self.n_refits = 0
         self.edge_hits = 0
-        self._refs: dict[str, np.ndarray] = {}
-        self._pulls: dict[str, float] = {}  # the largest |nuisance pull| at each reference refit
-        self._last_pull = 0.0
+        # Only a fit that strained a calibration asks how far each refit moves them (`max_pull`).
+        self.track_pulls = bool(fit.strained_nuisances)
+        self._refs: dict[str, tuple[np.ndarray, float]] = {}
         self._disks: dict = {}  # type: ignore[type-arg]
 
     def __call__(self, **replaced: object) -> np.ndarray:
         """(λ_abs, λ_sca, λ_att, χ²) of the minimum with ``replaced`` inputs, found from the nominal one."""
+        return self._refit(**replaced)[0]
+
+    def _refit(self, **replaced: object) -> tuple[np.ndarray, float]:
+        """`__call__`'s values and the largest |nuisance pull| at that minimum (0 unless
+        ``track_pulls``)."""
         kw = {**self.inputs, **replaced}
         obj = make_objective(
             self.settings,
@@ -57,23 +62,27 @@ class Refitter:
         self.n_refits += 1
         if obj.on_edge(float(p[1]), 1) or obj.on_edge(float(p[0]), 0):
             self.edge_hits += 1
-        prob = obj.prob
-        shifts = np.asarray(prob.chi2(float(best[0]), float(best[1]), detail=True)[1]["shifts"])
-        sigma = np.asarray(prob.prior_sigma, dtype=float)
-        self._last_pull = max((abs(shifts[k] / sigma[k]) for k in prob.active if sigma[k] > 0), default=0.0)
-        return np.array([best[0], best[1], 1.0 / (1.0 / best[0] + 1.0 / best[1]), obj(p)])
+        pull = 0.0
+        if self.track_pulls:
+            prob = obj.prob
+            shifts = np.asarray(prob.chi2(float(best[0]), float(best[1]), detail=True)[1]["shifts"])
+            sigma = np.asarray(prob.prior_sigma, dtype=float)
+            pull = max((abs(shifts[k] / sigma[k]) for k in prob.active if sigma[k] > 0), default=0.0)
+        return np.array([best[0], best[1], 1.0 / (1.0 / best[0] + 1.0 / best[1]), obj(p)]), pull
 
-    def reference(self, **replaced: object) -> np.ndarray:
+    def _memo(self, **replaced: object) -> tuple[np.ndarray, float]:
         key = repr(sorted(replaced.items()))
         if key not in self._refs:
-            self._refs[key] = self(**replaced)
-            self._pulls[key] = self._last_pull
+            self._refs[key] = self._refit(**replaced)
         return self._refs[key]
 
+    def reference(self, **replaced: object) -> np.ndarray:
+        return self._memo(**replaced)[0]
+
     def max_pull(self, **replaced: object) -> float:
-        """The largest |nuisance pull| (σ of its prior) at the reference refit with ``replaced``."""
-        self.reference(**replaced)
-        return self._pulls[repr(sorted(replaced.items()))]
+        """The largest |nuisance pull| (σ of its prior) at the reference refit with ``replaced``
+        (0 unless ``track_pulls``: the nominal fit strained a calibration)."""
+        return self._memo(**replaced)[1]
 
     def shifts(
         self, cases: Sequence[tuple[str, Mapping[str, object]]], reference: Mapping[str, object] | None = None

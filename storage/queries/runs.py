@@ -120,19 +120,18 @@ def calibration_in_force(s: Session, dive_id: int, run: dict[str, Any]) -> dict[
     a re-analysis's start) takes it from here, so none falls back to T-REX's values alone.
     """
     dive = s.get(Dive, dive_id)
-    values, source = _in_force(run.get("calibration") or {}, dive.setup if dive is not None else {})
-    return values if source != "defaults" else {}
+    return _in_force(run.get("calibration") or {}, dive.setup if dive is not None else {})[0]
 
 
 def _in_force(own: dict[str, Any], dive_setup: dict[str, Any] | None) -> tuple[dict[str, Any], str]:
     """The setup.json values in force for a run and where they came from: ``run`` (its own
-    calibration), ``dive`` (the dive's own setup: an imported frame set's) or ``defaults`` (T-REX's,
-    written out whole so that a reader sees the values, not an empty record)."""
+    calibration), ``dive`` (the dive's own setup: an imported frame set's) or ``defaults`` ({}:
+    T-REX's)."""
     if own:
         return dict(own), "run"
     if dive_setup:
         return dict(dive_setup), "dive"
-    return Setup().to_json(), "defaults"
+    return {}, "defaults"
 
 
 def setup_in_force(s: Session, dive_id: int, run: dict[str, Any]) -> Setup:
@@ -145,15 +144,20 @@ def dive_by_name(s: Session, name: str) -> Dive | None:
     return s.scalars(select(Dive).where(Dive.name == name)).first()
 
 
-def runs(s: Session, dive_id: int) -> list[dict[str, Any]]:
+def runs(s: Session, dive_id: int, *, count_results: bool = True) -> list[dict[str, Any]]:
     """The dive's analysis runs, oldest first; a re-analysis whose process stopped reads as
-    ``interrupted`` (with a ``note``) even before a server marks it so (`RUN_STALE_S`)."""
+    ``interrupted`` (with a ``note``) even before a server marks it so (`RUN_STALE_S`).
+
+    ``setup`` is what each run was analysed with, written out whole (T-REX's defaults included).
+    Without ``count_results`` no run's results are counted: ``n_frames`` is then the stored count,
+    kept only for a finished re-analysis (what picks a run needs no count of a whole dive).
+    """
     now = now_unix_s()
     out = []
     rows = s.scalars(select(AnalysisRun).where(AnalysisRun.dive_id == dive_id).order_by(AnalysisRun.id)).all()
     # A re-analysis under way (or stopped) counts the results it has stored so far (its progress);
     # the live run, never finished, the results the ingest and imports have stored.
-    counting = [r.id for r in rows if r.kind == "live" or r.status != "done"]
+    counting = [r.id for r in rows if r.kind == "live" or r.status != "done"] if count_results else []
     stored = dict(
         s.execute(
             select(FrameResult.run_id, func.count())
@@ -165,10 +169,14 @@ def runs(s: Session, dive_id: int) -> list[dict[str, Any]]:
     )
     dive = s.get(Dive, dive_id)
     dive_setup = dive.setup if dive is not None and isinstance(dive.setup, dict) else {}
+    defaults: dict[str, Any] | None = None
     for r in rows:
         status, note = run_status(r, now)
         own = r.calibration if isinstance(r.calibration, dict) else {}
         setup, setup_from = _in_force(own, dive_setup)
+        if setup_from == "defaults":
+            defaults = defaults or Setup().to_json()
+            setup = defaults
         out.append(
             {
                 "id": r.id,
@@ -193,11 +201,12 @@ class RunLookupError(LookupError):
 
 
 def chosen_run(s: Session, dive_id: int, run_id: int | None = None) -> dict[str, Any]:
-    """Run ``run_id`` of the dive, or by default its live run, else its newest (as `runs` gives them).
+    """Run ``run_id`` of the dive, or by default its live run, else its newest (as `runs` gives them,
+    its results not counted).
 
     Raises `RunLookupError` when the dive has no run or no run ``run_id``.
     """
-    by_id = {r["id"]: r for r in runs(s, dive_id)}
+    by_id = {r["id"]: r for r in runs(s, dive_id, count_results=False)}
     if not by_id:
         raise RunLookupError(f"dive {dive_id} has no analysis run yet (nothing was ingested or imported)")
     if run_id is None:

@@ -36,7 +36,7 @@ function buildForm(ctx, from = null) {
   const f = $("#reanalysis-form");
   const live = ctx.runs.find((r) => r.id === ctx.liveRunId) || ctx.runs[0];
   const record = from === null ? null : calibrations.find((c) => c.id === from);
-  const cal = record ? record.values?.setup || {} : live?.setup || live?.calibration || {};
+  const cal = record ? record.values?.setup || {} : live?.setup || {};
   const cams = cal.cameras || {};
   const ratios = cal.emission_ratio || {};
   const [lo, hi] = cal.linear_range || [5, 240];
@@ -165,7 +165,7 @@ async function start(ctx, body, button) {
 
 /** The same re-analysis again, for one that did not finish: its calibration, its record, its name. */
 function runAgain(ctx, r) {
-  const c = r.setup || r.calibration || {};
+  const c = r.setup;
   const body = {
     label: `${r.label || `run #${r.id}`} (again)`.slice(0, 200),
     cameras: Object.fromEntries(
@@ -212,7 +212,7 @@ function renderRuns(ctx) {
       "tbody",
       {},
       ...ctx.runs.map((r) => {
-        const c = r.setup || r.calibration || {};
+        const c = r.setup;
         return el(
           "tr",
           { "data-run-id": r.id },

@@ -13,7 +13,12 @@ uncertainty times the offset between the camera's frames and that time
 enters the statistical error. When a camera's frames cannot show a trend
 (too few, or all at one moment), a prior on how fast a camera's signal can
 change bounds the mismatch instead: the correction is then ~0 and the
-mismatch is carried in the error.
+mismatch is carried in the error. That prior is sharpened by the
+wavelength's earlier visits where there are two of them (`trend_prior`):
+the change of each camera's level from one visit to the next is the
+water's own trend (and the LEM's), so a visit whose frames are too few to
+show a trend (a module lagging behind its schedule) is brought to its time
+along it, with the change of that trend between the visits as its width.
 
 Errors (one standard deviation, on the log ratio ``q = ln(I_near/I_far)``):
 
@@ -35,8 +40,8 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -64,13 +69,43 @@ class CameraTrend:
     linear gain))`` against time (the setting normalised out by the
     camera's linearity) combined with a zero-mean prior of width
     ``prior_per_s``; ``slope_err_per_s`` its error. ``fitted`` says whether
-    the frames constrained the slope at all.
+    the frames constrained the slope at all; ``prior`` where the prior came
+    from (`TrendPrior.source`).
     """
 
     slope_per_s: float
     slope_err_per_s: float
     n_frames: int
     fitted: bool
+    prior: str = "default"
+
+
+@dataclass(frozen=True)
+class CameraLevel:
+    """A camera's mean ``ln(I / (exposure × linear gain))`` over a visit, at its frames' mean time.
+
+    ``log_i_err`` is the frames' error alone (the scatter or the propagated
+    errors, whichever is larger); visit-to-visit repeatability comes on top
+    (`trend_prior`).
+    """
+
+    t_s: float
+    log_i: float
+    log_i_err: float
+    n_frames: int
+
+
+@dataclass(frozen=True)
+class TrendPrior:
+    """The prior on a camera's d ln I / dt in a visit: centre, width, and where it came from.
+
+    ``source`` is ``"default"`` (zero, the setup's width) or ``"visits"``
+    (the level's change over the wavelength's two previous visits and this one).
+    """
+
+    mean_per_s: float
+    width_per_s: float
+    source: str = "default"
 
 
 @dataclass(frozen=True)
@@ -136,6 +171,50 @@ def stack_value(values: np.ndarray, errors: np.ndarray) -> tuple[float, float]:
     return float(values.mean()), max(scatter, propagated)
 
 
+def camera_level(frames: Sequence[VisitFrame], camera: str) -> CameraLevel | None:
+    """``camera``'s level over a visit's frames (None: it has no usable frame)."""
+    mine = [f for f in frames if f.camera == camera and f.i_gray > 0 and f.i_err_gray > 0]
+    if not mine:
+        return None
+    i = np.array([f.i_gray for f in mine])
+    rel = np.array([f.i_err_gray for f in mine]) / i
+    y = np.log(
+        i / (np.array([f.exposure_s for f in mine]) * 10.0 ** (np.array([f.gain_db for f in mine]) / 20))
+    )
+    w = 1.0 / rel**2
+    level = float(np.average(y, weights=w))
+    propagated = 1.0 / math.sqrt(float(w.sum()))
+    scatter = float(y.std(ddof=1) / math.sqrt(y.size)) if y.size >= 3 else 0.0
+    t = float(np.average(np.array([f.t_s for f in mine]), weights=w))
+    return CameraLevel(t, level, max(propagated, scatter), len(mine))
+
+
+def trend_prior(levels: Sequence[CameraLevel], repeatability: float, default_per_s: float) -> TrendPrior:
+    """A camera's trend prior in a visit from its levels in the wavelength's visits, oldest first.
+
+    With three levels (the two previous visits and this one) the prior's
+    centre is the slope from the previous visit's level to this one's, and
+    its width how much that slope changed from the interval before (the
+    curvature of the water's change) with both slopes' errors (each level's
+    frames error and the repeatability between visits). Fewer levels: zero
+    with ``default_per_s``.
+    """
+    if len(levels) < 3:
+        return TrendPrior(0.0, default_per_s)
+    a, b, c = levels[-3:]
+
+    def slope(p: CameraLevel, q: CameraLevel) -> tuple[float, float]:
+        dt = q.t_s - p.t_s
+        err = math.sqrt(p.log_i_err**2 + q.log_i_err**2 + 2.0 * repeatability**2) / dt
+        return (q.log_i - p.log_i) / dt, err
+
+    if not (a.t_s < b.t_s < c.t_s):
+        return TrendPrior(0.0, default_per_s)
+    s0, _ = slope(a, b)  # its error is in how far s1 differs from it
+    s1, e1 = slope(b, c)
+    return TrendPrior(s1, math.sqrt(e1**2 + (s1 - s0) ** 2), "visits")
+
+
 def camera_trend(
     t_s: np.ndarray,
     i_gray: np.ndarray,
@@ -143,13 +222,15 @@ def camera_trend(
     exposure_s: np.ndarray,
     gain_db: np.ndarray,
     prior_per_s: float,
+    prior_mean_per_s: float = 0.0,
 ) -> CameraTrend:
     """The slope of ln(I / (exposure × gain factor)) against time, combined with a prior.
 
     A weighted straight line (weights from the per-frame errors) whose slope
     error comes from the residual scatter, so that settings whose gains are
     not exactly what they say widen it rather than bias it unseen. With
-    fewer than four frames or no spread in time the prior alone speaks.
+    fewer than four frames or no spread in time the prior (centre
+    ``prior_mean_per_s``, width ``prior_per_s``) alone speaks.
     """
     n = t_s.size
     prior_var = prior_per_s**2
@@ -165,8 +246,9 @@ def camera_trend(
             s2 = float(np.sum(w * resid * resid)) / (n - 2)
             var = max(s2, 1.0) / sxx  # never tighter than the frames' own errors allow
             post_var = 1.0 / (1.0 / var + 1.0 / prior_var)
-            return CameraTrend(slope * post_var / var, math.sqrt(post_var), n, True)
-    return CameraTrend(0.0, prior_per_s, n, False)
+            post_mean = (slope / var + prior_mean_per_s / prior_var) * post_var
+            return CameraTrend(post_mean, math.sqrt(post_var), n, True)
+    return CameraTrend(prior_mean_per_s, prior_per_s, n, False)
 
 
 def visit_attenuation(
@@ -177,13 +259,15 @@ def visit_attenuation(
     *,
     repeatability: float,
     trend_prior_per_s: float,
+    trend_priors: Mapping[str, TrendPrior] | None = None,
 ) -> VisitResult | None:
     """λ_att of one visit from its accepted frames (any cameras; the geometry's two are used).
 
     ``repeatability`` is the relative I_center repeatability of one camera
     between visits beyond the frames' noise (the floor; applied to both
     cameras, once per visit); ``trend_prior_per_s`` the width of the prior
-    on a camera's d ln I / dt. Returns None when no setting was taken by
+    on a camera's d ln I / dt, unless ``trend_priors`` gives a camera its
+    own (`trend_prior`). Returns None when no setting was taken by
     both cameras with a positive I_center.
     """
     near_cam, far_cam = geometry.near_camera, geometry.far_camera
@@ -203,14 +287,17 @@ def visit_attenuation(
     trends = {}
     for cam in (near_cam, far_cam):
         mine = [f for f in used if f.camera == cam]
+        prior = (trend_priors or {}).get(cam) or TrendPrior(0.0, trend_prior_per_s)
         trends[cam] = camera_trend(
             np.array([f.t_s for f in mine]),
             np.array([f.i_gray for f in mine]),
             np.array([f.i_err_gray for f in mine]),
             np.array([f.exposure_s for f in mine]),
             np.array([f.gain_db for f in mine]),
-            trend_prior_per_s,
+            prior.width_per_s,
+            prior.mean_per_s,
         )
+        trends[cam] = replace(trends[cam], prior=prior.source)
 
     pairs = []
     for e, g in settings:

@@ -17,7 +17,9 @@ T-REX geometry and emission ratios, the small sensor (612 x 512 px, T-REX
 plate scale), the quick-check schedule (0.05, 0.07, 0.11 s at 8 dB, 5
 repeats), 75 s blocks, the far camera's frames 0.45 s after the near's.
 
-Run: ``.venv/bin/python bench/repeatability.py [--visits N]`` (~1 s per visit).
+Run: ``.venv/bin/python bench/repeatability.py [--visits N] [--trend-visits-max-s S]`` (~1 s
+per visit; ``--trend-visits-max-s 0``: the trend priors of the fixed width only, as before the
+series took them from the previous visits).
 """
 
 from __future__ import annotations
@@ -41,7 +43,12 @@ SHARE = 0.75
 
 
 def run(
-    seed: int, n_visits: int, drop: float, floors: dict[int, float], repeats: int = 5
+    seed: int,
+    n_visits: int,
+    drop: float,
+    floors: dict[int, float],
+    repeats: int = 5,
+    trend_visits_max_s: float = SeriesSetup().trend_visits_max_s,
 ) -> dict[int, list[tuple[float, ...]]]:
     """(λ, stat_err, truth, q, q_frames_err, q_true) per point, per wavelength."""
     profile = DiveProfile(
@@ -49,7 +56,11 @@ def run(
     )
     column = WaterColumn.with_station_bump(profile, drop)
     sim = DiveSimulation(profile, LEMTimetable(dwell_s=75.0), column, seed=seed, frame_scale=0.25)
-    setup = Setup(series=SeriesSetup(repeatability=floors, repeatability_default=0.0))
+    setup = Setup(
+        series=SeriesSetup(
+            repeatability=floors, repeatability_default=0.0, trend_visits_max_s=trend_visits_max_s
+        )
+    )
     series = VisitSeries(setup)
     t0, t1 = profile.window("station")
     for rows in station_results(sim, SETTINGS, repeats, t_from_s=t0, t_to_s=t1):
@@ -73,11 +84,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--visits", type=int, default=60, help="visits per station")
     parser.add_argument("--seeds", default="101,102", help="seeds of the stations the floor is measured on")
+    parser.add_argument(
+        "--trend-visits-max-s",
+        type=float,
+        default=SeriesSetup().trend_visits_max_s,
+        help="series.trend_visits_max_s (0: every visit's trend prior the fixed one)",
+    )
     args = parser.parse_args()
     t_start = time.time()
     pooled: dict[int, list[tuple[float, ...]]] = {}
     for seed in (int(s) for s in args.seeds.split(",")):
-        for wl, rows in run(seed, args.visits, 0.3, {}).items():
+        for wl, rows in run(seed, args.visits, 0.3, {}, 5, args.trend_visits_max_s).items():
             pooled.setdefault(wl, []).extend(rows)
     print("\nfloor, drifting water (the floor set to 0):\n")
     print(
@@ -100,7 +117,7 @@ def main() -> None:
         print(f"pulls with these floors, seed {seed}, {repeats} frames per setting:\n")
         print("| wavelength | visits | RMS rel. deviation | mean rel. error | pull RMS | within 2σ |")
         print("| --- | --- | --- | --- | --- | --- |")
-        for wl, rows in sorted(run(seed, args.visits, 0.3, floors, repeats).items()):
+        for wl, rows in sorted(run(seed, args.visits, 0.3, floors, repeats, args.trend_visits_max_s).items()):
             a = np.array(rows)
             dev = a[:, 0] / a[:, 2] - 1.0
             pull = (a[:, 0] - a[:, 2]) / a[:, 1]

@@ -18,7 +18,9 @@ wavelength after the visit's last frame, or a frame more than
 ``visit_gap_s`` later. A result that arrives after that (a frame still in
 analysis, a module catching up after a lost link) updates the point again,
 so the stored series always equals what a re-analysis of the same frames
-gives.
+gives. A visit's trend prior comes from each camera's levels in the
+wavelength's previous visits (`analysis.visit.trend_prior`), so a change to
+a visit recomputes the next visits of its wavelength as well.
 
 `VisitSeries.add` takes a batch of frame results and returns the changes
 to store: points to insert or update (keyed by ``visit_key``) and the keys
@@ -34,12 +36,22 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from analysis import EmissionRatio, Geometry
-from analysis.visit import VisitFrame, VisitResult, visit_attenuation
+from analysis.visit import (
+    CameraLevel,
+    TrendPrior,
+    VisitFrame,
+    VisitResult,
+    camera_level,
+    trend_prior,
+    visit_attenuation,
+)
 from camcal.core.frameset import SeriesSetup, Setup
 from ingest.derived import geometry_and_ratios
 
 #: Most frame results a series keeps in memory; the oldest are forgotten beyond it.
 MAX_SAMPLES = 200_000
+#: Visits of a wavelength without a camera's frames skipped looking for its earlier levels.
+MAX_SKIPPED_VISITS = 2
 
 
 @dataclass(frozen=True)
@@ -81,12 +93,15 @@ class Sample:
 
 @dataclass
 class Visit:
-    """A visit as last computed: its frames' span and its point (None: no pair yet)."""
+    """A visit as last computed: its frames, its point (None: no pair yet), and each camera's
+    level and the LEM's mean depth (what the next visits' trend priors read)."""
 
     key: str
     wavelength_nm: int
     samples: list[Sample]
     result: VisitResult | None
+    levels: dict[str, CameraLevel | None]
+    lem_depth_m: float | None
     final: bool = False
     row: dict[str, Any] | None = field(default=None, repr=False)
 
@@ -120,6 +135,7 @@ class VisitSeries:
         self._orders: list[tuple[float, str, int]] = []
         self._seen: set[int] = set()
         self._visits: dict[str, Visit] = {}
+        self._by_wl: dict[int, list[tuple[float, str]]] = {}  # (first frame's time, key), sorted
         self._open: set[str] = set()
         self._newest: dict[str, float] = {}
         self._newest_by_wl: dict[tuple[str, int], float] = {}
@@ -205,7 +221,9 @@ class VisitSeries:
         return visits
 
     def _recompute(self, spans: Sequence[tuple[float, float]]) -> Changes:
-        upserts, deletes = [], []
+        upserts: list[dict[str, Any]] = []
+        deletes: list[str] = []
+        changed: dict[str, tuple[int, float]] = {}  # visits made, remade or gone: (wavelength, t)
         for t_lo, t_hi in spans:
             old = {
                 k
@@ -217,30 +235,35 @@ class VisitSeries:
                 new[_visit_key(seg)] = seg
             for k in sorted(old - set(new)):
                 self._open.discard(k)
-                if self._visits.pop(k).row is not None:
+                gone = self._drop(k)
+                changed[k] = (gone.wavelength_nm, gone.samples[0].t_unix_s)
+                if gone.row is not None:
                     deletes.append(k)
             for k, seg in new.items():
                 prev = self._visits.get(k)
                 if prev is not None and prev.samples == seg:
                     continue
-                visit = Visit(
-                    k, seg[0].wavelength_nm, seg, self._compute(seg), final=bool(prev and prev.final)
-                )
-                self._visits[k] = visit
+                if prev is None:
+                    bisect.insort(self._by_wl.setdefault(seg[0].wavelength_nm, []), (seg[0].t_unix_s, k))
+                visit = self._make(k, seg, final=bool(prev and prev.final))
+                changed[k] = (visit.wavelength_nm, seg[0].t_unix_s)
                 if not visit.final:
                     self._open.add(k)
-                if visit.result is not None:
-                    visit.row = self._row(visit)
+                if visit.row is not None:
                     upserts.append(visit.row)
                 elif prev is not None and prev.row is not None:
                     deletes.append(k)
+        # The next visits of a changed visit's wavelength take their trend priors from it.
+        for k in self._followers(changed):
+            v = self._visits[k]
+            v = self._make(k, v.samples, final=v.final)
+            if v.row is not None:
+                upserts.append(v.row)
         return Changes(upserts, deletes)
 
-    def _compute(self, seg: list[Sample]) -> VisitResult | None:
+    def _make(self, key: str, seg: list[Sample], *, final: bool) -> Visit:
+        """Compute a visit's point from its frames and the wavelength's earlier visits; keep it."""
         wl = seg[0].wavelength_nm
-        ratio = self.ratios.get(wl)
-        if ratio is None:
-            return None
         frames = [
             VisitFrame(
                 s.module,
@@ -254,14 +277,69 @@ class VisitSeries:
             for s in seg
             if s.ok
         ]
-        return visit_attenuation(
-            frames,
-            wl,
-            self.geometry,
-            ratio,
-            repeatability=self.rules.repeatability_at(wl),
-            trend_prior_per_s=self.rules.trend_prior_per_s,
-        )
+        levels = {cam: camera_level(frames, cam) for cam in self._cams}
+        depths = [f.lem_depth_m for f in frames if f.lem_depth_m is not None]
+        visit = Visit(key, wl, seg, None, levels, sum(depths) / len(depths) if depths else None, final)
+        ratio = self.ratios.get(wl)
+        if ratio is not None:
+            visit.result = visit_attenuation(
+                frames,
+                wl,
+                self.geometry,
+                ratio,
+                repeatability=self.rules.repeatability_at(wl),
+                trend_prior_per_s=self.rules.trend_prior_per_s,
+                trend_priors=self._priors(visit),
+            )
+        if visit.result is not None:
+            visit.row = self._row(visit)
+        self._visits[key] = visit
+        return visit
+
+    def _priors(self, visit: Visit) -> dict[str, TrendPrior]:
+        """Each camera's trend prior from its levels in this visit and the wavelength's two latest
+        visits before it that have one (visits without that camera's frames skipped), each
+        within ``trend_visits_max_s`` of the next and at the same LEM depth."""
+        index = self._by_wl.get(visit.wavelength_nm, [])
+        i = bisect.bisect_left(index, (visit.samples[0].t_unix_s, visit.key))
+        rep = self.rules.repeatability_at(visit.wavelength_nm)
+        priors = {}
+        for cam in self._cams:
+            if visit.levels[cam] is None:
+                continue
+            chain = [visit]
+            for _, k in reversed(index[max(i - MAX_SKIPPED_VISITS - 2, 0) : i]):
+                earlier, later = self._visits[k], chain[0]
+                gap = later.samples[0].t_unix_s - earlier.samples[-1].t_unix_s
+                if gap > self.rules.trend_visits_max_s or not _same_depth(
+                    earlier.lem_depth_m, later.lem_depth_m, self.rules.visit_depth_jump_m
+                ):
+                    break
+                if earlier.levels[cam] is not None:
+                    chain.insert(0, earlier)
+                    if len(chain) == 3:
+                        break
+            levels = [v.levels[cam] for v in chain]
+            priors[cam] = trend_prior(levels, rep, self.rules.trend_prior_per_s)  # type: ignore[arg-type]
+        return priors
+
+    def _followers(self, changed: dict[str, tuple[int, float]]) -> list[str]:
+        """The visits (not themselves changed) whose trend priors may read a changed visit: the
+        next ones of its wavelength, as many as `_priors` looks back over."""
+        out: list[str] = []
+        for wl, t in sorted(changed.values()):
+            index = self._by_wl.get(wl, [])
+            i = bisect.bisect_right(index, (t, "\U0010ffff"))
+            for _, k in index[i : i + 2 + MAX_SKIPPED_VISITS]:
+                if k not in changed and k not in out:
+                    out.append(k)
+        return sorted(out, key=lambda k: self._visits[k].samples[0].t_unix_s)
+
+    def _drop(self, key: str) -> Visit:
+        visit = self._visits.pop(key)
+        index = self._by_wl[visit.wavelength_nm]
+        index.pop(bisect.bisect_left(index, (visit.samples[0].t_unix_s, key)))
+        return visit
 
     def _moved_on(self, v: Visit) -> bool:
         """Both cameras have sent a later frame of another wavelength, or one beyond the gap."""
@@ -316,7 +394,7 @@ class VisitSeries:
             return
         cutoff = self._samples[extra].t_unix_s
         for k in [k for k, v in self._visits.items() if v.final and v.samples[-1].t_unix_s < cutoff]:
-            del self._visits[k]
+            self._drop(k)
         for s in self._samples[:extra]:
             self._seen.discard(s.frame_id)
         del self._samples[:extra]
@@ -329,13 +407,17 @@ def visit_details(res: VisitResult) -> dict[str, Any]:
         "log_ratio": res.log_ratio,
         "log_ratio_err": res.log_ratio_err,
         "terms": res.terms,
-        "trends": {c: [t.slope_per_s, t.slope_err_per_s, t.fitted] for c, t in res.trends.items()},
+        "trends": {c: [t.slope_per_s, t.slope_err_per_s, t.fitted, t.prior] for c, t in res.trends.items()},
         "pairs": [
             [p.exposure_s, p.gain_db, p.n_near, p.n_far, p.log_ratio, p.log_ratio_err, p.trend_shift]
             for p in res.pairs
         ],
         "note": res.note,
     }
+
+
+def _same_depth(a: float | None, b: float | None, jump_m: float) -> bool:
+    return a is None or b is None or abs(a - b) <= jump_m
 
 
 def _visit_key(seg: Sequence[Sample]) -> str:

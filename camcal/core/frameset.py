@@ -94,7 +94,9 @@ class SeriesSetup(BaseModel):
     floor of a point's statistical error (`analysis.visit`; the defaults
     were measured by ``bench/repeatability.py``, see ``docs/series.md``).
     ``trend_prior_per_s`` is the width of the prior on how fast a camera's
-    signal can change within a visit (d ln I / dt).
+    signal can change within a visit (d ln I / dt), where the wavelength's
+    two previous visits, each within ``trend_visits_max_s`` of the next,
+    do not give a sharper one.
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -111,6 +113,13 @@ class SeriesSetup(BaseModel):
         0.0015, ge=0, le=0.5, description="relative I_center repeatability of other wavelengths"
     )
     trend_prior_per_s: float = Field(0.001, gt=0, le=1.0, description="prior width on d ln I / dt [1/s]")
+    trend_visits_max_s: float = Field(
+        900.0,
+        ge=0,
+        le=86400,
+        description="longest gap between a wavelength's visits whose levels give the next visit's "
+        "trend prior [s] (0: never, the fixed prior only)",
+    )
 
     @field_validator("repeatability")
     @classmethod

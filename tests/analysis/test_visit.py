@@ -12,7 +12,15 @@ import numpy as np
 import pytest
 
 from analysis import EmissionRatio, Geometry
-from analysis.visit import VisitFrame, camera_trend, visit_attenuation
+from analysis.visit import (
+    CameraLevel,
+    TrendPrior,
+    VisitFrame,
+    camera_level,
+    camera_trend,
+    trend_prior,
+    visit_attenuation,
+)
 
 GEOMETRY = Geometry("A", "B", 21.56, 0.02, 41.62, 0.04)
 RATIO = EmissionRatio(1.27, 0.04)
@@ -180,3 +188,81 @@ def test_a_water_changing_during_a_long_visit_does_not_pass_for_noise() -> None:
         pulls.append((res.lambda_att_m - GEOMETRY.baseline_m / q_true) / res.stat_err_m)
     rms = math.sqrt(np.mean(np.square(pulls)))
     assert 0.85 < rms < 1.15, rms
+
+
+def test_a_visit_too_short_for_a_trend_takes_it_from_the_wavelengths_previous_visits() -> None:
+    """A lagging module: three frames per camera a visit, the far camera 20 s after the near one,
+    so neither can fit a trend; the water's λ falls by 30 % and comes back over 90 minutes.
+
+    With the fixed prior (0.002/s) the mismatch is carried whole in the error: errors several
+    times the deviations (pull RMS ~0.2). With each camera's levels in the wavelength's two
+    previous visits (every 180 s) the visit is brought to its time along the water's own trend:
+    the pulls have an RMS near one (0.89-0.99 over four seeds), and the errors are a tenth of the
+    fixed prior's.
+    """
+    rng = np.random.default_rng(5)
+    period_s = 5400.0
+    pulls = {"fixed": [], "visits": []}
+    errors = {"fixed": [], "visits": []}
+    for start in rng.uniform(0, period_s, 12):
+
+        def lam(t: float, start: float = start) -> float:
+            return 20.0 * (1 - 0.3 * math.sin(math.pi * (t + start) / period_s) ** 2)
+
+        history: dict[str, list] = {"A": [], "B": []}
+        for k in range(30):
+            t0 = 180.0 * k
+            near = t0 + np.array([0.0, 10.0, 20.0])
+            fr = frames(rng, lam_at=lam, near_times=near, far_times=near + 20.0, rel_noise=0.003)
+            priors = {}
+            for cam in ("A", "B"):
+                history[cam].append(camera_level(fr, cam))
+                priors[cam] = trend_prior(history[cam][-3:], 0.0, 0.002)
+            for how, given in (("fixed", None), ("visits", priors)):
+                res = visit_attenuation(
+                    fr, 460, GEOMETRY, RATIO, repeatability=0.0, trend_prior_per_s=0.002, trend_priors=given
+                )
+                assert res is not None and res.lambda_att_m is not None
+                if k < 2:
+                    assert all(t.prior == "default" for t in res.trends.values())
+                    continue
+                assert not any(t.fitted for t in res.trends.values())
+                assert {t.prior for t in res.trends.values()} == {"default" if given is None else "visits"}
+                ts = np.linspace(res.t_first_s, res.t_last_s, 200)
+                q_true = np.mean([GEOMETRY.baseline_m / lam(t) for t in ts])
+                pulls[how].append((res.lambda_att_m - GEOMETRY.baseline_m / q_true) / res.stat_err_m)
+                errors[how].append(res.stat_err_m / res.lambda_att_m)
+    rms = {how: math.sqrt(np.mean(np.square(p))) for how, p in pulls.items()}
+    assert len(pulls["visits"]) == 12 * 28
+    assert rms["fixed"] < 0.5, rms
+    assert 0.85 < rms["visits"] < 1.15, rms
+    assert np.mean(errors["visits"]) < 0.2 * np.mean(errors["fixed"]), errors
+
+
+def test_the_trend_prior_of_three_levels_is_the_last_slope_widened_by_its_change() -> None:
+    def level(t: float, y: float, err: float = 0.001) -> CameraLevel:
+        return CameraLevel(t, y, err, 6)
+
+    straight = trend_prior([level(0, 1.0), level(180, 0.91), level(360, 0.82)], 0.0, 0.002)
+    assert straight.source == "visits"
+    assert straight.mean_per_s == pytest.approx(-0.0005)
+    assert straight.width_per_s == pytest.approx(math.sqrt(2) * 0.001 / 180)  # the slope's own error
+    bent = trend_prior([level(0, 1.0), level(180, 0.91), level(360, 0.73)], 0.0, 0.002)
+    assert bent.mean_per_s == pytest.approx(-0.001)
+    assert bent.width_per_s == pytest.approx(math.hypot(math.sqrt(2) * 0.001 / 180, 0.0005))
+    floor = trend_prior([level(0, 1.0), level(180, 0.91), level(360, 0.82)], 0.002, 0.002)
+    assert floor.width_per_s == pytest.approx(math.sqrt(2 * 0.001**2 + 2 * 0.002**2) / 180)
+    for few in ([], [level(0, 1.0)], [level(0, 1.0), level(180, 0.91)]):
+        assert trend_prior(few, 0.0, 0.002) == TrendPrior(0.0, 0.002, "default")
+
+
+def test_a_cameras_level_normalises_its_settings_out() -> None:
+    fr = [
+        VisitFrame("A", e, 8.0, float(t), 2e4 * e, 2e4 * e * 0.01) for t, e in enumerate((0.05, 0.07, 0.11))
+    ]
+    fr.append(VisitFrame("B", 0.05, 8.0, 9.0, 50.0, 0.5))
+    lv = camera_level(fr, "A")
+    assert lv is not None and lv.n_frames == 3
+    assert lv.log_i == pytest.approx(math.log(2e4 / 10 ** (8 / 20)))
+    assert lv.t_s == pytest.approx(1.0) and lv.log_i_err == pytest.approx(0.01 / math.sqrt(3))
+    assert camera_level(fr, "C") is None

@@ -3,7 +3,7 @@
 The water's λ_att falls by 30 % over the 90 minutes on station and comes
 back; the LEM shows each wavelength for 60 s; module B shoots 0.45 s after
 module A (interleaved frames); three exposures at 8 dB, twice each per
-visit; test stops at 1200 and 2021 m on the way down; 100x speed. The stored series,
+visit; test stops of 400 s at 1200 and 2021 m on the way down; 100x speed. The stored series,
 exported with `camcal export`, is compared with the simulator's truth at
 each point's time (`tests.utils.series_check`), and `camcal reanalyze`
 must give the identical series from the same frames. Everything runs as
@@ -38,7 +38,7 @@ from tests.utils.system import free_ports
 pytestmark = pytest.mark.solo  # a 90-minute station at 100x: after the rest, beside the browser tests
 
 SPEED = 100.0
-DIVE = dict(deck_s=5.0, winch_m_per_s=100.0, test_stop_s=200.0, station_s=5400.0)
+DIVE = dict(deck_s=5.0, winch_m_per_s=100.0, test_stop_s=400.0, station_s=5400.0)
 DWELL_S = 60.0
 DROP = 0.3
 SEED = 21

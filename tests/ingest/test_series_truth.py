@@ -31,9 +31,12 @@ from lrm.dive import DiveProfile, DiveSimulation, LEMTimetable, WaterColumn
 from lrm.dive.station import station_results
 from tests.utils.series_check import check_series, pull_rms_band
 
+SETTINGS = ((0.05, 8.0), (0.07, 8.0), (0.11, 8.0))
 
-@pytest.mark.slow
-def test_pulls_on_a_drifting_station_have_an_rms_near_one() -> None:
+
+def _station(seed: int, repeats: int, **timing: float) -> tuple[DiveSimulation, list[dict]]:
+    """45 minutes of the drifting station: every block's analysed frames (``timing``: the
+    interleave and readout of `station_results`)."""
     profile = DiveProfile(
         deck_s=5.0, descent_m_per_s=100.0, test_stop_s=30.0, station_s=45 * 60.0, ascent_m_per_s=100.0
     )
@@ -41,14 +44,21 @@ def test_pulls_on_a_drifting_station_have_an_rms_near_one() -> None:
         profile,
         LEMTimetable(dwell_s=60.0),
         WaterColumn.with_station_bump(profile, 0.3),
-        seed=13,
+        seed=seed,
         frame_scale=0.25,
     )
-    series = VisitSeries(Setup())
     t0, t1 = profile.window("station")
-    settings = ((0.05, 8.0), (0.07, 8.0), (0.11, 8.0))
-    for rows in station_results(sim, settings, 3, t_from_s=t0, t_to_s=t1):
-        series.add(Sample.from_result(r) for r in rows)
+    rows = []
+    for block in station_results(sim, SETTINGS, repeats, t_from_s=t0, t_to_s=t1, **timing):
+        rows += block
+    return sim, rows
+
+
+@pytest.mark.slow
+def test_pulls_on_a_drifting_station_have_an_rms_near_one() -> None:
+    sim, rows = _station(13, 3)
+    series = VisitSeries(Setup())
+    series.add(Sample.from_result(r) for r in rows)
     series.close_all()
     epoch = sim.start.timestamp()
     check = check_series(series.points(), lambda wl, t: sim.lambda_att_pair_truth_m(wl, t - epoch))
@@ -63,25 +73,6 @@ def test_pulls_on_a_drifting_station_have_an_rms_near_one() -> None:
         assert f.rms_rel_dev <= 0.01, (wl, f)
 
 
-def _lagging_station(seed: int) -> tuple[DiveSimulation, list[dict]]:
-    profile = DiveProfile(
-        deck_s=5.0, descent_m_per_s=100.0, test_stop_s=30.0, station_s=45 * 60.0, ascent_m_per_s=100.0
-    )
-    sim = DiveSimulation(
-        profile,
-        LEMTimetable(dwell_s=60.0),
-        WaterColumn.with_station_bump(profile, 0.3),
-        seed=seed,
-        frame_scale=0.25,
-    )
-    t0, t1 = profile.window("station")
-    settings = ((0.05, 8.0), (0.07, 8.0), (0.11, 8.0))
-    rows = []
-    for block in station_results(sim, settings, 1, t_from_s=t0, t_to_s=t1, interleave_s=8.0, readout_s=12.0):
-        rows += block
-    return sim, rows
-
-
 @pytest.mark.slow
 def test_a_lagging_module_gets_its_trend_from_the_previous_visits_with_honest_errors() -> None:
     """Three frames per camera a visit, 12 s apart, the far camera 8 s late (two seeds).
@@ -90,7 +81,7 @@ def test_a_lagging_module_gets_its_trend_from_the_previous_visits_with_honest_er
     carries the mismatch) the points' errors are ~0.7 %; with them ~0.45 %, the points closer to
     the truth, and the pulls still have an RMS near one.
     """
-    stations = [_lagging_station(seed) for seed in (16, 17)]
+    stations = [_station(seed, 1, interleave_s=8.0, readout_s=12.0) for seed in (16, 17)]
     checks = {}
     for how, max_s in (("fixed", 0.0), ("visits", 900.0)):
         points, truth = [], {}

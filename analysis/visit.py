@@ -171,6 +171,11 @@ def stack_value(values: np.ndarray, errors: np.ndarray) -> tuple[float, float]:
     return float(values.mean()), max(scatter, propagated)
 
 
+def _log_per_setting(i_gray: np.ndarray, exposure_s: np.ndarray, gain_db: np.ndarray) -> np.ndarray:
+    """ln(I / (exposure × linear gain)): a camera's signal with its setting normalised out."""
+    return np.log(i_gray / (exposure_s * 10.0 ** (gain_db / 20.0)))
+
+
 def camera_level(frames: Sequence[VisitFrame], camera: str) -> CameraLevel | None:
     """``camera``'s level over a visit's frames (None: it has no usable frame)."""
     mine = [f for f in frames if f.camera == camera and f.i_gray > 0 and f.i_err_gray > 0]
@@ -178,9 +183,7 @@ def camera_level(frames: Sequence[VisitFrame], camera: str) -> CameraLevel | Non
         return None
     i = np.array([f.i_gray for f in mine])
     rel = np.array([f.i_err_gray for f in mine]) / i
-    y = np.log(
-        i / (np.array([f.exposure_s for f in mine]) * 10.0 ** (np.array([f.gain_db for f in mine]) / 20))
-    )
+    y = _log_per_setting(i, np.array([f.exposure_s for f in mine]), np.array([f.gain_db for f in mine]))
     w = 1.0 / rel**2
     level = float(np.average(y, weights=w))
     propagated = 1.0 / math.sqrt(float(w.sum()))
@@ -235,7 +238,7 @@ def camera_trend(
     n = t_s.size
     prior_var = prior_per_s**2
     if n >= 4 and prior_per_s > 0:
-        y = np.log(i_gray / (exposure_s * 10.0 ** (gain_db / 20.0)))
+        y = _log_per_setting(i_gray, exposure_s, gain_db)
         w = (i_gray / np.maximum(i_err_gray, 1e-9)) ** 2
         x = t_s - np.average(t_s, weights=w)
         sxx = float(np.sum(w * x * x))

@@ -168,3 +168,19 @@ def test_keys_are_created_and_listed_by_the_cli(tmp_path: Path) -> None:
     assert again.exit_code == 0 and wire.ship_pair(keys) == pair, "create must keep existing keys"
     bad = CliRunner().invoke(app, ["keys", "create", "..", "--keys", str(keys)])
     assert bad.exit_code == 2 and "not a module id" in bad.output
+
+
+def test_a_key_that_looks_like_markup_is_listed_as_it_is(tmp_path: Path) -> None:
+    """Z85 keys hold "[" and "]": a key with "[b]" in it lost those three characters in `keys list`
+    (rich read them as markup; with random keys the test above failed now and then)."""
+    from typer.testing import CliRunner
+
+    from camcal.cli import app
+
+    keys = tmp_path / "keys"
+    assert CliRunner().invoke(app, ["keys", "create", "A", "--keys", str(keys)]).exit_code == 0
+    public = "0[b]0" + "0" * 35
+    (keys / "modules" / "A.key").write_text(f'curve\n    public-key = "{public}"\n')
+    listed = CliRunner().invoke(app, ["keys", "list", "--keys", str(keys)], terminal_width=200)
+    assert listed.exit_code == 0, listed.output
+    assert public in listed.output, listed.output

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from camcal.cli.common import console
@@ -326,7 +327,8 @@ def doctor(
         table.add_column(col)
     colour = {OK: "green", WARN: "yellow", FAIL: "bold red"}
     for name, status, detail in rows:
-        table.add_row(name, f"[{colour[status]}]{status}[/]", detail)
+        # Plain text: a path or a key fingerprint may hold "[b]", which rich would take for markup.
+        table.add_row(escape(name), f"[{colour[status]}]{status}[/]", escape(detail))
     console.print(table)
     if any(st == FAIL for _, st, _ in rows):
         raise typer.Exit(1)

@@ -7,7 +7,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any, Concatenate, ParamSpec, TypeVar, cast
 
-from sqlalchemy import Engine, Table, insert, literal, text, update
+from sqlalchemy import Engine, Table, insert, text
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -111,11 +111,15 @@ class StoreBase:
 
         PostgreSQL: a transaction-level advisory lock on ``key``. SQLite: a
         write statement that changes nothing takes the database's write lock.
+        Both are plain SQL text: an ORM ``update(Dive)`` here was the first
+        annotated UPDATE of a process, and SQLAlchemy registers the class it
+        makes for that before finishing it, so threads asking at once saw it
+        half-built (an SAWarning, then a KeyError).
         """
         if self.engine.dialect.name == "postgresql":
             s.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": key})
         else:
-            s.execute(update(Dive).where(literal(False)).values(name=Dive.name))
+            s.execute(text(f"UPDATE {Dive.__tablename__} SET name = name WHERE 0"))
 
     def integrity_check(self) -> str:
         """``PRAGMA integrity_check`` on SQLite ("ok" when sound); "ok" elsewhere."""

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -139,3 +142,64 @@ def test_processes_migrating_one_postgresql_database_at_once_all_succeed() -> No
         finally:
             for e in engines:
                 e.dispose()
+
+
+FIRST_USE = """
+import sys, threading, time, warnings
+from pathlib import Path
+from sqlalchemy.sql import annotation
+
+warnings.simplefilter("error")
+
+
+class SlowToFinish(dict):
+    # SQLAlchemy registers each new annotated class before it sets the class's
+    # caching attributes; a pause there makes that window wide enough to hit.
+    def __setitem__(self, key, value):
+        super().__setitem__(key, value)
+        time.sleep(0.2)
+
+
+annotation.annotated_classes = SlowToFinish(annotation.annotated_classes)
+from storage.store import Store
+
+root = Path(sys.argv[1])
+stores = [Store.open(root, None)] + [Store.open(root, None, run_migrations=False) for _ in range(5)]
+barrier, errors = threading.Barrier(6), []
+
+
+def run(i):
+    try:
+        barrier.wait(10)
+        stores[i].current_dive(create=True)
+    except BaseException as exc:
+        errors.append(repr(exc))
+
+
+threads = [threading.Thread(target=run, args=(i,)) for i in range(6)]
+for t in threads:
+    t.start()
+for t in threads:
+    t.join(60)
+print(errors[0] if errors else "ok")
+"""
+
+
+def test_the_open_dive_is_found_by_threads_of_a_fresh_process_at_once(tmp_path: Path) -> None:
+    """The first open-dive lookup of a process, from six threads at once, on SQLite.
+
+    A clean clone's CI once failed here: the write lock SQLite's get-or-create
+    takes was an ORM UPDATE, and the first one built in a process raced
+    SQLAlchemy's half-registered class (SAWarning, then a KeyError).
+    """
+    repo = Path(__file__).resolve().parents[2]
+    done = subprocess.run(
+        [sys.executable, "-c", FIRST_USE, str(tmp_path / "data")],
+        cwd=repo,
+        env={**os.environ, "PYTHONPATH": str(repo)},
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip() == "ok"

@@ -75,8 +75,15 @@ class ShipCheck:
     # -- the socket ------------------------------------------------------
     def open(self, ctx: zmq.Context[Any]) -> Any:
         """A new DEALER to the ship (CURVE with keys), watched by this check."""
-        sock = wire.module_socket(ctx, self.connect, self.module, keys=self.keys)
-        self.monitor = sock.get_monitor_socket(_EVENTS)
+
+        def watch_from_the_start(sock: Any) -> None:
+            # Before the connect: a CONNECTED missed here made a peer that then hung up without a
+            # handshake look like no failure at all, and nothing made a new socket (the module hung).
+            self.monitor = sock.get_monitor_socket(_EVENTS)
+
+        sock = wire.module_socket(
+            ctx, self.connect, self.module, keys=self.keys, before_connect=watch_from_the_start
+        )
         self._connected = False
         self.renew_at = None
         return sock
@@ -104,6 +111,7 @@ class ShipCheck:
                     log.info("module %s: handshake with %s succeeded", self.module, self.connect)
                     self.refusal = None
             elif kind == zmq.EVENT_HANDSHAKE_FAILED_AUTH:
+                self._connected = False  # the disconnect that follows is this failure, not another
                 self._refuse(
                     "key_refused",
                     f"the ship at {self.connect} refused this module's key (ZAP status {value}): "
@@ -111,6 +119,7 @@ class ShipCheck:
                     "public key to its keys/modules folder)",
                 )
             elif kind == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL and value == _MISMATCH:
+                self._connected = False
                 self._refuse(
                     "plaintext",
                     f"the peer at {self.connect} does not use the same link security as this module: "
@@ -136,7 +145,11 @@ class ShipCheck:
         now = time.monotonic()
         if self.refusal is None or self.refusal.reason != reason:
             log.error("module %s refuses the ship: %s", self.module, message)
-            self.refusal = Refusal(reason, message, now, definitive)
+            # Refused since the first failure, whatever the reasons that follow: a peer whose
+            # failures alternate (a mechanism mismatch, then a dropped connection) must not restart
+            # the grace a simulated module gives it (it once kept one waiting > 60 s under load).
+            since = now if self.refusal is None else self.refusal.since_mono
+            self.refusal = Refusal(reason, message, since, definitive)
         if reason != "wrong_dive" and self.renew_at is None:
             self.renew_at = now + RETRY_SOCKET_S  # libzmq may not try again by itself
 

@@ -10,6 +10,7 @@ link is plaintext, for a lab bench only.
 from __future__ import annotations
 
 import secrets
+from collections.abc import Callable
 from typing import Any
 
 import zmq
@@ -69,9 +70,17 @@ def route_module(route: bytes) -> str:
 
 
 def module_socket(
-    ctx: zmq.Context[Any], endpoint: str, module: str, *, keys: ModuleKeys | None = None
+    ctx: zmq.Context[Any],
+    endpoint: str,
+    module: str,
+    *,
+    keys: ModuleKeys | None = None,
+    before_connect: Callable[[Any], None] | None = None,
 ) -> Any:
     """A module's DEALER, connected to the ship under a fresh route (`new_route`); CURVE with ``keys``.
+
+    ``before_connect(sock)`` runs before the connect starts: a monitor attached later can miss the
+    connection's first events (a peer that then fails the handshake went unnoticed).
 
     ZeroMQ reconnects by itself after a broken link; ``IMMEDIATE`` keeps
     messages from queueing for a peer that is not connected (the outbox holds
@@ -91,5 +100,7 @@ def module_socket(
     sock.setsockopt(zmq.HANDSHAKE_IVL, HANDSHAKE_MS)
     sock.setsockopt(zmq.HEARTBEAT_IVL, 1000)
     sock.setsockopt(zmq.HEARTBEAT_TIMEOUT, 3000)
+    if before_connect is not None:
+        before_connect(sock)
     sock.connect(endpoint)
     return sock

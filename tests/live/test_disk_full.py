@@ -7,6 +7,8 @@ ingest's data folder on it, and a file that takes all but ~1 MB of it.
 
 from __future__ import annotations
 
+import errno
+import os
 import shutil
 import time
 from collections.abc import Iterator
@@ -33,6 +35,25 @@ def small_disk(tmp_path: Path) -> Iterator[Path]:
         yield where
 
 
+def fill(disk: Path, leave_bytes: int) -> Path:
+    """A file taking all of ``disk`` but ``leave_bytes``, however much the ingest writes meanwhile.
+
+    Written to the last byte, then cut: a file sized from a free-space reading once failed a clean
+    clone's CI with "No space left on device" (frames kept arriving while it was written).
+    """
+    filler = disk / "filler"
+    chunk = bytes(1 << 20)
+    with filler.open("wb", buffering=0) as f:
+        try:
+            while True:
+                f.write(chunk)
+        except OSError as exc:
+            if exc.errno != errno.ENOSPC:
+                raise
+    os.truncate(filler, max(0, filler.stat().st_size - leave_bytes))
+    return filler
+
+
 def count(svc: IngestService, model: type) -> int:
     with svc.store.read() as s:
         return int(s.scalar(select(func.count(model.id))) or 0)  # type: ignore[attr-defined]
@@ -48,9 +69,8 @@ def test_a_full_disk_refuses_nothing_for_good_and_every_frame_arrives_once_freed
     try:
         agent.start()
         assert wait_for(lambda: count(svc, FrameResult) >= 5, 30)
-        filler = small_disk / "filler"
         # all but ~1 MB (written, not sparse): a few frames more fit, then nothing
-        filler.write_bytes(bytes(shutil.disk_usage(small_disk).free - 1_000_000))
+        filler = fill(small_disk, leave_bytes=1_000_000)
         # Longer than the module's limited resends (1 + 2 + 4 s for three tries): a message refused
         # for a reason that is the ship's own must be resent until it works.
         time.sleep(sum(2.0**k for k in range(resends + 1)) + 4.0)

@@ -17,6 +17,7 @@ from __future__ import annotations
 import importlib
 import importlib.machinery
 import os
+import re
 import sys
 import types
 from typing import Any
@@ -116,6 +117,10 @@ def _register(target: typer.Typer, module: str) -> None:
     for group in target.registered_groups:  # ``lrm``, ``calibrate`` ...: groups of subcommands
         if isinstance(group.cls, DefaultPlaceholder):
             group.cls = _Group
+        for sub in group.typer_instance.registered_commands if group.typer_instance else ():
+            sub.cls = _Command if sub.cls in (None, TyperCommand) else sub.cls
+    for command in target.registered_commands:
+        command.cls = _Command if command.cls in (None, TyperCommand) else command.cls
 
 
 def build_app() -> typer.Typer:
@@ -145,6 +150,28 @@ def _plain_help_flag(option: Any) -> Any:
     except (ImportError, AttributeError, TypeError):
         pass
     return option
+
+
+#: What rich takes for a markup tag (``rich.markup``): "[m]" or "[px]", a unit in a help text, is one.
+_TAG = re.compile(r"(\\*)(\[[a-z#/@][^[]*?])")
+
+
+def _as_written(text: str | None) -> str | None:
+    """``text`` escaped for rich's markup, so that typer's help shows it as written."""
+    return None if text is None else _TAG.sub(lambda m: m.group(1) * 2 + "\\" + m.group(2), text)
+
+
+class _Command(TyperCommand):
+    """A command whose help shows units as written: "depth [m]", not "depth" (rich ate "[m]")."""
+
+    def format_help(self, ctx: Any, formatter: Any) -> None:
+        if self.rich_markup_mode == "rich" and not getattr(self, "_escaped", False):
+            self.help = _as_written(self.help)
+            for param in self.params:
+                if isinstance(getattr(param, "help", None), str):
+                    param.help = _as_written(param.help)  # type: ignore[attr-defined]
+            self._escaped = True
+        super().format_help(ctx, formatter)
 
 
 class _Group(TyperGroup):
@@ -250,21 +277,17 @@ def main() -> None:
         message = missing_extra(exc)
         if message is None:
             raise
-        from rich.markup import escape
+        from camcal.cli.common import err_console, labelled
 
-        from camcal.cli.common import err_console
-
-        err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
+        err_console.print(labelled("error:", "bold red", message), highlight=False, soft_wrap=True)
         raise SystemExit(2) from None
     except OSError as exc:  # a full or read-only disk under any command: one line, not a traceback
         message = disk_trouble(exc)
         if message is None:
             raise
-        from rich.markup import escape
+        from camcal.cli.common import err_console, labelled
 
-        from camcal.cli.common import err_console
-
-        err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
+        err_console.print(labelled("error:", "bold red", message), highlight=False, soft_wrap=True)
         raise SystemExit(1) from None
 
 

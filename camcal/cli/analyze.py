@@ -8,8 +8,9 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
+from rich.text import Text
 
-from camcal.cli.common import console, fail, progress_bar
+from camcal.cli.common import console, fail, labelled, progress_bar
 from camcal.cli.overrides import (
     DistanceErrOption,
     DistanceOption,
@@ -93,7 +94,11 @@ def print_frame(an: FrameSetAnalysis) -> None:
     what = f"{row.file} (camera {row.camera}, {setting})"
     if not f.ok or f.centroid_px is None:
         console.print(
-            f"{what}: [yellow]rejected[/] ({f.reason}: {f.detail or REASON_HELP.get(f.reason or '', '')})",
+            Text.assemble(
+                f"{what}: ",
+                ("rejected", "yellow"),
+                f" ({f.reason}: {f.detail or REASON_HELP.get(f.reason or '', '')})",
+            ),
             highlight=False,
         )
         return
@@ -137,10 +142,10 @@ def print_summary(an: FrameSetAnalysis) -> None:
             )
     console.print(table)
     if an.problem:
-        console.print(f"[yellow]no λ_att:[/] {an.problem}")
+        console.print(labelled("no λ_att:", "yellow", an.problem))
     if an.result is not None:
         for wl, why in sorted(an.result.skipped.items()):
-            console.print(f"[yellow]{wl} nm skipped:[/] {why}")
+            console.print(labelled(f"{wl} nm skipped:", "yellow", why))
     counts = an.counts()
     frames = Table(title=f"frames: {len(an.frames)}", title_justify="left")
     frames.add_column("status")

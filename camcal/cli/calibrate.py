@@ -13,7 +13,7 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from camcal.cli.common import console, err_console, fail
+from camcal.cli.common import console, err_console, fail, labelled, yes_no
 from camcal.cli.defaults import DEEP_SEA_TEMPERATURE_C, LEM_DIAMETER_M
 from camcal.core.files import write_atomic
 
@@ -89,7 +89,7 @@ def _lazy_progress(label: str, quiet: bool) -> Iterator[Callable[[int, int], Non
             if "bar" not in state:
                 bar = stack.enter_context(
                     Progress(
-                        TextColumn("[bold]{task.description}"),
+                        TextColumn("{task.description}", style="bold", markup=False),
                         BarColumn(),
                         MofNCompleteColumn(),
                         TimeRemainingColumn(),
@@ -118,7 +118,7 @@ def _outputs(
     doc: dict[str, Any], json_out: Path | None, plots: Path | None, plot: Callable[[Path], list[Path]]
 ) -> None:
     for w in doc["warnings"]:
-        console.print(f"[yellow]warning:[/] {w}")
+        console.print(labelled("warning:", "yellow", w))
     if json_out:
         json_out.parent.mkdir(parents=True, exist_ok=True)
         write_atomic(json_out, (json.dumps(doc, indent=1) + "\n").encode(), fsync=False)
@@ -398,7 +398,7 @@ def psf(
             f"{r.sigma_y.mean:.3f} ± {r.sigma_y.err:.3f}",
             f"{r.fwhm_px:.2f} ± {r.fwhm_err_px:.2f}",
             str(r.sigma.n),
-            "—" if focus is None else ("[green]yes[/]" if focus else "[red]no[/]"),
+            "—" if focus is None else yes_no(focus),
         )
     console.print(t)
     _frames_table(cal.frames)

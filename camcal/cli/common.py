@@ -9,11 +9,26 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.text import Text
 
 from camcal.cli.defaults import DATA_DIR
 
-console = Console()
-err_console = Console(stderr=True)
+# Plain text unless styled on purpose: a path, a key or an error message holding "[b]" is
+# printed as it is, never read as rich markup (which once dropped it from a listed key). Style
+# goes in as rich Text: `labelled("warning:", "yellow", message)` or `Text(word, style=...)`.
+console = Console(markup=False)
+err_console = Console(stderr=True, markup=False)
+
+
+def labelled(label: str, style: str, rest: str = "") -> Text:
+    """``label`` in ``style``, then a space and ``rest`` as plain text."""
+    return Text.assemble((label, style), f" {rest}" if rest else "")
+
+
+def yes_no(ok: bool) -> Text:
+    """A table cell: "yes" in green or "no" in red."""
+    return Text("yes", style="green") if ok else Text("no", style="red")
+
 
 # Where the store is: one declaration for every command that opens it. Unset, both come
 # from the typed settings (`camcal.core.settings`): CAMCAL_DATA_DIR, CAMCAL_DATABASE_URL,
@@ -39,7 +54,7 @@ DbUrlOption = Annotated[
 
 def fail(message: str, code: int = 2) -> typer.Exit:
     """Print one line to stderr and return the exit to raise (no traceback)."""
-    err_console.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    err_console.print(labelled("error:", "bold red", message), highlight=False, soft_wrap=True)
     return typer.Exit(code)
 
 
@@ -52,7 +67,7 @@ def progress_bar(label: str, *, quiet: bool = False) -> Iterator[Callable[[int, 
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     with Progress(
-        TextColumn("[bold]{task.description}"),
+        TextColumn("{task.description}", style="bold", markup=False),
         BarColumn(),
         MofNCompleteColumn(),
         TimeRemainingColumn(),

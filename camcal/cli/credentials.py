@@ -13,7 +13,7 @@ import secrets
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from camcal.cli.common import err_console, fail
+from camcal.cli.common import err_console, fail, labelled
 
 if TYPE_CHECKING:
     from camcal.core.settings import Settings
@@ -30,8 +30,12 @@ def operator_tokens(items: list[str] | None, settings: Settings) -> dict[str, st
         raise fail(str(exc)) from None
     if items:
         err_console.print(
-            "[yellow]warning:[/] --operator-token shows the token to every user of this machine (ps); "
-            "use CAMCAL_OPERATOR_TOKENS or operator_tokens_file instead",
+            labelled(
+                "warning:",
+                "yellow",
+                "--operator-token shows the token to every user of this machine (ps); "
+                "use CAMCAL_OPERATOR_TOKENS or operator_tokens_file instead",
+            ),
             highlight=False,
         )
     for item in items or []:

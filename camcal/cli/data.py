@@ -136,19 +136,21 @@ def import_cmd(
     )
     if report.unstamped:
         console.print(
-            f"[yellow]{report.unstamped} frames had no capture time (the manifest's timestamp column): "
+            f"{report.unstamped} frames had no capture time (the manifest's timestamp column): "
             "stamped with this import's clock. The dive's times, and its λ_att series over time, mean "
             "nothing for them (with no time at all, no series is made: `camcal analyze` gives the set's "
-            "λ_att); add the times to the manifest to place them.[/]",
+            "λ_att); add the times to the manifest to place them.",
+            style="yellow",
             soft_wrap=True,
         )
     if report.setup_ignored:
         where, changes = report.setup_ignored
         shown = "; ".join(changes[:4]) + (f" and {len(changes) - 4} more" if len(changes) > 4 else "")
         console.print(
-            f"[yellow]dive {d.name} keeps the calibration it was analysed with: {where} differs ({shown}) "
+            f"dive {d.name} keeps the calibration it was analysed with: {where} differs ({shown}) "
             f"and was not used. To analyse the dive with it: camcal reanalyze --dive {d.name} --setup "
-            f"{where}" + (f" --data {data}" if data else "") + "[/]",
+            f"{where}" + (f" --data {data}" if data else ""),
+            style="yellow",
             soft_wrap=True,
         )
     if report.problems:

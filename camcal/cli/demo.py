@@ -9,9 +9,10 @@ from typing import Annotated
 
 import typer
 from rich.table import Table
+from rich.text import Text
 
 from camcal.cli.analyze import print_summary
-from camcal.cli.common import console, fail, progress_bar
+from camcal.cli.common import console, fail, progress_bar, yes_no
 
 
 def register(app: typer.Typer) -> None:
@@ -48,20 +49,20 @@ def demo(
         repeats=repeats,
     )
     spec = SimulationSpec(water=w, schedule=schedule, seed=seed)
-    console.rule("[bold]1. simulate")
+    console.rule(Text("1. simulate", style="bold"))
     console.print(
         f"{schedule.n_frames * 2} frames of 2448 x 2048 px, {w.name} water, "
         f"cameras A at 21.56 m and B at 41.62 m"
     )
     with progress_bar("rendering") as update:
         truth = simulate_frame_set(frameset, spec, progress=update)
-    console.rule("[bold]2. analyse")
+    console.rule(Text("2. analyse", style="bold"))
     with progress_bar("analysing") as update:
         an = analyze_folder(frameset, progress=update)
     print_summary(an)
     write_atomic(out / "result.json", (json.dumps(to_json(an), indent=1) + "\n").encode(), fsync=False)
     plots = write_plots(an, out / "plots")
-    console.rule("[bold]3. against the simulated truth")
+    console.rule(Text("3. against the simulated truth", style="bold"))
     table = Table()
     for col in ("wavelength", "true λ_att [m]", "measured [m]", "deviation", "pull (stat⊕sys)", "within 3 %"):
         table.add_column(col, justify="right")
@@ -72,7 +73,7 @@ def demo(
         true = o["lambda_att_m"]
         res = an.result.attenuation.get(int(wl_s)) if an.result else None
         if res is None or res.lambda_att_m is None:
-            table.add_row(f"{wl_s} nm", f"{true:.2f}", "—", "—", "—", "[red]no[/]")
+            table.add_row(f"{wl_s} nm", f"{true:.2f}", "—", "—", "—", yes_no(False))
             all_ok = False
             continue
         dev = (res.lambda_att_m - true) / true
@@ -85,7 +86,7 @@ def demo(
             f"{res.lambda_att_m:.2f}",
             f"{100 * dev:+.1f} %",
             f"{pull:+.2f}",
-            "[green]yes[/]" if ok else "[red]no[/]",
+            yes_no(ok),
         )
     console.print(table)
     console.print(f"frame set: {frameset}\nresult:    {out / 'result.json'}")

@@ -9,10 +9,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-from rich.markup import escape
 from rich.table import Table
+from rich.text import Text
 
-from camcal.cli.common import console
+from camcal.cli.common import console, fail
 from camcal.cli.config import settings_or_fail
 from camcal.core.events import Event
 
@@ -301,8 +301,7 @@ def doctor(
     wanted = set(check or checks)
     unknown = wanted - set(checks)
     if unknown:
-        console.print(f"[red]unknown check(s): {', '.join(sorted(unknown))}[/]")
-        raise typer.Exit(2)
+        raise fail(f"unknown check(s): {', '.join(sorted(unknown))} (the checks: {', '.join(checks)})")
     rows = [("configuration", OK, "loaded")]
     if "data" in wanted:
         rows += check_data(s)
@@ -327,8 +326,7 @@ def doctor(
         table.add_column(col)
     colour = {OK: "green", WARN: "yellow", FAIL: "bold red"}
     for name, status, detail in rows:
-        # Plain text: a path or a key fingerprint may hold "[b]", which rich would take for markup.
-        table.add_row(escape(name), f"[{colour[status]}]{status}[/]", escape(detail))
+        table.add_row(name, Text(status, style=colour[status]), detail)
     console.print(table)
     if any(st == FAIL for _, st, _ in rows):
         raise typer.Exit(1)

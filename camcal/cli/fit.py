@@ -11,8 +11,9 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 from rich.table import Table
+from rich.text import Text
 
-from camcal.cli.common import DataOption, DbUrlOption, console, err_console, fail, parse_floats
+from camcal.cli.common import DataOption, DbUrlOption, console, err_console, fail, labelled, parse_floats
 from camcal.cli.overrides import DistanceErrOption, DistanceOption, RatioOption, overrides_from
 from camcal.core.files import write_atomic
 
@@ -33,7 +34,7 @@ def stage_progress(quiet: bool) -> Iterator[Callable[[str, int, int], None]]:
         yield lambda stage, done, total: None
         return
     with Progress(
-        TextColumn("[bold]{task.description:<10}"),
+        TextColumn("{task.description:<10}", style="bold", markup=False),
         BarColumn(),
         MofNCompleteColumn(),
         TimeElapsedColumn(),
@@ -260,17 +261,20 @@ def print_fits(result: FolderFit) -> None:
         table.add_column(col, justify="right")
     for wl, f in sorted(result.fits.items()):
         chk = result.checks[wl]
+        verdict: str | Text = "—"
         if chk.lambda_att_icenter_m is None:
-            ic, verdict = "—", "—"
+            ic = "—"
         else:
             ic = f"{chk.lambda_att_icenter_m:.2f} ± {chk.lambda_att_icenter_err_m:.2f}"
             colour = "green" if chk.agrees else ("bold red" if chk.flagged else "yellow")
             word = "agrees" if chk.agrees else ("FLAGGED" if chk.flagged else "differs")
-            verdict = f"[{colour}]{word}[/] ({chk.z:+.1f}σ)"
+            verdict = Text.assemble((word, colour), f" ({chk.z:+.1f}σ)")
         if chk.nuisances_flagged:  # a calibration pulled beyond 3σ: said below the table
-            flag = "[bold red]calibration FLAGGED[/]"
-            verdict = flag if verdict == "—" else f"{verdict}\n{flag}"
-        scaled = f" [yellow](errors ×{f.error_scale:.2f})[/]" if f.error_scale > 1 else ""
+            flag = Text("calibration FLAGGED", style="bold red")
+            verdict = flag if verdict == "—" else Text.assemble(verdict, "\n", flag)
+        chi2 = Text(f"{f.chi2:.0f}/{f.ndof}")
+        if f.error_scale > 1:
+            chi2.append(f" (errors ×{f.error_scale:.2f})", style="yellow")
         table.add_row(
             str(wl),
             _length(f.lambda_abs, f.sys_interval_m(0), budget=f.systematics is not None),
@@ -278,7 +282,7 @@ def print_fits(result: FolderFit) -> None:
             f"{f.lambda_att_m:.2f} ± {chk.lambda_att_fit_err_m:.2f}",
             ic,
             verdict,
-            f"{f.chi2:.0f}/{f.ndof}{scaled}",
+            chi2,
         )
     console.print(table)
     console.print(
@@ -293,15 +297,15 @@ def print_fits(result: FolderFit) -> None:
             print_budget(f)
     for wl, chk in sorted(result.checks.items()):
         if chk.flagged:
-            console.print(f"[bold red]{wl} nm flagged:[/] {chk.advice}")
+            console.print(labelled(f"{wl} nm flagged:", "bold red", chk.advice or ""))
         if chk.nuisances_flagged:
-            console.print(f"[bold red]{wl} nm flagged:[/] {chk.nuisance_advice}")
+            console.print(labelled(f"{wl} nm flagged:", "bold red", chk.nuisance_advice or ""))
         elif chk.nuisance_advice:  # strained at the nominal phase function only
-            console.print(f"[yellow]{wl} nm note:[/] {chk.nuisance_advice}")
+            console.print(labelled(f"{wl} nm note:", "yellow", chk.nuisance_advice))
     for wl, why in sorted(result.notes.items()):
-        console.print(f"[yellow]{wl} nm:[/] {why}")
+        console.print(labelled(f"{wl} nm:", "yellow", why))
     for wl, why in sorted(result.skipped.items()):
-        console.print(f"[yellow]{wl} nm skipped:[/] {why}")
+        console.print(labelled(f"{wl} nm skipped:", "yellow", why))
 
 
 def _length(e: Estimate, sys_down_up_m: tuple[float, float], *, budget: bool) -> str:
@@ -336,7 +340,7 @@ def print_budget(f: ChiSquareFit) -> None:
             ("floated in the fit: inside its error, not added. " if i.profiled else "") + i.note,
         )
     table.add_row(
-        "[bold]sum in quadrature[/]",
+        Text("sum in quadrature", style="bold"),
         "",
         *(err(b.sys_up_m(k), b.sys_down_m(k)) for k in range(3)),
         f"{b.seconds:.1f} s",

@@ -55,13 +55,12 @@ def create(
     except OSError as exc:
         raise fail(f"cannot write keys in {folder}: {exc}") from None
     for path in made:
-        console.print(f"{path}  (secret: {path.name}_secret)", highlight=False, markup=False)
+        console.print(f"{path}  (secret: {path.name}_secret)", highlight=False)
     for m in modules or []:
         console.print(
             f"module {m}: copy {folder / 'ship.key'} and {folder / 'modules' / (m + '.key_secret')} to its "
             f"keys folder (same names), then delete {m}.key_secret here",
             highlight=False,
-            markup=False,
         )
 
 
@@ -74,8 +73,7 @@ def list_(keys: KeysDirOption = None, data: DataOption = None) -> None:
     found = list_keys(folder)
     if not found:
         raise fail(f"no keys in {folder}: create them with `camcal keys create A B --keys {folder}`")
-    # Plain text: a Z85 key or a path may hold "[b]", which rich would take for markup and drop.
-    console.print(f"keys in {folder}:", highlight=False, soft_wrap=True, markup=False)
+    console.print(f"keys in {folder}:", highlight=False, soft_wrap=True)
     width = max(len(k.owner) for k in found)
     for k in found:
         secret = "secret here" if k.has_secret else "public only"
@@ -83,5 +81,4 @@ def list_(keys: KeysDirOption = None, data: DataOption = None) -> None:
             f"  {k.owner:<{width}}  {k.public}  {secret}  {k.path}",
             highlight=False,
             soft_wrap=True,
-            markup=False,
         )

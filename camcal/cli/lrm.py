@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from camcal.cli.common import console, fail
+from camcal.cli.common import console, fail, labelled
 from camcal.cli.defaults import DATA_DIR
 
 if TYPE_CHECKING:
@@ -59,7 +59,11 @@ def link_keys(keys: Path, camera: str, plaintext: bool) -> Any:
     from camcal.core import wire
 
     if plaintext:
-        console.print("[yellow]warning:[/] plaintext link: no encryption, no authentication (lab bench only)")
+        console.print(
+            labelled(
+                "warning:", "yellow", "plaintext link: no encryption, no authentication (lab bench only)"
+            )
+        )
         return None
     try:
         return wire.module_keys(keys, camera)
@@ -351,7 +355,7 @@ def replay(
     if refused(agent):
         raise fail(f"module {camera}: {agent.refusal.message}", code=REFUSED_EXIT)
     for name, why in source.skipped:
-        console.print(f"[yellow]skipped[/] {name}: {why}")
+        console.print(labelled("skipped", "yellow", f"{name}: {why}"))
     console.print(
         f"sent {agent.counters['frames_captured']} frames; {agent.outbox.pending_count()} not acknowledged"
     )

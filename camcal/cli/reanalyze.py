@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from rich.table import Table
 
-from camcal.cli.common import DataOption, DbUrlOption, console, err_console, fail
+from camcal.cli.common import DataOption, DbUrlOption, console, err_console, fail, labelled
 from camcal.cli.overrides import (
     ClockOffsetOption,
     DistanceErrOption,
@@ -254,7 +254,7 @@ def _import_folders(
         except (OSError, ValueError) as exc:
             raise fail(f"{folder}: {exc}") from None
         for file, why in report.problems:
-            console.print(f"[yellow]skipped[/] {file}: {why}")
+            console.print(labelled("skipped", "yellow", f"{file}: {why}"))
         located = store.call(queries.locate_frames, report.sources)
         by_dive: dict[int, dict[int, str]] = {}
         for key, (fid, dive_id) in located.items():

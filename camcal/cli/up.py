@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from camcal.cli.common import console, err_console, fail
+from camcal.cli.common import console, err_console, fail, labelled
 from camcal.cli.config import settings_or_fail
 from camcal.cli.credentials import child_environment, ship_key, simulated_link, tokens_or_generated
 from camcal.cli.serve import HttpServer, bind_http, stop_signals
@@ -167,7 +167,7 @@ def up(
     except Interrupted:
         console.print("stopping before camcal was up (interrupted)")
     except (supervise.ChildFailed, RuntimeError) as exc:
-        err_console.print(f"[bold red]error:[/] camcal could not start: {exc}", highlight=False)
+        err_console.print(labelled("error:", "bold red", f"camcal could not start: {exc}"), highlight=False)
         code = supervise.EXIT_NOT_STARTED
     finally:
         supervise.sd_notify("STOPPING=1")
@@ -333,7 +333,9 @@ def watch(sup: supervise.Supervisor, http: HttpServer, stop: threading.Event) ->
         if watchdog:
             supervise.sd_notify("WATCHDOG=1")
         if not http.alive():
-            err_console.print(f"[bold red]error:[/] the dashboard stopped ({http.error!r}); stopping camcal")
+            err_console.print(
+                labelled("error:", "bold red", f"the dashboard stopped ({http.error!r}); stopping camcal")
+            )
             return supervise.EXIT_FAILED
         for child in sup.exited():
             if child.name.startswith("module") and child.proc.returncode == 0:
@@ -342,8 +344,12 @@ def watch(sup: supervise.Supervisor, http: HttpServer, stop: threading.Event) ->
                     console.print(f"{child.name} finished its dive (its log: {child.log})")
                 continue
             err_console.print(
-                f"[bold red]error:[/] the {child.name} {child.describe_exit()}; stopping camcal. "
-                f"Its log {child.log}:\n{child.log_tail()}",
+                labelled(
+                    "error:",
+                    "bold red",
+                    f"the {child.name} {child.describe_exit()}; stopping camcal. "
+                    f"Its log {child.log}:\n{child.log_tail()}",
+                ),
                 highlight=False,
             )
             return supervise.EXIT_FAILED
@@ -352,7 +358,11 @@ def watch(sup: supervise.Supervisor, http: HttpServer, stop: threading.Event) ->
 
 def _print_up(s: Settings, data_dir: Path, logs: Path, ingest_port: int, tokens: dict[str, str]) -> None:
     console.print(
-        f"[bold]camcal is up:[/] dashboard http://{s.http_host}:{s.http_port}  (review: /review, API: /docs)"
+        labelled(
+            "camcal is up:",
+            "bold",
+            f"dashboard http://{s.http_host}:{s.http_port}  (review: /review, API: /docs)",
+        )
     )
     console.print(f"data: {data_dir}   logs: {logs}   modules connect to tcp://<this host>:{ingest_port}")
     for name, token in tokens.items():  # only a token camcal made up: a configured one is never shown

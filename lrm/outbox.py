@@ -35,12 +35,12 @@ from camcal.core.frameset import (
     DAMAGED,
     DAMAGED_ROW,
     MANIFEST,
-    FrameSetWriter,
     ManifestRow,
     Setup,
     decode_text,
     parse_manifest,
 )
+from camcal.core.framewriter import FrameSetWriter
 from camcal.core.utctime import parse_utc
 from camcal.core.wire.dialect import INT_MAX
 

@@ -17,15 +17,15 @@ from pathlib import Path
 
 import numpy as np
 
+from camcal.core.files import write_atomic
 from camcal.core.frameset import (
     MANIFEST,
     CameraSetup,
-    FrameSetWriter,
     ManifestRow,
     RatioSetup,
     Setup,
-    write_atomic,
 )
+from camcal.core.framewriter import FrameSetWriter
 from camcal.core.images import encode_png
 from camcal.core.parallel import process_pool
 from camcal.core.schedule import Schedule, trex_subsampled

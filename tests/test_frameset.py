@@ -12,12 +12,12 @@ from hypothesis import strategies as st
 
 from camcal.core.frameset import (
     FrameSetError,
-    FrameSetWriter,
     ManifestRow,
     Setup,
     read_manifest,
     read_setup,
 )
+from camcal.core.framewriter import FrameSetWriter
 from camcal.core.images import FrameReadError, _decode_unfiltered_png, decode_frame, encode_png, read_frame
 
 

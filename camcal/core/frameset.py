@@ -1,8 +1,9 @@
 """The frame set: camcal's on-disk exchange format (``docs/frameset.md``).
 
 A folder with ``manifest.csv``, an optional ``setup.json`` and 8-bit
-grayscale images. This module is the one place that reads and writes it:
-the LRM outbox, ``camcal analyze``, ``camcal import`` and replay all use it.
+grayscale images. This module is the one place that reads it, and
+`camcal.core.framewriter` the one that writes it: the LRM outbox,
+``camcal analyze``, ``camcal import`` and replay all use them.
 """
 
 from __future__ import annotations
@@ -11,7 +12,6 @@ import csv
 import io
 import json
 import math
-import os
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,8 +20,7 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from camcal.core.files import write_atomic
-from camcal.core.images import FrameReadError, encode_png, read_frame
+from camcal.core.images import FrameReadError, read_frame
 
 MANIFEST = "manifest.csv"
 SETUP = "setup.json"
@@ -391,84 +390,6 @@ def parse_manifest(text: str, where: str = MANIFEST) -> list[ManifestRow]:
         return [_parse_row(i, raw) for i, raw in enumerate(reader)]
     except csv.Error as exc:
         raise FrameSetError(f"{where}: cannot read the manifest ({exc})") from exc
-
-
-# -------------------------------------------------------------------- writer
-class FrameSetWriter:
-    """Appends frames to a frame set: image first (atomically), then its manifest row.
-
-    The manifest is opened in append mode and flushed after every row, so an
-    interrupted writer leaves a valid frame set holding every frame whose row
-    was written. Re-opening an existing folder continues its manifest.
-    """
-
-    def __init__(self, folder: Path, setup: Setup | None = None, *, fsync: bool = False) -> None:
-        self.folder = Path(folder)
-        self.folder.mkdir(parents=True, exist_ok=True)
-        self.fsync = fsync
-        if setup is not None:
-            write_atomic(
-                self.folder / SETUP, (json.dumps(setup.to_json(), indent=2) + "\n").encode(), fsync=fsync
-            )
-        manifest = self.folder / MANIFEST
-        new = not manifest.exists() or manifest.stat().st_size == 0
-        # Continue an existing manifest in its own columns (it may predate a new optional one).
-        self._columns = list(MANIFEST_COLUMNS) if new else _header(manifest)
-        self._fh = manifest.open("a", newline="", encoding="utf-8")
-        self._writer = csv.DictWriter(self._fh, fieldnames=self._columns, extrasaction="ignore")
-        if new:
-            self._writer.writeheader()
-            self._fh.flush()
-        self._count = 0 if new else len(parse_manifest(_manifest_text(manifest), str(manifest)))
-
-    def add(self, frame: np.ndarray | bytes, row: ManifestRow) -> ManifestRow:
-        """Store one frame (array or encoded PNG bytes) under ``row.file`` and record it."""
-        data = frame if isinstance(frame, bytes) else encode_png(frame)
-        target = self.folder / row.file
-        target.parent.mkdir(parents=True, exist_ok=True)
-        write_atomic(target, data, fsync=self.fsync)
-        return self.record(row)
-
-    def record(self, row: ManifestRow) -> ManifestRow:
-        """Append the manifest row of an image already stored under ``row.file``.
-
-        Raises `FrameSetError` if the row has a value for a column the
-        continued manifest lacks, rather than dropping the value.
-        """
-        values = row.to_csv()
-        lost = [c for c, v in values.items() if v and c not in self._columns]
-        if lost:
-            raise FrameSetError(
-                f"{self.folder / MANIFEST}: has no column {', '.join(lost)} for the values of {row.file}"
-            )
-        self._writer.writerow(values)
-        self._fh.flush()
-        if self.fsync:
-            os.fsync(self._fh.fileno())
-        self._count += 1
-        return row
-
-    def __len__(self) -> int:
-        return self._count
-
-    def close(self) -> None:
-        self._fh.close()
-
-    def __enter__(self) -> FrameSetWriter:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-
-def _header(manifest: Path) -> list[str]:
-    """Column names of an existing manifest."""
-    return [h.strip() for h in next(csv.reader(io.StringIO(_manifest_text(manifest), newline="")), [])]
-
-
-def _manifest_text(manifest: Path) -> str:
-    """A manifest being continued, as text (`decode_text`): the writer can still append."""
-    return decode_text(manifest.read_bytes())
 
 
 def iter_frames(folder: Path) -> Iterator[tuple[ManifestRow, np.ndarray | FrameReadError]]:

@@ -27,7 +27,8 @@ import numpy as np
 
 from camcal.core.calibrations import LAB_EXPERIMENTS
 from camcal.core.files import write_atomic
-from camcal.core.frameset import MANIFEST, FrameSetWriter, ManifestRow, Setup
+from camcal.core.frameset import MANIFEST, ManifestRow, Setup
+from camcal.core.framewriter import FrameSetWriter
 from lrm.labset.base import LabBase, LabShot
 from lrm.labset.darkroom import LINEARITY_EXPOSURES_S, EmissionRatioLab, LinearityLab, PSFLab
 from lrm.labset.scans import AirScanLab, TankScanLab

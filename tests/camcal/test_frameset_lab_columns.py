@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camcal.core.frameset import FrameSetError, FrameSetWriter, ManifestRow, read_manifest
+from camcal.core.frameset import FrameSetError, ManifestRow, read_manifest
+from camcal.core.framewriter import FrameSetWriter
 
 HEADER = (
     "file,camera,wavelength_nm,exposure_s,gain_db,distance_m,distance_err_m,temperature_c,medium,hemisphere\n"

@@ -7,7 +7,6 @@ otherwise), filled by a file that takes all but ~0.5 MB of it.
 
 from __future__ import annotations
 
-import shutil
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -19,7 +18,7 @@ from storage import queries
 from storage.models import Alarm, Frame
 from tests.live.conftest import ingest_config
 from tests.utils.live import make_agent, stop_and_drain, wait_for
-from tests.utils.tmpfs import small_tmpfs
+from tests.utils.tmpfs import fill, small_tmpfs
 
 
 @pytest.fixture
@@ -45,8 +44,7 @@ def test_a_full_card_keeps_the_module_up_alarms_and_capture_resumes_when_freed(
     agent.start()
     try:
         assert wait_for(lambda: agent.counters["acked"] >= 5, 30)
-        filler = card / "filler"
-        filler.write_bytes(bytes(shutil.disk_usage(card).free - 500_000))
+        filler = fill(card, leave_bytes=500_000)
         assert wait_for(lambda: agent.counters["card_skipped"] >= 3, 30), "the card never filled"
         captured = agent.counters["frames_captured"]
         # the module lives on: linked, heartbeats, its capture thread running; the ship says why

@@ -7,9 +7,6 @@ ingest's data folder on it, and a file that takes all but ~1 MB of it.
 
 from __future__ import annotations
 
-import errno
-import os
-import shutil
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -26,32 +23,13 @@ from storage.models import Frame, FrameResult
 from tests.live.conftest import ingest_config
 from tests.utils.live import make_agent, stop_and_drain, wait_for
 from tests.utils.sim import SMALL_CAMERA, renderer
-from tests.utils.tmpfs import small_tmpfs
+from tests.utils.tmpfs import fill, small_tmpfs
 
 
 @pytest.fixture
 def small_disk(tmp_path: Path) -> Iterator[Path]:
     with small_tmpfs(tmp_path / "disk", 200) as where:
         yield where
-
-
-def fill(disk: Path, leave_bytes: int) -> Path:
-    """A file taking all of ``disk`` but ``leave_bytes``, however much the ingest writes meanwhile.
-
-    Written to the last byte, then cut: a file sized from a free-space reading once failed a clean
-    clone's CI with "No space left on device" (frames kept arriving while it was written).
-    """
-    filler = disk / "filler"
-    chunk = bytes(1 << 20)
-    with filler.open("wb", buffering=0) as f:
-        try:
-            while True:
-                f.write(chunk)
-        except OSError as exc:
-            if exc.errno != errno.ENOSPC:
-                raise
-    os.truncate(filler, max(0, filler.stat().st_size - leave_bytes))
-    return filler
 
 
 def count(svc: IngestService, model: type) -> int:
@@ -100,7 +78,7 @@ def test_a_thumbnail_the_full_disk_cannot_take_costs_the_thumbnail_not_the_resul
     frame = tmp_path / "frame.png"
     frame.write_bytes(encode_png(pixels))
     with small_tmpfs(tmp_path / "disk", 1) as disk:
-        (disk / "filler").write_bytes(bytes(shutil.disk_usage(disk).free))  # full: not a byte left
+        fill(disk)  # full: not a byte left
         thumb = disk / "thumbs" / "1.jpg"
         row = analyse_stored_frame(str(frame), FrameConfig(), str(thumb))
         assert row["status"] == "ok" and row["i_center_gray"] > 0

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import errno
+import os
 import subprocess
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -23,3 +25,22 @@ def small_tmpfs(where: Path, size_mb: int) -> Iterator[Path]:
         yield where
     finally:
         subprocess.run(["umount", "-l", str(where)], check=False)
+
+
+def fill(disk: Path, leave_bytes: int = 0) -> Path:
+    """A file taking all of ``disk`` but ``leave_bytes``, however much others write meanwhile.
+
+    Written to the last byte, then cut: a file sized from a free-space reading once failed a clean
+    clone's CI with "No space left on device" (frames kept arriving while it was written).
+    """
+    filler = disk / "filler"
+    chunk = bytes(1 << 16)
+    with filler.open("wb", buffering=0) as f:
+        try:
+            while True:
+                f.write(chunk)
+        except OSError as exc:
+            if exc.errno != errno.ENOSPC:
+                raise
+    os.truncate(filler, max(0, filler.stat().st_size - leave_bytes))
+    return filler

@@ -1,0 +1,130 @@
+"""Writing a frame set (``docs/frameset.md``): images first, each row after its image, on a card
+that may fill up or lose power at any moment; `camcal.core.frameset` reads what this writes."""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from camcal.core.files import write_atomic
+from camcal.core.frameset import (
+    MANIFEST,
+    MANIFEST_COLUMNS,
+    SETUP,
+    FrameSetError,
+    ManifestRow,
+    Setup,
+    decode_text,
+    parse_manifest,
+)
+from camcal.core.images import encode_png
+
+
+class FrameSetWriter:
+    """Appends frames to a frame set: image first (atomically), then its manifest row.
+
+    The manifest is opened in append mode and flushed after every row, so an
+    interrupted writer leaves a valid frame set holding every frame whose row
+    was written. Re-opening an existing folder continues its manifest.
+    """
+
+    def __init__(self, folder: Path, setup: Setup | None = None, *, fsync: bool = False) -> None:
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.fsync = fsync
+        if setup is not None:
+            write_atomic(
+                self.folder / SETUP, (json.dumps(setup.to_json(), indent=2) + "\n").encode(), fsync=fsync
+            )
+        manifest = self.folder / MANIFEST
+        new = not manifest.exists() or manifest.stat().st_size == 0
+        # Continue an existing manifest in its own columns (it may predate a new optional one).
+        self._columns = list(MANIFEST_COLUMNS) if new else _header(manifest)
+        self._fh = manifest.open("a", newline="", encoding="utf-8")
+        self._writer = csv.DictWriter(self._fh, fieldnames=self._columns, extrasaction="ignore")
+        if new:
+            self._writer.writeheader()
+            self._fh.flush()
+        self._count = 0 if new else len(parse_manifest(_manifest_text(manifest), str(manifest)))
+
+    def add(self, frame: np.ndarray | bytes, row: ManifestRow) -> ManifestRow:
+        """Store one frame (array or encoded PNG bytes) under ``row.file`` and record it."""
+        data = frame if isinstance(frame, bytes) else encode_png(frame)
+        target = self.folder / row.file
+        target.parent.mkdir(parents=True, exist_ok=True)
+        write_atomic(target, data, fsync=self.fsync)
+        try:
+            return self.record(row)
+        except OSError:
+            with contextlib.suppress(OSError):
+                target.unlink()  # an image without its row is not part of the set
+            raise
+
+    def record(self, row: ManifestRow) -> ManifestRow:
+        """Append the manifest row of an image already stored under ``row.file``.
+
+        Raises `FrameSetError` if the row has a value for a column the
+        continued manifest lacks, rather than dropping the value.
+        """
+        values = row.to_csv()
+        lost = [c for c, v in values.items() if v and c not in self._columns]
+        if lost:
+            raise FrameSetError(
+                f"{self.folder / MANIFEST}: has no column {', '.join(lost)} for the values of {row.file}"
+            )
+        held = os.fstat(self._fh.fileno()).st_size  # every row is flushed: nothing is buffered
+        try:
+            self._writer.writerow(values)
+            self._fh.flush()
+            if self.fsync:
+                os.fsync(self._fh.fileno())
+        except OSError:
+            self._take_back(held)
+            raise
+        self._count += 1
+        return row
+
+    def _take_back(self, held: int) -> None:
+        """After a failed write (a full card): the manifest as it was before it, ``held`` bytes.
+
+        A full disk takes the part of a row that fits and leaves the rest in the file's buffer,
+        which the next row's write would put on the card after all: a row its writer was told had
+        failed (whose number a module gives to its next frame) landed whole, two rows with one
+        sequence number, the second frame's image under the first one's values.
+        """
+        with contextlib.suppress(OSError):
+            self._fh.close()  # closes even when its last flush fails; what it wrote is cut below
+        manifest = self.folder / MANIFEST
+        with contextlib.suppress(OSError):
+            if manifest.stat().st_size > held:
+                os.truncate(manifest, held)
+        self._fh = manifest.open("a", newline="", encoding="utf-8")
+        self._writer = csv.DictWriter(self._fh, fieldnames=self._columns, extrasaction="ignore")
+
+    def __len__(self) -> int:
+        return self._count
+
+    def close(self) -> None:
+        self._fh.close()
+
+    def __enter__(self) -> FrameSetWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _header(manifest: Path) -> list[str]:
+    """Column names of an existing manifest."""
+    return [h.strip() for h in next(csv.reader(io.StringIO(_manifest_text(manifest), newline="")), [])]
+
+
+def _manifest_text(manifest: Path) -> str:
+    """A manifest being continued, as text (`decode_text`): the writer can still append."""
+    return decode_text(manifest.read_bytes())

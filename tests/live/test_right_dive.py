@@ -9,12 +9,9 @@ exit status 3; the ingest refuses every message of another dive
 
 from __future__ import annotations
 
-import contextlib
 import json
-import socket
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -26,6 +23,7 @@ from ingest.service import IngestService
 from tests.live.conftest import ingest_config
 from tests.live.test_ingest import wait_for
 from tests.utils.live import cli_env, make_agent
+from tests.utils.peers import HTTP_ERROR, tcp_peer
 from tests.utils.rogue import IngestProbe
 from tests.utils.wiremsgs import frame_parts
 
@@ -86,37 +84,8 @@ def test_a_message_of_another_dive_is_refused_and_one_of_this_dive_is_stored(shi
         rogue.close()
 
 
-@contextlib.contextmanager
-def garbage_listener() -> Iterator[str]:
-    """A TCP port whose owner is not ZeroMQ: it answers every connection with an HTTP error."""
-    srv = socket.socket()
-    srv.bind(("127.0.0.1", 0))
-    srv.listen()
-    srv.settimeout(0.2)
-    stop = threading.Event()
-
-    def serve() -> None:
-        while not stop.is_set():
-            try:
-                conn, _ = srv.accept()
-            except TimeoutError:
-                continue
-            with contextlib.suppress(OSError):
-                conn.sendall(b"HTTP/1.1 400 Bad Request\r\n\r\n")
-            conn.close()
-
-    t = threading.Thread(target=serve, daemon=True)
-    t.start()
-    try:
-        yield f"tcp://127.0.0.1:{srv.getsockname()[1]}"
-    finally:
-        stop.set()
-        t.join(2)
-        srv.close()
-
-
 def test_a_module_refuses_a_port_that_does_not_speak_the_protocol(ship: IngestProbe, tmp_path: Path) -> None:
-    with garbage_listener() as endpoint:
+    with tcp_peer(lambda n: HTTP_ERROR) as endpoint:  # not ZeroMQ: an HTTP error to everyone
         code, out = simulate(endpoint, ship.keys, tmp_path / "outbox", "trex-7")
     assert code == REFUSED_EXIT, out
     assert "does not complete the camcal link's handshake" in out and endpoint in out, out

@@ -2,11 +2,7 @@
 
 from __future__ import annotations
 
-import contextlib
-import socket
-import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import zmq
@@ -14,42 +10,7 @@ import zmq
 from camcal.core.wire import module_keys
 from camcal.core.wire.keys import create_module_key, create_ship_key
 from lrm.shipcheck import ShipCheck
-
-#: A ZMTP 3.0 greeting offering the NULL mechanism: a plaintext ZeroMQ peer, to a CURVE module.
-NULL_GREETING = b"\xff" + bytes(8) + b"\x7f" + bytes([3, 0]) + b"NULL".ljust(20, b"\0") + b"\0" + bytes(31)
-HTTP_ERROR = b"HTTP/1.1 400 Bad Request\r\n\r\n"
-
-
-@contextlib.contextmanager
-def alternating_peer() -> Iterator[str]:
-    """A TCP port that greets one connection as a plaintext ZeroMQ peer, the next with HTTP, and so on."""
-    srv = socket.socket()
-    srv.bind(("127.0.0.1", 0))
-    srv.listen()
-    srv.settimeout(0.1)
-    stop = threading.Event()
-
-    def serve() -> None:
-        n = 0
-        while not stop.is_set():
-            try:
-                conn, _ = srv.accept()
-            except TimeoutError:
-                continue
-            n += 1
-            with contextlib.suppress(OSError):
-                conn.sendall(NULL_GREETING if n % 2 else HTTP_ERROR)
-                time.sleep(0.2)  # long enough for the module to read the greeting
-            conn.close()
-
-    t = threading.Thread(target=serve, daemon=True)
-    t.start()
-    try:
-        yield f"tcp://127.0.0.1:{srv.getsockname()[1]}"
-    finally:
-        stop.set()
-        t.join(2)
-        srv.close()
+from tests.utils.peers import HTTP_ERROR, NULL_GREETING, tcp_peer
 
 
 def test_a_refusal_counts_from_the_first_failure_whatever_reasons_follow(tmp_path: Path) -> None:
@@ -61,7 +22,9 @@ def test_a_refusal_counts_from_the_first_failure_whatever_reasons_follow(tmp_pat
     create_ship_key(tmp_path)
     create_module_key(tmp_path, "A")
     ctx = zmq.Context()
-    with alternating_peer() as endpoint:
+    # One connection greeted as a plaintext ZeroMQ peer, the next with HTTP, and so on (each held
+    # long enough for the module to read it).
+    with tcp_peer(lambda n: NULL_GREETING if n % 2 else HTTP_ERROR, hold_s=0.2) as endpoint:
         check = ShipCheck("A", endpoint, None, module_keys(tmp_path, "A"))
         sock = check.open(ctx)
         reasons: list[str] = []

@@ -18,7 +18,6 @@ what the ship does not have.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 import os
@@ -31,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from camcal.core import wire
+from camcal.core.files import AppendLog, write_atomic
 from camcal.core.frameset import (
     DAMAGED,
     DAMAGED_ROW,
@@ -148,9 +148,10 @@ class Outbox:
             drop_cut_line(self.root / name)
         fresh = not (frames_dir / MANIFEST).exists()
         self._writer = FrameSetWriter(frames_dir, setup if fresh else None, fsync=self.fsync)
-        self._sensors = (self.root / "sensors.jsonl").open("a", encoding="utf-8")
-        self._acked_fh = (self.root / "acked.log").open("a", encoding="utf-8")
-        self._refused_fh = (self.root / "refused.jsonl").open("a", encoding="utf-8")
+        # Each line on the card whole or not at all, even when the card fills up as it is written.
+        self._sensors = AppendLog(self.root / "sensors.jsonl", fsync=self.fsync)
+        self._acked_fh = AppendLog(self.root / "acked.log", fsync=self.fsync)
+        self._refused_fh = AppendLog(self.root / "refused.jsonl", fsync=self.fsync)
 
     # ------------------------------------------------------------ loading
     def _load(self) -> None:
@@ -264,34 +265,12 @@ class Outbox:
 
     def add_sensors(self, boot: str, seq: int, rows: list[list[float | None]]) -> Entry:
         obj = {"boot": boot, "seq": seq, "columns": list(wire.SENSOR_COLUMNS), "rows": rows}
+        line = json.dumps(obj, separators=(",", ":")) + "\n"
         with self._lock:
-            try:
-                self._sensors.write(json.dumps(obj, separators=(",", ":")) + "\n")
-                self._sensors.flush()
-                if self.fsync:
-                    os.fsync(self._sensors.fileno())
-            except OSError:
-                self._reopen_sensors()
-                raise
+            self._sensors.append(lambda fh: fh.write(line))
             e = Entry("sensors", boot, seq, obj)
             self._index(e)
             return e
-
-    def _reopen_sensors(self) -> None:
-        """After a failed write (a full card): drop what the file handle still buffers, so that the
-        line that failed never lands on the card later, and end a cut line."""
-        with contextlib.suppress(OSError):
-            self._sensors.close()  # closes the file even when its last flush fails
-        path = self.root / "sensors.jsonl"
-        self._sensors = path.open("a", encoding="utf-8")
-        try:
-            with path.open("rb") as fh:
-                cut = fh.seek(0, os.SEEK_END) > 0 and fh.seek(-1, os.SEEK_END) >= 0 and fh.read(1) != b"\n"
-            if cut:
-                self._sensors.write("\n")
-                self._sensors.flush()
-        except OSError:
-            pass  # still full: the next write ends the cut line first, or fails again
 
     def ack(self, boot: str, first: int, last: int) -> int:
         """Record an acknowledged range; returns how many pending entries it settled."""
@@ -301,10 +280,7 @@ class Outbox:
                 if self._pending.pop((boot, q), None) is not None:
                     settled += 1
                 self._acked.add((boot, q))
-            self._acked_fh.write(f"{boot} {first} {last}\n")
-            self._acked_fh.flush()
-            if self.fsync:
-                os.fsync(self._acked_fh.fileno())
+            self._acked_fh.append(lambda fh: fh.write(f"{boot} {first} {last}\n"))
             return settled
 
     def refuse(self, boot: str, seq: int, reason: str, detail: str = "") -> bool:
@@ -318,10 +294,7 @@ class Outbox:
             was = self._pending.pop((boot, seq), None) is not None
             self._acked.add((boot, seq))
             line = {"boot": boot, "seq": seq, "reason": reason, "detail": detail[:500]}
-            self._refused_fh.write(json.dumps(line) + "\n")
-            self._refused_fh.flush()
-            if self.fsync:
-                os.fsync(self._refused_fh.fileno())
+            self._refused_fh.append(lambda fh: fh.write(json.dumps(line) + "\n"))
             return was
 
     def discard(self, boot: str, seq: int) -> None:
@@ -396,18 +369,18 @@ class Outbox:
             return None
 
     def save_json(self, name: str, obj: Any) -> None:
-        from camcal.core.files import write_atomic
-
         write_atomic(
             self.root / name, (json.dumps(obj, indent=1, default=str) + "\n").encode(), fsync=self.fsync
         )
 
     def append_jsonl(self, name: str, obj: Any) -> None:
-        with self._lock, (self.root / name).open("a", encoding="utf-8") as fh:
-            fh.write(json.dumps(obj, default=str) + "\n")
-            fh.flush()
-            if self.fsync:
-                os.fsync(fh.fileno())
+        text = json.dumps(obj, default=str) + "\n"
+        with self._lock:
+            log = AppendLog(self.root / name, fsync=self.fsync)  # the line whole or not at all
+            try:
+                log.append(lambda fh: fh.write(text))
+            finally:
+                log.close()
 
     def read_jsonl(self, name: str) -> list[Any]:
         out = []

@@ -7,12 +7,12 @@ import contextlib
 import csv
 import io
 import json
-import os
 from pathlib import Path
+from typing import TextIO
 
 import numpy as np
 
-from camcal.core.files import write_atomic
+from camcal.core.files import AppendLog, write_atomic
 from camcal.core.frameset import (
     MANIFEST,
     MANIFEST_COLUMNS,
@@ -46,11 +46,9 @@ class FrameSetWriter:
         new = not manifest.exists() or manifest.stat().st_size == 0
         # Continue an existing manifest in its own columns (it may predate a new optional one).
         self._columns = list(MANIFEST_COLUMNS) if new else _header(manifest)
-        self._fh = manifest.open("a", newline="", encoding="utf-8")
-        self._writer = csv.DictWriter(self._fh, fieldnames=self._columns, extrasaction="ignore")
+        self._log = AppendLog(manifest, fsync=fsync, newline="")  # a row whole or not at all
         if new:
-            self._writer.writeheader()
-            self._fh.flush()
+            self._log.append(lambda fh: self._csv(fh).writeheader())
         self._count = 0 if new else len(parse_manifest(_manifest_text(manifest), str(manifest)))
 
     def add(self, frame: np.ndarray | bytes, row: ManifestRow) -> ManifestRow:
@@ -78,40 +76,18 @@ class FrameSetWriter:
             raise FrameSetError(
                 f"{self.folder / MANIFEST}: has no column {', '.join(lost)} for the values of {row.file}"
             )
-        held = os.fstat(self._fh.fileno()).st_size  # every row is flushed: nothing is buffered
-        try:
-            self._writer.writerow(values)
-            self._fh.flush()
-            if self.fsync:
-                os.fsync(self._fh.fileno())
-        except OSError:
-            self._take_back(held)
-            raise
+        self._log.append(lambda fh: self._csv(fh).writerow(values))
         self._count += 1
         return row
 
-    def _take_back(self, held: int) -> None:
-        """After a failed write (a full card): the manifest as it was before it, ``held`` bytes.
-
-        A full disk takes the part of a row that fits and leaves the rest in the file's buffer,
-        which the next row's write would put on the card after all: a row its writer was told had
-        failed (whose number a module gives to its next frame) landed whole, two rows with one
-        sequence number, the second frame's image under the first one's values.
-        """
-        with contextlib.suppress(OSError):
-            self._fh.close()  # closes even when its last flush fails; what it wrote is cut below
-        manifest = self.folder / MANIFEST
-        with contextlib.suppress(OSError):
-            if manifest.stat().st_size > held:
-                os.truncate(manifest, held)
-        self._fh = manifest.open("a", newline="", encoding="utf-8")
-        self._writer = csv.DictWriter(self._fh, fieldnames=self._columns, extrasaction="ignore")
+    def _csv(self, fh: TextIO) -> csv.DictWriter[str]:
+        return csv.DictWriter(fh, fieldnames=self._columns, extrasaction="ignore")
 
     def __len__(self) -> int:
         return self._count
 
     def close(self) -> None:
-        self._fh.close()
+        self._log.close()
 
     def __enter__(self) -> FrameSetWriter:
         return self

@@ -33,10 +33,11 @@ import cv2
 import numpy as np
 
 from analysis import FrameConfig, analyze_frame
+from camcal.core.frameset import TREX_FOCAL_PX
 from lrm.sim import CameraModel, FrameRenderer, Placement
 from lrm.sim.scene import water_preset
 
-FOCAL_PX = 8709.0
+FOCAL_PX = TREX_FOCAL_PX
 LINEAR = (5.0, 240.0)
 VISIBLE_SNR = 30.0  # a disk this far above the noise is "visible" for the rates below
 

@@ -23,11 +23,12 @@ from analysis.transport.disk import (
     disk_transmittance,
     surface_path_m,
 )
+from camcal.core.frameset import TREX_FOCAL_PX
 from lrm.sim import CameraModel, FrameRenderer, Placement
 from lrm.sim.scene import LEMModel, Water
 
 A_M = 0.215
-FOCAL_PX = 8709.0
+FOCAL_PX = TREX_FOCAL_PX
 
 
 def exact_path_m(dx_px: np.ndarray, dy_px: np.ndarray, distance_m: float, focal_px: float) -> np.ndarray:

@@ -16,6 +16,7 @@ import pytest
 from typer.testing import CliRunner
 
 from camcal.cli import app
+from camcal.core.frameset import TREX_FOCAL_PX
 
 runner = CliRunner()
 
@@ -234,7 +235,7 @@ def test_faint_frames_of_a_sensor_whose_black_level_is_zero_give_the_true_attenu
     Before the clipping was undone (`analysis.censor`) the background came out ~1 gray high and
     λ_att 4-7 % low here (pulls -5 to -6).
     """
-    focal_px = 8709.0
+    focal_px = TREX_FOCAL_PX
     fov = 2 * math.degrees(math.atan(400 / focal_px))
     out, doc = tmp_path / "faint", tmp_path / "faint.json"
     args = ["simulate-set", "--width", "800", "--height", "700", "--fov-deg", f"{fov:.6f}"]

@@ -9,6 +9,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from analysis import locate_source
+from camcal.core.frameset import TREX_FOCAL_PX
 from lrm.dive import (
     DiveProfile,
     DiveSimulation,
@@ -324,7 +325,7 @@ def test_a_module_leaning_far_loses_the_lem_from_the_small_frame() -> None:
 
 def test_motion_blur_follows_the_track_during_the_exposure() -> None:
     motion = ModuleMotion("A", seed=1, params=MotionParams(rock_deg=0.2))
-    focal, distance = 8709.0, 21.56
+    focal, distance = TREX_FOCAL_PX, 21.56
     for t in (10.0, 50.0, 333.0):
         bx, by = motion.blur_px(t, 0.02, focal, distance)
         a = motion.pointing_offset_px(t, focal, distance)

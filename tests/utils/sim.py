@@ -10,13 +10,16 @@ from pathlib import Path
 import numpy as np
 
 from analysis import FrameConfig, FrameRecord, Setting, analyze_frame
+from camcal.core.frameset import TREX_FOCAL_PX
 from lrm.sim import CameraModel, FrameRenderer, Placement
 from lrm.sim.scene import TREX_PLACEMENTS, Water, water_preset
 from lrm.simset import SimulationSpec, simulate_frame_set
 
 #: A small sensor with the T-REX plate scale (focal length ~8700 px): the LEM
 #: disk has its T-REX size in pixels while a frame costs 1/15 of a 5 MP one.
-SMALL_CAMERA = CameraModel(width_px=640, height_px=512, fov_deg=2 * math.degrees(math.atan(320 / 8709)))
+SMALL_CAMERA = CameraModel(
+    width_px=640, height_px=512, fov_deg=2 * math.degrees(math.atan(320 / TREX_FOCAL_PX))
+)
 FULL_CAMERA = CameraModel()
 
 

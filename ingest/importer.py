@@ -162,6 +162,7 @@ def import_frame_set(
         batch.clear()
 
     stored: dict[tuple[str, str], set[int]] = {}
+    first_row: dict[tuple[str, str, int], int] = {}  # the row of the folder that holds each number
     for i, row in enumerate(rows):
         if progress:
             progress(i, len(rows))
@@ -175,6 +176,17 @@ def import_frame_set(
                 (row.file or f"row {i + 1}", f"camera {row.camera!r} or boot {boot!r} is not a valid id")
             )
             continue
+        if (row.camera, boot, seq) in first_row:  # a number is one frame: the first row keeps it
+            report.problems.append(
+                (
+                    row.file or f"row {i + 1}",
+                    f"repeats the sequence number {seq} of camera {row.camera} (boot {boot}) of row "
+                    f"{first_row[(row.camera, boot, seq)] + 1}: not imported (a card written when a full "
+                    "card could leave a failed frame's row; its values may belong to another frame)",
+                )
+            )
+            continue
+        first_row[(row.camera, boot, seq)] = i
         if (row.camera, boot) not in stored:
             stored[(row.camera, boot)] = store.call(queries.known_seqs, row.camera, boot)
         if seq in stored[(row.camera, boot)]:  # arrived over the link, or imported before

@@ -270,7 +270,7 @@ class Agent(CommandHandling, Producing):
                         elif msg.type == "ack":
                             window = msg.window
                             for boot, first, last in msg.ranges:
-                                self.outbox.ack(boot, first, last)
+                                self._card_record("an acknowledgement", self.outbox.ack, boot, first, last)
                                 for q in range(first, last + 1):
                                     if in_flight.pop((boot, q), None) is not None:
                                         self.counters["acked"] += 1
@@ -419,7 +419,7 @@ class Agent(CommandHandling, Producing):
             msg.reason,
             msg.detail,
         )
-        self.outbox.refuse(msg.boot, msg.seq, msg.reason, msg.detail)
+        self._card_record("a refusal", self.outbox.refuse, msg.boot, msg.seq, msg.reason, msg.detail)
         self.counters["refused"] += 1
         retry_at.pop(key, None)
 

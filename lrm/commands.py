@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import queue
 from collections import Counter
+from collections.abc import Callable
 from typing import Any
 
 from pydantic import ValidationError
@@ -32,6 +33,7 @@ class CommandHandling:
     counters: Counter[str]
     _commands: dict[str, dict[str, Any]]
     _status_out: queue.SimpleQueue[Any]
+    _card_record: Callable[..., None]  # (`lrm.producing.Producing`: a full card cannot stop the module)
 
     def _restore_pending(self, runner: ScheduleRunner) -> None:
         """Re-arm a schedule change that was waiting for the end of a setting when the module stopped."""
@@ -67,7 +69,7 @@ class CommandHandling:
             **extra,
         }
         self._commands[command_id] = rec
-        self.outbox.append_jsonl("commands.jsonl", rec)
+        self._card_record("a command's state", self.outbox.append_jsonl, "commands.jsonl", rec)
         self._status_out.put(
             wire.CommandStatus(
                 module=self.config.module,

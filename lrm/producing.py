@@ -94,6 +94,25 @@ class Producing:
             exc,
         )
 
+    def _card_record(self, what: str, write: Callable[..., object], *args: Any) -> None:
+        """``write(*args)``: a record of the card that is not a message (an acknowledgement, a
+        refusal, a command's state). A full card cannot stop the module for it: the record holds in
+        memory, the heartbeat and the log say the card failed, and after a restart the ship makes
+        it good (a message acknowledged is acknowledged again). Before, the full card's OSError
+        ended the thread that sends, and with it the module."""
+        try:
+            write(*args)
+        except OSError as exc:
+            self.device_errors["card"] = f"{what}: {exc.strerror or exc}"[:200]
+            self.warn(
+                logging.ERROR,
+                "device:card",
+                "module %s: the SD card cannot keep %s (%s): free or swap the card (the module goes on)",
+                self.config.module,
+                what,
+                exc,
+            )
+
     def _device_failed(self, device: str, exc: Exception) -> float:
         """A camera or sensor read that failed (a loose cable, a bus glitch): counted and said in the
         heartbeat (``capture_errors``/``camera_error``, ``sensor_errors``/``sensor_error``). Returns

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 from sqlalchemy import func, select
 
+from camcal.core.files import AppendLog
 from ingest.service import IngestService
 from storage import queries
 from storage.models import Alarm, Frame
@@ -66,5 +67,26 @@ def test_a_full_card_keeps_the_module_up_alarms_and_capture_resumes_when_freed(
         assert stored == agent.counters["frames_captured"]
         # a frame the card could not keep was never numbered: the ship sees no gap
         assert service.store.call(queries.open_gaps, "A") == []
+    finally:
+        agent.stop()
+
+
+def test_acknowledgements_the_card_cannot_keep_do_not_stop_the_module(
+    service: IngestService, tmp_path: Path
+) -> None:
+    """Found filling a card under a streaming module: the ship's acknowledgement of a frame sent
+    before the card filled could not be written to `acked.log`, and its OSError ended the thread
+    that sends, and with it the module (nothing more sent once the card had room again). Here the
+    module's acknowledgement log is `/dev/full`, a real device on which every write fails with
+    "No space left on device", so that every acknowledgement meets a full card."""
+    agent = make_agent("A", service.endpoint, tmp_path / "outbox")[0]
+    agent.outbox._acked_fh.close()
+    agent.outbox._acked_fh = AppendLog(Path("/dev/full"), fsync=False)
+    agent.start()
+    try:
+        assert wait_for(lambda: agent.counters["acked"] >= 20, 30), "the module stopped sending"
+        assert not agent.stopped
+        assert "an acknowledgement: No space left on device" in agent.device_errors.get("card", "")
+        assert agent.counters["card_skipped"] == 0  # frames and sensor samples are kept as before
     finally:
         agent.stop()

@@ -10,10 +10,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from camcal.cli.common import console, err_console, fail, labelled, yes_no
+from camcal.cli.common import console, fail, labelled, progress, yes_no
 from camcal.cli.defaults import DEEP_SEA_TEMPERATURE_C, LEM_DIAMETER_M
 from camcal.core.files import write_atomic
 
@@ -87,16 +86,7 @@ def _lazy_progress(label: str, quiet: bool) -> Iterator[Callable[[int, int], Non
 
         def update(done: int, total: int) -> None:
             if "bar" not in state:
-                bar = stack.enter_context(
-                    Progress(
-                        TextColumn("{task.description}", style="bold", markup=False),
-                        BarColumn(),
-                        MofNCompleteColumn(),
-                        TimeRemainingColumn(),
-                        console=err_console,
-                        transient=True,
-                    )
-                )
+                bar = stack.enter_context(progress(transient=True))
                 state["bar"], state["task"] = bar, bar.add_task(label, total=total)
             state["bar"].update(state["task"], completed=done, total=total)
 

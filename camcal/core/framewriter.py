@@ -44,12 +44,14 @@ class FrameSetWriter:
             )
         manifest = self.folder / MANIFEST
         new = not manifest.exists() or manifest.stat().st_size == 0
-        # Continue an existing manifest in its own columns (it may predate a new optional one).
-        self._columns = list(MANIFEST_COLUMNS) if new else _header(manifest)
+        # Continue an existing manifest in its own columns (it may predate a new optional one),
+        # read once (`decode_text`: the writer can still append to a manifest with a damaged byte).
+        text = "" if new else decode_text(manifest.read_bytes())
+        self._columns = list(MANIFEST_COLUMNS) if new else _header(text)
         self._log = AppendLog(manifest, fsync=fsync, newline="")  # a row whole or not at all
         if new:
             self._log.append(lambda fh: self._csv(fh).writeheader())
-        self._count = 0 if new else len(parse_manifest(_manifest_text(manifest), str(manifest)))
+        self._count = 0 if new else len(parse_manifest(text, str(manifest)))
 
     def add(self, frame: np.ndarray | bytes, row: ManifestRow) -> ManifestRow:
         """Store one frame (array or encoded PNG bytes) under ``row.file`` and record it."""
@@ -96,11 +98,6 @@ class FrameSetWriter:
         self.close()
 
 
-def _header(manifest: Path) -> list[str]:
-    """Column names of an existing manifest."""
-    return [h.strip() for h in next(csv.reader(io.StringIO(_manifest_text(manifest), newline="")), [])]
-
-
-def _manifest_text(manifest: Path) -> str:
-    """A manifest being continued, as text (`decode_text`): the writer can still append."""
-    return decode_text(manifest.read_bytes())
+def _header(text: str) -> list[str]:
+    """Column names of a manifest's text."""
+    return [h.strip() for h in next(csv.reader(io.StringIO(text, newline="")), [])]

@@ -44,7 +44,13 @@ class Marginal:
         return np.hypot(self.shift_m, self.spread_m)
 
 
-def marginal_posterior(axes: Sequence[Sequence[float]], d: np.ndarray, error_scale: float) -> Marginal:
+def marginal_posterior(
+    axes: Sequence[Sequence[float]],
+    d: np.ndarray,
+    error_scale: float,
+    *,
+    coefficient_at: Sequence[float | None] = (),
+) -> Marginal:
     """The lengths' shifts averaged over the data's posterior of held parameters with uniform priors.
 
     ``axes`` are the parameters' values at which the lengths were refitted
@@ -60,6 +66,11 @@ def marginal_posterior(axes: Sequence[Sequence[float]], d: np.ndarray, error_sca
     width; where they do not, the spread covers the prior's range; a refit
     that runs away where the data exclude its parameters gets that
     exclusion's weight, not a secant's.
+
+    ``coefficient_at`` gives, per length, the reference value λ₀ (None:
+    none) of a length whose two sides are taken on its coefficient 1/λ
+    instead (`_coefficient_sides`): λ_abs, where the data fix 1/λ_att =
+    1/λ_abs + 1/λ_sca and the refits trade the two coefficients.
     """
     from scipy.interpolate import CubicSpline, PchipInterpolator, interp1d
 
@@ -104,6 +115,9 @@ def marginal_posterior(axes: Sequence[Sequence[float]], d: np.ndarray, error_sca
         spread[k] = math.sqrt(max(float(np.sum(w * (vals[..., k] - shift[k]) ** 2)), 0.0))
         up[k] = _side_rms(w, vals[..., k] > 0, vals[..., k])
         down[k] = _side_rms(w, vals[..., k] < 0, vals[..., k])
+        ref = coefficient_at[k] if k < len(coefficient_at) else None
+        if ref is not None and math.isfinite(ref) and ref > 0:
+            up[k], down[k] = _coefficient_sides(w, vals[..., k], ref, up[k])
     mean, sd = [], []
     it = iter(range(len(pts)))
     for k, ax in enumerate(axes):
@@ -126,3 +140,27 @@ def _side_rms(w: np.ndarray, side: np.ndarray, shift: np.ndarray) -> float:
     """
     p = float(np.sum(w[side]))
     return math.sqrt(float(np.sum(w[side] * shift[side] ** 2)) / p) if p > 1e-12 else 0.0
+
+
+def _coefficient_sides(w: np.ndarray, shift: np.ndarray, ref: float, up_linear: float) -> tuple[float, float]:
+    """A length's (up, down) sides taken on its coefficient 1/λ and mapped back to metres.
+
+    The data fix the attenuation coefficient 1/λ_abs + 1/λ_sca; a phase
+    function that lengthens λ_sca shortens 1/λ_abs by as much, and where
+    1/λ_sca comes near 1/λ_att (turbid water) a small move of the
+    coefficient is a large one of λ_abs. The RMS of the length's upward
+    shifts is then ruled by the few refits near that pole, and the upper
+    side grows far beyond what covers the usual case (turbid water: the
+    truth within one error in 84 % of the sets, docs/transport.md). On the
+    coefficient the shifts are near linear; the RMS of each side there,
+    mapped back (1/(1/λ₀ ∓ RMS) − λ₀), keeps the interval's coverage
+    (a monotone map keeps which values lie inside). Refits at finite
+    lengths keep the coefficient's downward RMS below 1/λ₀; should it reach
+    it (no upper end), the length's own upward RMS (``up_linear``) stays.
+    """
+    a0 = 1.0 / ref
+    da = 1.0 / np.maximum(ref + shift, 1e-9 * ref) - a0
+    lower = _side_rms(w, da < 0, da)  # the coefficient's downward side: the length's upward one
+    upper = _side_rms(w, da > 0, da)
+    up = 1.0 / (a0 - lower) - ref if lower < a0 else up_linear
+    return up, ref - 1.0 / (a0 + upper)

@@ -298,10 +298,12 @@ def systematic_budget(
         hits = refit.edge_hits
         d = refit.shifts(cases, reference)
         box = d.reshape(len(rs), len(gs), 4)
-        data = marginal_posterior([rs, gs], box, fit.error_scale)
+        # λ_abs's sides on its coefficient (`analysis.chisq.posterior._coefficient_sides`)
+        at = (float(refit.reference(**reference)[0]), None, None)
+        data = marginal_posterior([rs, gs], box, fit.error_scale, coefficient_at=at)
         flat = box.copy()
         flat[..., 3] = 0.0
-        prior = marginal_posterior([rs, gs], flat, 1.0)
+        prior = marginal_posterior([rs, gs], flat, 1.0, coefficient_at=at)
         said = (
             f"the data alone: ⟨cos θ⟩ {data.mean[1]:.3f} ± {data.sd[1]:.3f}, Rayleigh share "
             f"{data.mean[0]:.2f} ± {data.sd[0]:.2f}"
@@ -314,7 +316,10 @@ def systematic_budget(
             note = f"error: RMS shift over the data's posterior on {box_text}; {said}"
         else:
             note = f"error: RMS shift over a uniform prior on {box_text}; {said} (not used)"
-        note += "; up and down: the RMS of the upward and of the downward shifts, each over its side"
+        note += (
+            "; up and down: the RMS of the upward and of the downward shifts, each over its side "
+            "(λ_abs's taken on 1/λ_abs and mapped back)"
+        )
         if refit.edge_hits > hits:
             note += EDGE_NOTE
         limits = phase_limits(fit, [refit.reference(**kw) for _, kw in cases])

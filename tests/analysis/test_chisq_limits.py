@@ -187,6 +187,34 @@ def test_a_one_sided_runaway_gives_a_one_sided_systematic_error() -> None:
     assert sys_text(0.304, 0.296) == "± 0.30" and sys_text(float("nan"), 1.0) == "—"
 
 
+def test_lambda_abs_sides_taken_on_its_coefficient_keep_the_pole_from_ruling_the_upper_side() -> None:
+    """Turbid water: 1/λ_att = 0.10/m fixed, the phase refits move 1/λ_sca linearly over the prior
+    (0.045-0.088/m), so 1/λ_abs moves linearly the other way (0.012-0.055/m) and λ_abs runs from 18
+    to 83 m around 30 m. On λ itself the few refits near the pole rule the upper side; on the
+    coefficient the interval's ends are where a uniform spread of the coefficient puts them."""
+    g = np.linspace(0.88, 0.96, 9)
+    a0, slope = 1 / 30.0, 0.0215 / 0.04  # 1/λ_abs at the nominal, and per unit of ⟨cos θ⟩
+    a = a0 - slope * (g - 0.92)
+    lam = 1 / a
+    d = np.stack([lam - 30.0, 0 * g, 0 * g, 0 * g], axis=1)
+    linear = marginal_posterior([g], d, 1.0)
+    m = marginal_posterior([g], d, 1.0, coefficient_at=(30.0, None, None))
+    # On the coefficient each side is a uniform half: RMS = half-width/√3, mapped back through 1/a.
+    rms_a = 0.0215 / math.sqrt(3)
+    assert m.up_m[0] == pytest.approx(1 / (a0 - rms_a) - 30.0, rel=0.02)
+    assert m.down_m[0] == pytest.approx(30.0 - 1 / (a0 + rms_a), rel=0.02)
+    # What the coefficient's RMS says, the length's own RMS overstates upward (the pole) and not below.
+    assert linear.up_m[0] > 1.3 * m.up_m[0] and m.down_m[0] == pytest.approx(linear.down_m[0], rel=0.15)
+    # The other lengths, and what is not a side, are as before.
+    assert m.rms_m[0] == pytest.approx(linear.rms_m[0]) and m.up_m[1] == linear.up_m[1]
+    # A refit at the prior's end that ran to the λ range's end (2000 m): on λ it alone sets the upper
+    # side (hundreds of metres); on the coefficient it is one more point near 1/λ = 0.
+    d[0, 0] = 2000.0 - 30.0
+    runaway = marginal_posterior([g], d, 1.0, coefficient_at=(30.0, None, None))
+    assert marginal_posterior([g], d, 1.0).up_m[0] > 200.0
+    assert m.up_m[0] < runaway.up_m[0] < 1 / (a0 - a0 / math.sqrt(3)) - 30.0
+
+
 def test_marginal_posterior_over_two_parameters_moves_them_together() -> None:
     """The data fix one combination of ⟨cos θ⟩ and the Rayleigh share: each alone would mislead."""
     g, r = np.meshgrid(np.array(G) - 0.93, np.array(R) - 0.17, indexing="xy")  # shape (r, g)

@@ -189,6 +189,7 @@ def truth_phase(job: Job, seed: int) -> tuple[tuple[float, float], int]:
 def run_job(job: Job) -> dict[str, object]:
     a_true, s_true = WATERS[job.water][job.wl]
     out: dict[str, object] = {"water": job.water, "wavelength_nm": job.wl, "truth": [a_true, s_true]}
+    out["sample_systematics"] = job.sample_systematics
     config = FitConfig(contour_points=7)
     rows = []
     settings_used = None
@@ -298,6 +299,7 @@ def summarise(res: dict[str, object]) -> dict[str, object]:
             s[f"{key}_bias"] = float(np.mean(vals) / truth - 1.0)
             s[f"{key}_pull_mean"] = float(np.mean(pulls))
             s[f"{key}_pull_rms"] = float(np.sqrt(np.mean(pulls**2)))
+            s[f"{key}_within_1"] = float(np.mean(np.abs(pulls) <= 1.0))  # 68 % for honest Gaussian errors
             s[f"{key}_rel_err"] = float(np.mean(tot) / truth)
     s["chi2_ndof_median"] = float(statistics.median(r["chi2_ndof"] for r in fits)) if fits else float("nan")
     s["nuisance_flagged"] = sum(bool(r.get("nuisance_flagged")) for r in fits)
@@ -308,9 +310,12 @@ def summarise(res: dict[str, object]) -> dict[str, object]:
 def verdicts(res: dict[str, object], s: dict[str, object]) -> list[tuple[str, bool]]:
     a_true, _ = res["truth"]  # type: ignore[misc]
     out = []
-    if "sca_bias" in s:
+    # With the truth's phase function drawn over the prior the values follow the draws (the fit holds
+    # ⟨cos θ⟩ 0.93): the bias targets belong to the truth at the nominal, the pulls test coverage here.
+    drawn = bool(res.get("sample_systematics"))
+    if "sca_bias" in s and not drawn:
         out.append(("λ_sca within 5 %", abs(s["sca_bias"]) <= 0.05))  # type: ignore[arg-type]
-    if a_true < 100 and "abs_bias" in s:
+    if a_true < 100 and "abs_bias" in s and not drawn:
         out.append(("λ_abs within 10 %", abs(s["abs_bias"]) <= 0.10))  # type: ignore[arg-type]
     if s.get("abs_limits"):
         out.append(("λ_abs limits correct", s["abs_limits_correct"] == s["abs_limits"]))
@@ -412,7 +417,7 @@ def _pct(s: dict[str, object], k: str) -> str:
 def _pull(s: dict[str, object], k: str) -> str:
     if f"{k}_pull_mean" not in s:
         return "—"
-    return f"{s[f'{k}_pull_mean']:+.2f} / {s[f'{k}_pull_rms']:.2f}"
+    return f"{s[f'{k}_pull_mean']:+.2f} / {s[f'{k}_pull_rms']:.2f} ({100 * s[f'{k}_within_1']:.0f} % ≤ 1)"
 
 
 def report(results: list[dict[str, object]], t_fit: float, t_var: float, args: argparse.Namespace) -> None:
@@ -432,8 +437,8 @@ def report(results: list[dict[str, object]], t_fit: float, t_var: float, args: a
         "truth abs/sca m",
         "bias abs",
         "bias sca",
-        "pull abs mean/RMS",
-        "pull sca mean/RMS",
+        "pull abs mean/RMS (share |pull| ≤ 1)",
+        "pull sca mean/RMS (share |pull| ≤ 1)",
         "χ²/ndof med",
         "abs limits",
         "σ_tot abs/sca",

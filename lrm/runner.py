@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -9,6 +10,8 @@ from datetime import datetime, timedelta
 from typing import Any, Protocol
 
 from camcal.core.schedule import Schedule, Shot
+
+log = logging.getLogger("camcal.lrm")
 
 
 class LemClock(Protocol):
@@ -33,7 +36,13 @@ class ScheduleRunner:
     """Takes the schedule's shots one after the other, pass after pass.
 
     The LEM cycles its wavelengths on its own timetable: before a shot at
-    405 nm the runner waits until the LEM shows 405 nm. ``gate`` (if given)
+    405 nm the runner waits until the LEM shows 405 nm. When the LEM moves
+    on while the runner is amid one wavelength's consecutive shots (a pass
+    that does not fit the LEM's dwell: a slow card, long exposures), the
+    rest of those shots are dropped (`dropped_shots`, logged) and the runner
+    goes on with the next wavelength: waiting a whole LEM cycle for them
+    would put the module out of step with the LEM and with the other
+    camera, whose frames of the same visit λ_att needs. ``gate`` (if given)
     must be true for capturing (e.g. only at the test stops and on station).
     States: ``running``, ``paused`` (resumes where it stopped), ``stopped``
     (restarts the pass from the beginning on ``start``). A new schedule
@@ -62,6 +71,10 @@ class ScheduleRunner:
         self._state = state
         self._pending: Schedule | None = None
         self.on_change: Callable[[Schedule, str], None] | None = None
+        #: The index of the shot taken last in this pass, while running (None after a pause, stop or swap).
+        self._last_taken: int | None = None
+        #: Shots dropped because the LEM moved on from their wavelength amid them.
+        self.dropped_shots = 0
 
     # ------------------------------------------------------------ status
     @property
@@ -89,6 +102,7 @@ class ScheduleRunner:
         self._schedule = schedule
         self._shots = list(schedule.shots())
         self._index = 0
+        self._last_taken = None
         self._pending = None
         if self.on_change:
             self.on_change(schedule, self._state)
@@ -110,6 +124,7 @@ class ScheduleRunner:
     def _set_state(self, state: str) -> None:
         with self._cv:
             self._state = state
+            self._last_taken = None  # resumed or restarted, the next shot waits for its wavelength
             self._cv.notify_all()
             if self.on_change:
                 self.on_change(self._schedule, state)
@@ -140,6 +155,8 @@ class ScheduleRunner:
             if self.lem is not None:
                 now = self.clock.now()
                 if self.lem.wavelength_at(now) != shot.wavelength_nm:
+                    if self._drop_rest_of_run(version):
+                        continue
                     start = self.lem.next_start_of(shot.wavelength_nm, now)
                     self._sleep(max((start - now).total_seconds(), 0.0) + 1e-3, stop)
                     continue
@@ -149,6 +166,7 @@ class ScheduleRunner:
                 wavelength = self.lem.wavelength_at(frame.captured_at) if self.lem else shot.wavelength_nm
             with self._cv:
                 if version == self._schedule.version and self._index < len(self._shots):
+                    self._last_taken = self._index
                     self._index += 1
                     following = self._shots[self._index] if self._index < len(self._shots) else None
                     end_of_setting = following is None or (
@@ -160,6 +178,30 @@ class ScheduleRunner:
                         self._swap(self._pending)
             return Capture(frame, shot, int(wavelength), version)
         return None
+
+    def _drop_rest_of_run(self, version: int) -> bool:
+        """Amid one wavelength's consecutive shots and the LEM moved on: skip the rest of them.
+
+        True when shots were dropped (the next shot is then another wavelength's, or the pass is
+        over); False when the runner is at the start of a wavelength's shots (it waits for them).
+        """
+        with self._cv:
+            i = self._index
+            if version != self._schedule.version or self._last_taken != i - 1 or i >= len(self._shots):
+                return False
+            wl = self._shots[i].wavelength_nm
+            if self._shots[i - 1].wavelength_nm != wl:
+                return False
+            j = i
+            while j < len(self._shots) and self._shots[j].wavelength_nm == wl:
+                j += 1
+            self._index = j
+            self._last_taken = None
+            self.dropped_shots += j - i
+            if self._pending is not None:  # the dropped shots end the setting being taken
+                self._swap(self._pending)
+        log.info("the LEM left %d nm before this pass's last %d shots of it: dropped", wl, j - i)
+        return True
 
     def _sleep(self, seconds: float, stop: threading.Event) -> bool:
         """Sleep clock time in slices, waking for stop or a change; True if interrupted."""

@@ -39,10 +39,12 @@ class ScheduleRunner:
     405 nm the runner waits until the LEM shows 405 nm. When the LEM moves
     on while the runner is amid one wavelength's consecutive shots (a pass
     that does not fit the LEM's dwell: a slow card, long exposures), the
-    rest of those shots are dropped (`dropped_shots`, logged) and the runner
-    goes on with the next wavelength: waiting a whole LEM cycle for them
-    would put the module out of step with the LEM and with the other
-    camera, whose frames of the same visit λ_att needs. ``gate`` (if given)
+    rest of those shots come first at that wavelength's next turn
+    (`deferred_shots`, logged) and the runner goes on with the next
+    wavelength now: waiting a whole LEM cycle for them would put the module
+    out of step with the LEM and with the other camera, whose frames of the
+    same visit λ_att needs. A schedule longer than the dwell thus takes its
+    settings in turn over several visits. ``gate`` (if given)
     must be true for capturing (e.g. only at the test stops and on station).
     States: ``running``, ``paused`` (resumes where it stopped), ``stopped``
     (restarts the pass from the beginning on ``start``). A new schedule
@@ -73,8 +75,8 @@ class ScheduleRunner:
         self.on_change: Callable[[Schedule, str], None] | None = None
         #: The index of the shot taken last in this pass, while running (None after a pause, stop or swap).
         self._last_taken: int | None = None
-        #: Shots dropped because the LEM moved on from their wavelength amid them.
-        self.dropped_shots = 0
+        #: Shots deferred to their wavelength's next turn because the LEM moved on amid them.
+        self.deferred_shots = 0
 
     # ------------------------------------------------------------ status
     @property
@@ -155,7 +157,7 @@ class ScheduleRunner:
             if self.lem is not None:
                 now = self.clock.now()
                 if self.lem.wavelength_at(now) != shot.wavelength_nm:
-                    if self._drop_rest_of_run(version):
+                    if self._defer_rest_of_run(version):
                         continue
                     start = self.lem.next_start_of(shot.wavelength_nm, now)
                     self._sleep(max((start - now).total_seconds(), 0.0) + 1e-3, stop)
@@ -179,11 +181,12 @@ class ScheduleRunner:
             return Capture(frame, shot, int(wavelength), version)
         return None
 
-    def _drop_rest_of_run(self, version: int) -> bool:
-        """Amid one wavelength's consecutive shots and the LEM moved on: skip the rest of them.
+    def _defer_rest_of_run(self, version: int) -> bool:
+        """Amid one wavelength's consecutive shots and the LEM moved on: defer the rest of them.
 
-        True when shots were dropped (the next shot is then another wavelength's, or the pass is
-        over); False when the runner is at the start of a wavelength's shots (it waits for them).
+        The run of that wavelength's shots is turned so that the shots not yet taken come first at
+        its next turn, and the runner goes on with the next wavelength's shots now. True when shots
+        were deferred; False at the start of a wavelength's shots (the runner waits for them).
         """
         with self._cv:
             i = self._index
@@ -192,15 +195,18 @@ class ScheduleRunner:
             wl = self._shots[i].wavelength_nm
             if self._shots[i - 1].wavelength_nm != wl:
                 return False
-            j = i
+            a, j = i - 1, i
+            while a > 0 and self._shots[a - 1].wavelength_nm == wl:
+                a -= 1
             while j < len(self._shots) and self._shots[j].wavelength_nm == wl:
                 j += 1
+            self._shots[a:j] = self._shots[i:j] + self._shots[a:i]
             self._index = j
             self._last_taken = None
-            self.dropped_shots += j - i
-            if self._pending is not None:  # the dropped shots end the setting being taken
+            self.deferred_shots += j - i
+            if self._pending is not None:  # the setting being taken ends here
                 self._swap(self._pending)
-        log.info("the LEM left %d nm before this pass's last %d shots of it: dropped", wl, j - i)
+        log.info("the LEM left %d nm before %d shots of it: they come first at its next turn", wl, j - i)
         return True
 
     def _sleep(self, seconds: float, stop: threading.Event) -> bool:

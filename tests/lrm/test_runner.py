@@ -234,27 +234,32 @@ def test_each_shot_waits_until_the_lem_shows_its_wavelength() -> None:
         assert lem.wavelength_at(EPOCH + timedelta(seconds=t)) == c.wavelength_nm
 
 
-def test_shots_the_lem_left_no_time_for_are_dropped_not_deferred_a_whole_cycle() -> None:
-    """A pass that does not fit the LEM's dwell (five 2.5 s shots in a 10 s block): the fifth shot of
-    each wavelength is dropped and the runner stays in step with the LEM. Deferred, it would wait a
-    whole cycle and take every later wavelength a block after the other camera."""
+def test_shots_the_lem_left_no_time_for_come_first_at_its_next_turn_not_a_whole_cycle_late() -> None:
+    """A pass that does not fit the LEM's dwell (five 2.5 s shots in a 10 s block): the runner stays
+    in step with the LEM, taking four shots in each block, and the one it had no time for comes first
+    at that wavelength's next turn. Waiting for it, the runner would take every later wavelength a
+    whole cycle late (a block after the other camera)."""
     lem = CyclingLem(dwell_s=10.0)
     runner, cam, _ = make(schedule(wavelengths_nm=(460, 525), exposures_s=(2.5,), repeats=5), lem=lem)
-    caps = take(runner, 10)
+    caps = take(runner, 20)
     times = [t for t, _, _ in cam.taken]
-    assert [c.wavelength_nm for c in caps] == [460] * 4 + [525] * 4 + [460] * 2
+    assert [c.wavelength_nm for c in caps] == ([460] * 4 + [525] * 4) * 2 + [460] * 4
     at = pytest.approx  # the runner wakes a millisecond after a block starts
     assert times[:4] == at([10.0, 12.5, 15.0, 17.5], abs=0.01)  # 460 nm shows during [10, 20) s
     assert times[4:8] == at([20.0, 22.5, 25.0, 27.5], abs=0.01)  # 525 nm at once, in its own block
-    assert times[8] == at(40.0, abs=0.01)  # the next pass: 460 nm's next block
-    assert runner.dropped_shots == 2
-    assert [c.shot.repeat for c in caps[:8]] == [0, 1, 2, 3] * 2
+    assert times[8] == at(40.0, abs=0.01) and times[12] == at(50.0, abs=0.01)  # the next turns
+    # The repeat left over comes first; over the turns every repeat is taken as often as the others.
+    assert [c.shot.repeat for c in caps[:12]] == [0, 1, 2, 3] * 2 + [4, 0, 1, 2]
+    assert sorted(c.shot.repeat for c in caps[:20] if c.wavelength_nm == 460) == sorted(
+        [0, 1, 2, 3, 4] * 2 + [0, 1]
+    )
+    assert runner.deferred_shots == 4  # one a turn: 460, 525, 460, 525 nm
     for c, (t, _, _) in zip(caps, cam.taken, strict=True):
         assert lem.wavelength_at(EPOCH + timedelta(seconds=t)) == c.wavelength_nm
 
 
 def test_a_paused_runner_resumes_its_wavelength_in_its_next_block() -> None:
-    """Paused amid 460 nm's shots and resumed while 525 nm shows: nothing is dropped, the runner
+    """Paused amid 460 nm's shots and resumed while 525 nm shows: nothing is deferred, the runner
     waits for 460 nm (resume continues where it stopped)."""
     lem = CyclingLem(dwell_s=10.0)
     runner, cam, clock = make(schedule(wavelengths_nm=(460, 525), exposures_s=(2.5,), repeats=3), lem=lem)
@@ -264,7 +269,7 @@ def test_a_paused_runner_resumes_its_wavelength_in_its_next_block() -> None:
     runner.resume()
     caps = take(runner, 2)
     assert [c.shot.repeat for c in caps] == [2, 0] and caps[0].wavelength_nm == 460
-    assert cam.taken[2][0] == pytest.approx(40.0, abs=0.01) and runner.dropped_shots == 0
+    assert cam.taken[2][0] == pytest.approx(40.0, abs=0.01) and runner.deferred_shots == 0
 
 
 def test_the_wavelength_the_camera_reports_wins_over_the_timetable() -> None:

@@ -75,13 +75,16 @@ class Producing:
         self.counters[count] += 1
         self._new.put((self.boot, seq))
 
-    def _failed(self, device: str, count: str, error: str, message: str, *args: Any) -> None:
-        """A device's failure (``card``, ``camera``, ``sensors``): counted (``counters[count]``), its
-        ``error`` kept for the heartbeat, ``message`` (with ``args`` and the count) logged at most
-        every 10 s per device. The module goes on."""
-        self.counters[count] += 1
+    def _failed(self, device: str, count: str | None, error: str, message: str, *args: Any) -> None:
+        """A device's failure (``card``, ``camera``, ``sensors``): counted (``counters[count]``, and
+        the count given to ``message`` last; None: not counted), its ``error`` kept for the
+        heartbeat, ``message`` (with ``args``) logged at most every 10 s per device. The module
+        goes on."""
+        if count is not None:
+            self.counters[count] += 1
+            args = (*args, self.counters[count])
         self.device_errors[device] = error[:200]
-        self.warn(logging.ERROR, f"device:{device}", message, self.config.module, *args, self.counters[count])
+        self.warn(logging.ERROR, f"device:{device}", message, self.config.module, *args)
 
     def _card_failed(self, what: str, exc: OSError) -> None:
         self._failed(
@@ -103,12 +106,11 @@ class Producing:
         try:
             write(*args)
         except OSError as exc:
-            self.device_errors["card"] = f"{what}: {exc.strerror or exc}"[:200]
-            self.warn(
-                logging.ERROR,
-                "device:card",
+            self._failed(
+                "card",
+                None,
+                f"{what}: {exc.strerror or exc}",
                 "module %s: the SD card cannot keep %s (%s): free or swap the card (the module goes on)",
-                self.config.module,
                 what,
                 exc,
             )

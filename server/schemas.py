@@ -362,11 +362,22 @@ class CommandPublic(BaseModel):
     updated_unix_s: float
 
 
-class PresetPublic(Open):
+class PassEstimate(BaseModel):
+    """One pass of a schedule against the LEM's colour cycle (`camcal.core.passplan`)."""
+
+    pass_duration_s: float = Field(description="one pass in steady state, the waits for colours included")
+    busy_share: float = Field(description="share of a pass the camera exposes or reads out")
+    turns_per_pass: dict[str, float] = Field(
+        description="per wavelength (nm), the LEM's turns of that colour one pass takes shots in"
+    )
+    lem_dwell_s: float | None = Field(description="the LEM's time on one colour; null: not known")
+    warnings: list[str] = Field(description="what to know before sending; the module can run it")
+
+
+class PresetPublic(Open, PassEstimate):
     """A named schedule (its fields as `camcal.core.schedule.Schedule`) with its size and duration."""
 
     n_frames: int
-    pass_duration_s: float
 
 
 class Problem(BaseModel):
@@ -374,11 +385,10 @@ class Problem(BaseModel):
     reason: str
 
 
-class Preview(BaseModel):
+class Preview(PassEstimate):
     ok: bool
     problems: list[Problem]
     n_frames: int
-    pass_duration_s: float
     predictions: dict[str, list[dict[str, Any]]] = Field(description="per module, per setting")
     summary: dict[str, dict[str, int]]
 

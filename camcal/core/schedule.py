@@ -152,18 +152,6 @@ class Schedule(BaseModel):
                     for k in range(repeats):
                         yield Shot(wl, exp, gain, k)
 
-    def pass_duration_s(self, readout_s: float = 0.8, lem_dwell_s: float | None = None) -> float:
-        """Estimated duration of one pass: exposure plus readout per frame, plus the pause.
-
-        With the LEM's colour dwell given, add the wait for each wavelength's
-        turn (on average half a cycle per change of wavelength).
-        """
-        total = sum((exp + readout_s) * r for exp, _, r in self.settings()) * len(self.wavelengths_nm)
-        if lem_dwell_s and len(self.wavelengths_nm) > 1:
-            changes = len(self.wavelengths_nm) if self.order == "wavelength" else self.n_frames
-            total += changes * 0.5 * lem_dwell_s * (len(KNOWN_WAVELENGTHS_NM) - 1)
-        return total + self.pause_s
-
 
 @dataclass(frozen=True)
 class CameraLimits:

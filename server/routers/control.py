@@ -13,6 +13,7 @@ from fastapi.responses import Response
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy.orm import Session
 
+from camcal.core.passplan import plan_pass
 from camcal.core.schedule import Schedule, presets
 from ingest.derived import predict_settings, result_row
 from server.deps import ModuleId, OperatorDep, SettingsDep, StoreDep
@@ -49,17 +50,29 @@ def _problems(settings: Any, schedule: Schedule) -> list[dict[str, str]]:
     return [{"field": f"schedule.{f}", "reason": r} for f, r in settings.camera_limits.problems(schedule)]
 
 
+def _pass_estimate(settings: Any, schedule: Schedule) -> dict[str, Any]:
+    """One pass against the LEM's colour cycle (`camcal.core.passplan`): duration, busy share, warnings."""
+    plan = plan_pass(schedule, settings.readout_s, settings.lem_dwell_s)
+    return {
+        "pass_duration_s": round(plan.duration_s, 1),
+        "busy_share": round(plan.busy_share, 3),
+        "turns_per_pass": {str(wl): round(n, 2) for wl, n in sorted(plan.turns.items())},
+        "lem_dwell_s": plan.dwell_s,
+        "warnings": plan.warnings(),
+    }
+
+
 @router.get("/api/schedules/presets", response_model=dict[str, PresetPublic])
 def list_presets(settings: SettingsDep) -> dict[str, Any]:
     """The named schedules to start from: T-REX, quick λ_att check, linearity scan, monitoring.
 
-    ``pass_duration_s`` is estimated as the preview does: readout and the LEM's colour waits included.
+    ``pass_duration_s`` and the rest are estimated as the preview does (the LEM's colour cycle walked).
     """
     return {
         name: {
             **s.model_dump(mode="json"),
             "n_frames": s.n_frames,
-            "pass_duration_s": round(s.pass_duration_s(settings.readout_s, settings.lem_dwell_s), 1),
+            **_pass_estimate(settings, s),
         }
         for name, s in presets().items()
     }
@@ -70,7 +83,10 @@ def preview(body: PreviewRequest, store: StoreDep, settings: SettingsDep) -> dic
     """Check a schedule and estimate one pass before sending it.
 
     Returns the problems (field and reason) the camera limits find, the
-    frames and the duration of one pass, and per module and setting the
+    frames and the duration of one pass against the LEM's colour cycle (the
+    share of it the camera shoots, the LEM's turns of each colour it takes,
+    and warnings: a wavelength's shots longer than the LEM shows a colour are
+    spread over several turns), and per module and setting the
     centre gray expected from the frames seen so far (``ok``, ``too_dark``,
     ``saturated`` or ``unknown``).
     """
@@ -93,7 +109,7 @@ def preview(body: PreviewRequest, store: StoreDep, settings: SettingsDep) -> dic
         "ok": not problems,
         "problems": problems,
         "n_frames": sched.n_frames,
-        "pass_duration_s": round(sched.pass_duration_s(settings.readout_s, settings.lem_dwell_s), 1),
+        **_pass_estimate(settings, sched),
         "predictions": pred,
         "summary": summary,
     }

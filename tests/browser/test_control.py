@@ -114,6 +114,14 @@ def test_read_only_browser_sees_the_schedule_but_cannot_send(
         )
         assert status == 401
         page.screenshot(path=artifacts / "control-read-only.png", full_page=True)
+        # The full T-REX grid takes ~25 min of shots a colour: the preview says the LEM's 60 s turns
+        # spread it, and what that means for a visit, before anyone sends it.
+        page.select_option("#start-from", "preset:trex")
+        warning = page.locator("#preview-warnings:has-text('several turns of a colour')")
+        warning.wait_for()
+        assert "part of the settings" in warning.inner_text()
+        assert page.inner_text("#preview-busy") == "100 %"
+        page.locator("#preview").screenshot(path=artifacts / "control-preview-warning.png")
     assert commands(control_system) == []
 
 

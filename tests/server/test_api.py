@@ -8,6 +8,7 @@ import re
 import pytest
 from fastapi.testclient import TestClient
 
+from camcal.core.passplan import plan_pass
 from camcal.core.schedule import Schedule
 from tests.server.conftest import TOKEN
 
@@ -183,12 +184,14 @@ def test_plotly_is_served_locally_and_compressed(client: TestClient) -> None:
 def test_presets_estimate_one_pass_as_the_preview_does(client) -> None:
     presets = client.get("/api/schedules/presets").json()
     assert {"trex", "linearity-scan"} <= set(presets)
+    estimate = ("n_frames", "pass_duration_s", "busy_share", "turns_per_pass", "lem_dwell_s", "warnings")
     for name, p in presets.items():
-        schedule = {k: v for k, v in p.items() if k not in ("n_frames", "pass_duration_s")}
+        schedule = {k: v for k, v in p.items() if k not in estimate}
         preview = client.post("/api/schedules/preview", json={"schedule": schedule}).json()
-        assert (p["n_frames"], p["pass_duration_s"]) == (preview["n_frames"], preview["pass_duration_s"]), (
-            name
-        )
-        waits_for_colours = len(schedule["wavelengths_nm"]) > 1
-        bare = Schedule.model_validate(schedule).pass_duration_s()  # exposures and readout only
-        assert p["pass_duration_s"] > bare if waits_for_colours else p["pass_duration_s"] == round(bare, 1)
+        assert {k: p[k] for k in estimate} == {k: preview[k] for k in estimate}, name
+        plan = plan_pass(Schedule.model_validate(schedule), 0.8, 60.0)  # the app's readout and LEM dwell
+        assert p["pass_duration_s"] == round(plan.duration_s, 1) >= round(plan.shooting_s, 1), name
+    # T-REX's full grid: 25 min of shots a colour against the LEM's 60 s, spread over ~25 turns, said so
+    trex = presets["trex"]
+    assert all(24 <= n <= 27 for n in trex["turns_per_pass"].values()) and trex["busy_share"] > 0.95
+    assert "several turns" in trex["warnings"][0] and not presets["quick-check"]["warnings"]

@@ -98,6 +98,12 @@ export function renderPreview(box, p, { modules, selected, error }) {
     el("div", { class: "stat" }, el("div", { class: "label" }, "one pass takes about"), el("div", { class: "big", id: "preview-duration" }, fmtDuration(p.pass_duration_s))),
     el(
       "div",
+      { class: "stat", title: p.lem_dwell_s ? `the rest of a pass the camera waits for the LEM's colour (${fmtDuration(p.lem_dwell_s)} each)` : "" },
+      el("div", { class: "label" }, "camera shooting"),
+      el("div", { class: "big", id: "preview-busy" }, p.busy_share == null ? "–" : `${Math.round(100 * p.busy_share)} %`),
+    ),
+    el(
+      "div",
       { class: "stat" },
       el("div", { class: "label" }, "camera limits"),
       el("div", { class: `big ${p.ok ? "status-ok" : "status-rejected"}` }, p.ok ? "ok" : plural(p.problems.length, "problem")),
@@ -123,9 +129,11 @@ export function renderPreview(box, p, { modules, selected, error }) {
       ),
     );
   }
+  const warnings = (p.warnings || []).map((w) => el("li", {}, w));
   box.replaceChildren(
     el("h3", {}, "Preview of one pass ", el("span", { class: "muted hint" }, "judged from the frames seen so far in this dive")),
     head,
+    ...(warnings.length ? [el("ul", { class: "preview-warnings", id: "preview-warnings", role: "note" }, ...warnings)] : []),
     ...sections,
   );
 }

@@ -283,6 +283,7 @@ async function sendSchedule(ev) {
     message: `Module ${m.id} will switch ${from}to ${spec.name} v${version} ${applyText(apply)}.`,
     details: [
       `One pass: ${plural(p.n_frames, "frame")}, about ${fmtDuration(p.pass_duration_s)}.`,
+      ...(p.warnings || []).map((w) => `Note: ${w}.`),
       `Settings predicted for ${lrm(m.id)}: ${judged}.`,
       `Its frames will carry schedule version ${version}.`,
       offlineNote(m),

@@ -21,6 +21,8 @@ class LemClock(Protocol):
 
     def next_start_of(self, wavelength_nm: int, after: datetime) -> datetime: ...
 
+    def next_change_after(self, t: datetime) -> datetime: ...
+
 
 @dataclass(frozen=True)
 class Capture:
@@ -36,8 +38,10 @@ class ScheduleRunner:
     """Takes the schedule's shots one after the other, pass after pass.
 
     The LEM cycles its wavelengths on its own timetable: before a shot at
-    405 nm the runner waits until the LEM shows 405 nm. When the LEM moves
-    on while the runner is amid one wavelength's consecutive shots (a pass
+    405 nm the runner waits until the LEM shows 405 nm, and no exposure is
+    started that would end after the LEM changes colour (its frame would
+    hold two colours' light). When the LEM moves on, or is about to, while
+    the runner is amid one wavelength's consecutive shots (a pass
     that does not fit the LEM's dwell: a slow card, long exposures), the
     rest of those shots come first at that wavelength's next turn
     (`deferred_shots`, logged) and the runner goes on with the next
@@ -156,7 +160,7 @@ class ScheduleRunner:
                 continue
             if self.lem is not None:
                 now = self.clock.now()
-                if self.lem.wavelength_at(now) != shot.wavelength_nm:
+                if self.lem.wavelength_at(now) != shot.wavelength_nm or not self._fits(now, shot.exposure_s):
                     if self._defer_rest_of_run(version):
                         continue
                     start = self.lem.next_start_of(shot.wavelength_nm, now)
@@ -180,6 +184,17 @@ class ScheduleRunner:
                         self._swap(self._pending)
             return Capture(frame, shot, int(wavelength), version)
         return None
+
+    def _fits(self, now: datetime, exposure_s: float) -> bool:
+        """Whether an exposure started now ends before the LEM changes colour.
+
+        A frame exposed across a change would hold two colours' light under one colour's label.
+        An exposure longer than a whole dwell can never fit: it is taken (as the timetable allows).
+        """
+        assert self.lem is not None
+        change = self.lem.next_change_after(now)
+        dwell_s = (self.lem.next_change_after(change) - change).total_seconds()
+        return exposure_s >= dwell_s or now + timedelta(seconds=exposure_s) <= change
 
     def _defer_rest_of_run(self, version: int) -> bool:
         """Amid one wavelength's consecutive shots and the LEM moved on: defer the rest of them.
@@ -206,7 +221,7 @@ class ScheduleRunner:
             self.deferred_shots += j - i
             if self._pending is not None:  # the setting being taken ends here
                 self._swap(self._pending)
-        log.info("the LEM left %d nm before %d shots of it: they come first at its next turn", wl, j - i)
+        log.info("the LEM leaves %d nm before %d shots of it: they come first at its next turn", wl, j - i)
         return True
 
     def _sleep(self, seconds: float, stop: threading.Event) -> bool:
@@ -244,3 +259,7 @@ class LemTimetableClock:
     def next_start_of(self, wavelength_nm: int, after: datetime) -> datetime:
         s = self.timetable.next_start_of(wavelength_nm, (after - self.epoch).total_seconds())
         return self.epoch + timedelta(seconds=float(s) + self.settle_s)
+
+    def next_change_after(self, t: datetime) -> datetime:
+        s = self.timetable.next_change_after((t - self.epoch).total_seconds())
+        return self.epoch + timedelta(seconds=float(s))

@@ -1,8 +1,9 @@
 """How one pass of a schedule meets the LEM's colour cycle, walked in virtual time.
 
 The module's runner (`lrm.runner.ScheduleRunner`) waits for the LEM's colour at
-the start of a wavelength's shots, and when the LEM moves on amid them takes
-the rest first at that colour's next turn. Before an operator sends a
+the start of a wavelength's shots, starts no exposure the LEM would change
+colour in, and when the LEM moves on amid a wavelength's shots takes the rest
+first at that colour's next turn. Before an operator sends a
 schedule the ship says how long a pass will take and over how many turns of
 each colour its shots are spread: this walks the runner's rules in virtual
 time, over several phases of the LEM's cycle (``tests/lrm/test_passplan.py``
@@ -184,7 +185,7 @@ class _Walk:
                 self.index = 0
                 self.t += self.pause_s
             shot = self.shots[self.index]
-            if self._colour(self.t) != shot.wavelength_nm:
+            if self._colour(self.t) != shot.wavelength_nm or not self._fits(shot.exposure_s):
                 if not self._defer():
                     self.t = self._next_start(shot.wavelength_nm, self.t) + 1e-3
                 continue
@@ -194,6 +195,11 @@ class _Walk:
             self.last_taken = self.index
             self.index += 1
         return taken
+
+    def _fits(self, exposure_s: float) -> bool:
+        """An exposure started now ends before the LEM changes colour (or could never fit a dwell)."""
+        change = (self._dwell(self.t) + 1) * self.dwell_s
+        return exposure_s >= self.dwell_s or round(self.t + exposure_s, 6) <= change
 
     def _defer(self) -> bool:
         i, shots = self.index, self.shots

@@ -170,18 +170,19 @@ def test_each_shot_waits_until_the_lem_shows_its_wavelength() -> None:
 
 
 def test_shots_the_lem_left_no_time_for_come_first_at_its_next_turn_not_a_whole_cycle_late() -> None:
-    """A pass that does not fit the LEM's dwell (five 2.5 s shots in a 10 s block): the runner stays
+    """A pass that does not fit the LEM's dwell (five 2.4 s shots in a 10 s block): the runner stays
     in step with the LEM, taking four shots in each block, and the one it had no time for comes first
     at that wavelength's next turn. Waiting for it, the runner would take every later wavelength a
-    whole cycle late (a block after the other camera)."""
+    whole cycle late (a block after the other camera). The fifth is not started at 19.6 s either: its
+    exposure would end after the LEM changed colour, a frame of two colours under one label."""
     lem = CyclingLem(dwell_s=10.0)
-    runner, cam, _ = make(schedule(wavelengths_nm=(460, 525), exposures_s=(2.5,), repeats=5), lem=lem)
+    runner, cam, _ = make(schedule(wavelengths_nm=(460, 525), exposures_s=(2.4,), repeats=5), lem=lem)
     caps = take(runner, 20)
     times = [t for t, _, _ in cam.taken]
     assert [c.wavelength_nm for c in caps] == ([460] * 4 + [525] * 4) * 2 + [460] * 4
     at = pytest.approx  # the runner wakes a millisecond after a block starts
-    assert times[:4] == at([10.0, 12.5, 15.0, 17.5], abs=0.01)  # 460 nm shows during [10, 20) s
-    assert times[4:8] == at([20.0, 22.5, 25.0, 27.5], abs=0.01)  # 525 nm at once, in its own block
+    assert times[:4] == at([10.0, 12.4, 14.8, 17.2], abs=0.01)  # 460 nm shows during [10, 20) s
+    assert times[4:8] == at([20.0, 22.4, 24.8, 27.2], abs=0.01)  # 525 nm at once, in its own block
     assert times[8] == at(40.0, abs=0.01) and times[12] == at(50.0, abs=0.01)  # the next turns
     # The repeat left over comes first; over the turns every repeat is taken as often as the others.
     assert [c.shot.repeat for c in caps[:12]] == [0, 1, 2, 3] * 2 + [4, 0, 1, 2]
@@ -189,8 +190,28 @@ def test_shots_the_lem_left_no_time_for_come_first_at_its_next_turn_not_a_whole_
         [0, 1, 2, 3, 4] * 2 + [0, 1]
     )
     assert runner.deferred_shots == 4  # one a turn: 460, 525, 460, 525 nm
-    for c, (t, _, _) in zip(caps, cam.taken, strict=True):
+    for c, (t, exposure_s, _) in zip(caps, cam.taken, strict=True):
         assert lem.wavelength_at(EPOCH + timedelta(seconds=t)) == c.wavelength_nm
+        assert lem.wavelength_at(EPOCH + timedelta(seconds=t + exposure_s - 1e-6)) == c.wavelength_nm
+
+
+def test_no_exposure_is_started_that_the_lem_would_change_colour_in() -> None:
+    """One 0.5 s shot a setting, 1.2 s each with readout: in a 10 s block the ninth starts at 9.6 s,
+    after which a 0.5 s exposure would end at 10.1 s, in the next colour. It waits for its colour's
+    next turn instead (the start of a wavelength's shots: nothing to defer)."""
+    lem = CyclingLem(dwell_s=10.0)
+    clock = VirtualClock()
+    cam = FakeCamera(clock, readout_s=0.7)
+    runner = ScheduleRunner(cam, clock, schedule(exposures_s=(0.5,), repeats=1), lem=lem)
+    clock.t = 18.0  # 460 nm shows until 20 s: 1.2 s left after the first shot's 0.8 s wait... none
+    caps = take(runner, 3)
+    times = [t for t, _, _ in cam.taken]
+    assert all(c.wavelength_nm == 460 for c in caps)
+    assert times[0] == pytest.approx(18.0) and times[1] == pytest.approx(19.2)
+    assert times[2] == pytest.approx(40.0, abs=0.01)  # 19.2 + 1.2 = 20.4: past the change; next turn
+    # An exposure longer than a whole dwell could never fit: taken as the timetable allows, not held.
+    long = ScheduleRunner(FakeCamera(VirtualClock()), VirtualClock(), schedule(exposures_s=(12.0,)), lem=lem)
+    assert long.next_capture(threading.Event()) is not None
 
 
 def test_a_paused_runner_resumes_its_wavelength_in_its_next_block() -> None:

@@ -71,3 +71,6 @@ class CyclingLem:
         while self.order[k % 3] != wavelength_nm:
             k += 1
         return EPOCH + timedelta(seconds=k * self.dwell_s)
+
+    def next_change_after(self, t: datetime) -> datetime:
+        return EPOCH + timedelta(seconds=(int(self._phase(t) // self.dwell_s) + 1) * self.dwell_s)

@@ -61,7 +61,8 @@ class _ModuleState:
     conflicts: deque[tuple[float, str, int]] = field(default_factory=lambda: deque(maxlen=1000))
     humidity: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=4000))
     tilt_deg: float | None = None
-    outcomes: deque[str] = field(default_factory=deque)
+    #: Per wavelength, the outcomes of its last frames ("ok" or the reason a frame was rejected).
+    outcomes: dict[int, deque[str]] = field(default_factory=dict)
     near_edge: deque[bool] = field(default_factory=lambda: deque(maxlen=10))
     open_gaps: list[tuple[int, int, float]] = field(default_factory=list)
     #: Per device (``card``, ``camera``, ``sensors``): boot, failures this boot, the last error, and
@@ -106,11 +107,11 @@ class AlarmEvaluator:
         centroid_px: tuple[float, float] | None,
         radius_px: float | None,
         size_px: tuple[int, int],
+        wavelength_nm: int = 0,
     ) -> None:
         st = self._m[module]
-        st.outcomes.append("ok" if status == "ok" else (reason or "rejected"))
-        while len(st.outcomes) > self.limits.reject_window_frames:
-            st.outcomes.popleft()
+        window = st.outcomes.setdefault(wavelength_nm, deque(maxlen=self.limits.reject_window_frames))
+        window.append("ok" if status == "ok" else (reason or "rejected"))
         if reason == "off_edge":
             st.near_edge.append(True)
         elif centroid_px is not None and radius_px is not None:
@@ -247,20 +248,33 @@ class AlarmEvaluator:
                     "MINOR",
                     f"module {module}: the LEM is near or past the edge of the view",
                 )
-            n = len(st.outcomes)
-            if n >= max(10, lim.reject_window_frames // 3):
+            # A schedule that sweeps exposures and gains saturates many of its frames by design (the
+            # near camera most): that is no fault. The fault is a wavelength of which no recent frame
+            # is usable, so that no λ_att can come from it; said once per module, worst first.
+            unusable = []
+            for wl, window in sorted(st.outcomes.items()):
+                n = len(window)
+                if n < max(10, lim.reject_window_frames // 3) or "ok" in window:
+                    continue
                 for reason, what, advice in (
                     ("saturated", "saturated", "shorten exposures or lower gains"),
                     ("too_dark", "too dark", "lengthen exposures or raise gains"),
                 ):
-                    frac = sum(1 for o in st.outcomes if o == reason) / n
+                    frac = sum(1 for o in window if o == reason) / n
                     if frac >= lim.reject_fraction:
-                        add(
-                            f"frames_{reason}",
-                            module,
-                            "MINOR",
-                            f"module {module}: {100 * frac:.0f} % of the last {n} frames {what}; {advice}",
-                        )
+                        unusable.append((reason, frac, wl, n, what, advice))
+            for reason in ("saturated", "too_dark"):
+                found = sorted((u for u in unusable if u[0] == reason), key=lambda u: -u[1])
+                if found:
+                    _, frac, wl, n, what, advice = found[0]
+                    where = ", ".join(f"{u[2]} nm" for u in sorted(found, key=lambda u: u[2]) if u[2])
+                    add(
+                        f"frames_{reason}",
+                        module,
+                        "MINOR",
+                        f"module {module}: none of the last {n} frames{f' at {where}' if where else ''} "
+                        f"usable ({100 * frac:.0f} % {what}): no λ_att from them; {advice}",
+                    )
             for device, (_, count, error, rose) in st.failures.items():
                 if rose is not None and now_unix_s - rose <= lim.card_hold_s:
                     add(device, module, "MAJOR", _failure_message(device, module, count, error, _hms(rose)))

@@ -121,6 +121,7 @@ class Results:
             centroid,
             row.get("radius_px"),
             (meta.get("width_px") or 1, meta.get("height_px") or 1),
+            int(meta.get("wavelength_nm") or 0),
         )
         payload: ResultPayload = {
             "frame_id": frame_id,

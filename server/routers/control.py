@@ -105,14 +105,36 @@ def preview(body: PreviewRequest, store: StoreDep, settings: SettingsDep) -> dic
         m: {v: sum(1 for p in ps if p["verdict"] == v) for v in ("ok", "too_dark", "saturated", "unknown")}
         for m, ps in pred.items()
     }
+    estimate = _pass_estimate(settings, sched)
+    estimate["warnings"] += _unusable_wavelengths(pred)
     return {
         "ok": not problems,
         "problems": problems,
         "n_frames": sched.n_frames,
-        **_pass_estimate(settings, sched),
+        **estimate,
         "predictions": pred,
         "summary": summary,
     }
+
+
+def _unusable_wavelengths(pred: dict[str, list[dict[str, Any]]]) -> list[str]:
+    """A module for which no setting at a wavelength is predicted ok: no λ_att at it from that module."""
+    out = []
+    for module, ps in sorted(pred.items()):
+        for wl in sorted({p["wavelength_nm"] for p in ps}):
+            verdicts = [p["verdict"] for p in ps if p["wavelength_nm"] == wl]
+            if "ok" in verdicts or "unknown" in verdicts:
+                continue
+            counts = ", ".join(
+                f"{verdicts.count(v)} {v.replace('_', ' ')}"
+                for v in ("saturated", "too_dark")
+                if v in verdicts
+            )
+            out.append(
+                f"no setting at {wl} nm is predicted usable for module {module} ({counts}): its frames "
+                f"would give no λ_att at {wl} nm; change the exposures or gains"
+            )
+    return out
 
 
 def _module_or_404(store: Store, module_id: str) -> None:

@@ -58,6 +58,15 @@ def test_send_a_schedule_see_frames_change_then_back_exactly_once(system) -> Non
     assert preview["predictions"]["A"] and {"ok", "saturated"} & {
         p["verdict"] for p in preview["predictions"]["A"]
     }
+    assert not [w for w in preview["warnings"] if "predicted usable" in w], preview["warnings"]
+    # The longest exposure at the highest gain, nothing else: every setting saturates where frames
+    # have been seen, and the preview says that wavelength would give no λ_att (sending stays allowed).
+    blinding = {**scan, "exposures_s": [2.0], "gains_db": [24.0], "blocks": []}
+    warned = client.post("/api/schedules/preview", json={"schedule": blinding, "module": "A"}).json()
+    seen = {p["wavelength_nm"] for p in warned["predictions"]["A"] if p["verdict"] != "unknown"}
+    unusable = [w for w in warned["warnings"] if "predicted usable for module A" in w]
+    assert warned["ok"] and seen and len(unusable) == len(seen), warned["warnings"]
+    assert all("1 saturated" in w and "no λ_att" in w for w in unusable), unusable
     r = client.post("/api/modules/A/schedule", json={"schedule": scan, "apply": "now"}, headers=AUTH)
     assert r.status_code == 202, r.text
     cmd = r.json()

@@ -161,7 +161,7 @@ def up(
         wait_linked(events, MODULES if modules else (), sup, stop, MODULES_LINKED_S)
         if stop.is_set():
             raise Interrupted
-        _print_up(s, data_dir, logs, ingest_port, tokens if generated else {})
+        _print_up(s, data_dir, logs, ingest_host, ingest_port, tokens if generated else {})
         supervise.notify_ready(f"dashboard http://{s.http_host}:{s.http_port}")
         code = watch(sup, http, stop)
     except Interrupted:
@@ -356,7 +356,21 @@ def watch(sup: supervise.Supervisor, http: HttpServer, stop: threading.Event) ->
     return supervise.EXIT_OK
 
 
-def _print_up(s: Settings, data_dir: Path, logs: Path, ingest_port: int, tokens: dict[str, str]) -> None:
+def _modules_connect(host: str, port: int) -> str:
+    """Where modules connect, as the ingest listens: this machine only, or the ship's network."""
+    if host in ("0.0.0.0", "*", "::"):
+        return f"modules connect to tcp://<this host's address>:{port}"
+    if host in ("127.0.0.1", "localhost", "::1"):
+        return (
+            f"modules on this machine connect to tcp://{host}:{port} "
+            "(--ingest-host 0.0.0.0 for modules on the ship's network)"
+        )
+    return f"modules connect to tcp://{host}:{port}"
+
+
+def _print_up(
+    s: Settings, data_dir: Path, logs: Path, ingest_host: str, ingest_port: int, tokens: dict[str, str]
+) -> None:
     console.print(
         labelled(
             "camcal is up:",
@@ -364,7 +378,8 @@ def _print_up(s: Settings, data_dir: Path, logs: Path, ingest_port: int, tokens:
             f"dashboard http://{s.http_host}:{s.http_port}  (review: /review, API: /docs)",
         )
     )
-    console.print(f"data: {data_dir}   logs: {logs}   modules connect to tcp://<this host>:{ingest_port}")
+    console.print(f"data: {data_dir}   logs: {logs}", highlight=False)
+    console.print(_modules_connect(ingest_host, ingest_port), highlight=False)
     for name, token in tokens.items():  # only a token camcal made up: a configured one is never shown
         console.print(f"operator token for {name}: {token}")
     console.print("stop with Ctrl-C")

@@ -73,6 +73,19 @@ def error_body(code: str, message: str, detail: Any = None) -> dict[str, Any]:
     return {"error": {"code": code, "message": message, "detail": detail}}
 
 
+def _reason(error: Any) -> str:
+    """A validation error's message for a person: without pydantic's "Value error, " and, for a value
+    of the wrong type, naming the value given ("... as a number (got 'abc')")."""
+    msg = str(error.get("msg", ""))
+    for prefix in ("Value error, ", "Assertion failed, "):
+        msg = msg.removeprefix(prefix)
+    given = error.get("input")
+    if str(error.get("type", "")).endswith(("_parsing", "_type")) and isinstance(given, str | int | float):
+        shown = repr(given) if len(repr(given)) <= 40 else repr(given)[:37] + "..."
+        msg = f"{msg} (got {shown})"
+    return msg
+
+
 def install(app: FastAPI) -> None:
     """Register the handlers that give every error the one shape."""
 
@@ -88,7 +101,7 @@ def install(app: FastAPI) -> None:
     @app.exception_handler(RequestValidationError)
     async def validation_error(_: Request, exc: RequestValidationError) -> JSONResponse:
         problems = [
-            {"field": ".".join(str(p) for p in e.get("loc", ()) if p != "body"), "reason": e.get("msg", "")}
+            {"field": ".".join(str(p) for p in e.get("loc", ()) if p != "body"), "reason": _reason(e)}
             for e in exc.errors()
         ]
         first = problems[0] if problems else {"field": "", "reason": "invalid request"}

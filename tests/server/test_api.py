@@ -195,3 +195,17 @@ def test_presets_estimate_one_pass_as_the_preview_does(client) -> None:
     trex = presets["trex"]
     assert all(24 <= n <= 27 for n in trex["turns_per_pass"].values()) and trex["busy_share"] > 0.95
     assert "several turns" in trex["warnings"][0] and not presets["quick-check"]["warnings"]
+
+
+def test_schedule_validation_names_the_value_and_drops_pydantics_prefix(client) -> None:
+    """An operator typing "0.1, abc" read "Input should be a valid number, unable to parse string as a
+    number" (which of them?), and a pass too large read "Value error, one pass would take ...\""""
+    base = {"name": "x", "exposures_s": [0.1, "abc"], "gains_db": [6.0]}
+    r = client.post("/api/schedules/preview", json={"schedule": base})
+    assert r.status_code == 422
+    (problem,) = r.json()["error"]["detail"]
+    assert problem["field"] == "schedule.exposures_s.1" and problem["reason"].endswith("(got 'abc')"), problem
+    huge = {**base, "exposures_s": [0.1 * k for k in range(1, 61)], "gains_db": [float(g) for g in range(40)]}
+    r = client.post("/api/schedules/preview", json={"schedule": {**huge, "repeats": 10}})
+    reason = r.json()["error"]["detail"][0]["reason"]
+    assert reason.startswith("one pass would take 72000 frames"), reason

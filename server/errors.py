@@ -17,6 +17,7 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from storage.db import database_unavailable
+from storage.queries import RunLookupError
 
 log = logging.getLogger("camcal.server")
 
@@ -97,6 +98,10 @@ def install(app: FastAPI) -> None:
         return JSONResponse(
             error_body(exc.code, exc.message, exc.detail), status_code=exc.status, headers=headers
         )
+
+    @app.exception_handler(RunLookupError)
+    async def lookup_error(_: Request, exc: RunLookupError) -> JSONResponse:
+        return JSONResponse(error_body("not_found", str(exc)), status_code=404)
 
     @app.exception_handler(RequestValidationError)
     async def validation_error(_: Request, exc: RequestValidationError) -> JSONResponse:

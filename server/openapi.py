@@ -107,7 +107,11 @@ def install(app: FastAPI) -> None:
                     _add(op, "503")
                     if "database_unavailable" not in op["responses"]["503"]["description"]:
                         op["responses"]["503"]["description"] += f"; or: {_GENERIC['503']}"
-                if route.dependant.path_params:
+                # a path's id, or a dive or run named in the query (`queries.dive_and_run`), may not exist
+                if route.dependant.path_params or {q.name for q in route.dependant.query_params} & {
+                    "dive",
+                    "run",
+                }:
                     _add(op, "404")
                 if route.dependant.body_params:
                     _add(op, "413")

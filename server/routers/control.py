@@ -202,9 +202,12 @@ def module_commands(
 @router.get("/api/commands", response_model=list[CommandPublic])
 def all_commands(
     store: StoreDep,
-    state: Annotated[str | None, Query(max_length=16)] = None,
+    state: Annotated[
+        Literal["pending", "sent", "accepted", "in_progress", "done", "rejected"] | None, Query()
+    ] = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
 ) -> list[dict[str, Any]]:
+    """Commands to any module, newest first; ``state`` keeps those in that state."""
     return store.call(queries.commands, states=(state,) if state else None, limit=limit)
 
 

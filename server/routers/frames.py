@@ -13,7 +13,7 @@ from camcal.core.images import FrameReadError, decode_frame
 from camcal.core.wire.image import ImageHeaderError, check_frame
 from ingest.worker import thumbnail_jpeg
 from server.deps import FloatQuery, IdPath, IdQuery, StoreDep, WavelengthQuery
-from server.errors import Gone, NotFound, Unreadable
+from server.errors import Gone, Invalid, NotFound, Unreadable
 from server.openapi import GONE, NOT_FOUND, UNREADABLE
 from server.schemas import FrameAnalysis, FrameDetail, FramePage
 from storage import queries
@@ -50,6 +50,10 @@ def list_frames(
     offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
 ) -> dict[str, Any]:
     """Frames with their result (in the live run, or ``run``), filtered and paged."""
+    for lo, hi, what in ((depth_min_m, depth_max_m, "depth_min_m"), (t_from, t_to, "t_from")):
+        if lo is not None and hi is not None and lo > hi:
+            other = "depth_max_m" if what == "depth_min_m" else "t_to"
+            raise Invalid(f"{what} ({lo:g}) is above {other} ({hi:g}): nothing could match; swap them")
     f = queries.FrameFilter(
         dive,
         module,
@@ -65,8 +69,7 @@ def list_frames(
     )
 
     def q(s: Session) -> tuple[list[dict[str, Any]], int]:
-        dive_id = dive if dive is not None else (queries.dives(s) or [{"id": None}])[0]["id"]
-        rid = run or (queries.live_run_id(s, dive_id) if dive_id is not None else None)
+        _, rid = queries.dive_and_run(s, dive, run)
         return queries.frames_page(s, f, rid, limit, offset, order)
 
     items, total = store.call(q)
@@ -76,6 +79,8 @@ def list_frames(
 def _frame(store: Store, frame_id: IdPath, run: int | None) -> dict[str, Any]:
     def q(s: Session) -> dict[str, Any] | None:
         found = queries.frame_with_result(s, frame_id, run)
+        if found is not None and run is not None:
+            queries.dive_and_run(s, found[0].dive_id, run)  # a run of its dive, else 404
         return queries.frame_dict(*found, full=True) if found is not None else None
 
     frame = store.call(q)

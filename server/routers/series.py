@@ -17,11 +17,8 @@ MaxPoints = Annotated[int, Query(ge=10, le=20000)]
 
 
 def _dive(s: Session, dive: int | None) -> int | None:
-    """The dive asked for, else the newest."""
-    if dive is not None:
-        return dive
-    d = queries.dives(s)
-    return d[0]["id"] if d else None
+    """The dive asked for (404 if there is none such), else the newest."""
+    return queries.dive_and_run(s, dive, None)[0]
 
 
 @router.get("/api/sensors", response_model=Series)
@@ -78,10 +75,9 @@ def attenuation(
     and whether the visit is over (``final``)."""
 
     def q(s: Session) -> dict[str, Any]:
-        dive_id = _dive(s, dive)
+        dive_id, rid = queries.dive_and_run(s, dive, run)
         if dive_id is None:
             return {"dive_id": None, "run_id": None, "series": {}}
-        rid = run or queries.live_run_id(s, dive_id)
         if rid is None:
             return {"dive_id": dive_id, "run_id": None, "series": {}}
         series = queries.attenuation_series(s, rid, wavelength_nm, t_from)
@@ -100,8 +96,7 @@ def linearity(
     """Linearity fits per module and wavelength: slope, R², saturation knee, the points."""
 
     def q(s: Session) -> dict[str, Any]:
-        dive_id = _dive(s, dive)
-        rid = run or (queries.live_run_id(s, dive_id) if dive_id is not None else None)
+        _, rid = queries.dive_and_run(s, dive, run)
         if rid is None:
             return {"run_id": None, "checks": []}
         return {"run_id": rid, "checks": queries.linearity(s, rid, module)}

@@ -200,6 +200,33 @@ class RunLookupError(LookupError):
     """No such run of the dive, or the dive has none yet (the message says which)."""
 
 
+def dive_and_run(s: Session, dive_id: int | None, run_id: int | None) -> tuple[int | None, int | None]:
+    """The dive asked for (else the run's, else the newest; None without any) and the run asked for
+    (else that dive's live run, None without one).
+
+    Raises `RunLookupError` for a dive or run that does not exist, or a run of another dive: a
+    filter naming one would otherwise answer as if nothing matched.
+    """
+    run = s.get(AnalysisRun, run_id) if run_id is not None else None
+    if run_id is not None and run is None:
+        raise RunLookupError(f"no analysis run {run_id}")
+    if dive_id is not None:
+        if s.get(Dive, dive_id) is None:
+            raise RunLookupError(f"no dive {dive_id}")
+    elif run is not None:
+        dive_id = run.dive_id
+    else:
+        newest = s.scalar(select(func.max(Dive.id)))
+        if newest is None:
+            return None, None
+        dive_id = int(newest)
+    if run is None:
+        return dive_id, live_run_id(s, dive_id)
+    if run.dive_id != dive_id:
+        raise RunLookupError(f"run {run_id} is of dive {run.dive_id}, not of dive {dive_id}")
+    return dive_id, run.id
+
+
 def chosen_run(s: Session, dive_id: int, run_id: int | None = None) -> dict[str, Any]:
     """Run ``run_id`` of the dive, or by default its live run, else its newest (as `runs` gives them,
     its results not counted).

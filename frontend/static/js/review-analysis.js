@@ -38,7 +38,7 @@ export function mountSpan(ctx, name, onChange) {
   const mode = el(
     "select",
     { name: "span", "aria-label": "span of the dive" },
-    el("option", { value: "station" }, "the station (deepest 50 m)"),
+    el("option", { value: "station" }, "the deepest 50 m (the station, once reached)"),
     el("option", { value: "all" }, "the whole dive"),
     el("option", { value: "depth" }, "a depth range"),
   );
@@ -159,7 +159,8 @@ function describeSpan(sp, mode) {
   const hi = sp.depth_max_m;
   if (!lo && hi === null) return "the whole dive";
   const depths = `depth ${fmt(lo || 0, 0)}${hi === null ? "+ m" : `–${fmt(hi, 0)} m`}`;
-  return mode === "station" ? `the station, ${depths}` : depths;
+  // "the station" only names it: on the way down the deepest 50 m are wherever the modules are now
+  return mode === "station" ? `the deepest 50 m so far, ${depths}` : depths;
 }
 
 async function loadAttenuation(ctx, runId) {

@@ -379,7 +379,7 @@ def _print_up(
         )
     )
     console.print(f"data: {data_dir}   logs: {logs}", highlight=False)
-    console.print(_modules_connect(ingest_host, ingest_port), highlight=False)
+    console.print(_modules_connect(ingest_host, ingest_port), highlight=False, soft_wrap=True)
     for name, token in tokens.items():  # only a token camcal made up: a configured one is never shown
         console.print(f"operator token for {name}: {token}")
     console.print("stop with Ctrl-C")

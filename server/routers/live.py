@@ -61,6 +61,7 @@ def build_snapshot(store: Store, hub: LiveHub, settings: ServerSettings) -> dict
             "phase": hub.phase(mid),
             "quality": r["quality"].get(mid, {}),
             "quality_recent": r["recent_quality"].get(mid, {}),
+            "recent_outcomes": r["recent_outcomes"].get(mid, []),
         }
     return {
         "server_time_unix_s": time.time(),
@@ -89,6 +90,7 @@ def _snapshot_reads(s: Session) -> dict[str, Any]:
     quality = queries.quality_counts(s, run_id) if run_id else {}
     t_last = max((f["captured_unix_s"] for f in latest.values()), default=None)
     recent_quality = queries.quality_counts(s, run_id, since=t_last - 600) if run_id and t_last else {}
+    outcomes = queries.recent_outcomes(s, dive["id"], run_id) if dive and run_id else {}
     attenuation = queries.attenuation_series(s, run_id) if run_id else {}
     alarms = queries.alarms(s, active=True) + queries.alarms(s, active=False, limit=20)
     return {
@@ -100,6 +102,7 @@ def _snapshot_reads(s: Session) -> dict[str, Any]:
         "attitude": attitude,
         "quality": quality,
         "recent_quality": recent_quality,
+        "recent_outcomes": outcomes,
         "attenuation": attenuation,
         "alarms": alarms,
     }

@@ -21,6 +21,7 @@ from storage.queries.frames import (
     latest_frames,
     locate_frames,
     quality_counts,
+    recent_outcomes,
 )
 from storage.queries.ingest import (
     known_seqs,
@@ -134,6 +135,7 @@ __all__ = [
     "modules",
     "open_gaps",
     "quality_counts",
+    "recent_outcomes",
     "result_rows",
     "runs",
     "schedule_version",

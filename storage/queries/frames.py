@@ -179,6 +179,23 @@ def latest_frames(s: Session, dive_id: int, run_id: int | None) -> dict[str, dic
     return out
 
 
+def recent_outcomes(s: Session, dive_id: int, run_id: int, n: int = 40) -> dict[str, list[str]]:
+    """Per module, the outcomes in a run of its ``n`` latest analysed frames, oldest first: ``ok`` or
+    the reason the frame was rejected (the live cards' strip of latest frames)."""
+    out: dict[str, list[str]] = {}
+    mods = [m for (m,) in s.execute(select(Frame.module_id).where(Frame.dive_id == dive_id).distinct())]
+    for m in mods:
+        rows = s.execute(
+            select(FrameResult.status, FrameResult.reason)
+            .join(Frame, FrameResult.frame_id == Frame.id)
+            .where(Frame.dive_id == dive_id, Frame.module_id == m, FrameResult.run_id == run_id)
+            .order_by(Frame.captured_unix_s.desc(), Frame.id.desc())
+            .limit(n)
+        ).all()
+        out[m] = [("ok" if st == "ok" else (reason or "rejected")) for st, reason in reversed(rows)]
+    return out
+
+
 def frames_in(dive_id: int | None, t_from: float | None, t_to: float | None) -> Any:
     q = select(Frame.id)
     if dive_id is not None:

@@ -61,6 +61,16 @@ def test_live_view_shows_both_modules_thumbnails_and_lambda_att(
     stats = page.evaluate("window.camcal.stats")
     assert stats["firstDataAt"] is not None and stats["firstDataAt"] < 10_000
 
+    # A reload keeps the strip of latest frames: the server's outcomes, not one tick rebuilt from the
+    # newest frame (it showed a single square after every reload).
+    ticks = "() => document.querySelectorAll('#module-A [data-field=recent] span').length"
+    page.wait_for_function(f"() => ({ticks})() >= 25", timeout=60_000)
+    page.reload()
+    page.wait_for_selector('#conn[data-state="live"]')
+    page.wait_for_selector("#module-A [data-field=recent] span")
+    assert page.evaluate(ticks) >= 20  # frames arrive a few a second: not the strip refilled live
+    assert "latest frames" in page.locator("#module-A .recent-row").inner_text()
+
 
 def test_live_view_reconnects_and_marks_stale_data(page: Any, system: System, artifacts: Path) -> None:
     """Cut the WebSocket: the page says it is reconnecting, fades the stale cards, then resyncs."""

@@ -115,7 +115,13 @@ export function createCard(mid) {
       el("div", { class: "muted", style: { fontSize: "0.85rem" } }, "frame quality (this dive)"),
       el("div", { class: "qbar", "data-field": "qbar" }),
       el("div", { class: "qlegend", "data-field": "qlegend" }),
-      el("div", { class: "recent-strip", "data-field": "recent", title: "the latest frames, newest right" }),
+      el(
+        "div",
+        { class: "recent-row" },
+        el("span", { class: "muted recent-label" }, "latest frames"),
+        el("div", { class: "recent-strip", "data-field": "recent", title: "the latest frames, newest right" }),
+        el("span", { class: "muted recent-label" }, "now"),
+      ),
     ),
   );
   card.svg = svgEl;

@@ -115,6 +115,7 @@ function onSnapshot(d) {
       if (!m.shown || m.shown.id !== lf.id) queueThumbnail(m, { ...lf, thumb: lf.thumbnail_url }, null);
       if (!m.recent.length && lf.status !== "pending") m.recent = [lf.status === "ok" ? "ok" : lf.reason || "rejected"];
     }
+    if (sm.recent_outcomes?.length) m.recent = sm.recent_outcomes.slice(-RECENT); // the server's, after a reload
   }
   for (const mid of [...state.modules.keys()]) if (!seen.has(mid)) state.modules.delete(mid);
   state.attenuation = {};

@@ -64,10 +64,24 @@ export function plotConfig(filename, extra = {}) {
   };
 }
 
+/**
+ * On a narrow figure (a phone) the legend wraps to two rows and ran into the title on its right:
+ * the title goes on a line of its own above the legend.
+ */
+function narrowed(div, lay) {
+  if (!lay?.title || !div.clientWidth || div.clientWidth >= 560) return lay;
+  const t = Math.max(lay.margin?.t ?? 36, 84);
+  return {
+    ...lay,
+    title: { ...lay.title, x: 0.01, xanchor: "left", y: 0.99, yanchor: "top", yref: "container" },
+    margin: { l: 60, r: 16, b: 48, ...(lay.margin || {}), t },
+  };
+}
+
 /** Draw (or redraw in place) a figure; resolves once plotly has drawn it. */
 export async function draw(div, traces, lay, filename, config = {}) {
   const Plotly = await loadPlotly();
-  await Plotly.react(div, traces, layout(lay), plotConfig(filename, config));
+  await Plotly.react(div, traces, layout(narrowed(div, lay)), plotConfig(filename, config));
   div.dataset.drawn = "1";
   return div;
 }

@@ -45,7 +45,11 @@ class AlarmSettings(BaseModel):
         0.08, ge=0, le=0.5, description="LEM this close to the frame edge: leaving the view"
     )
     reject_fraction: float = Field(
-        0.8, gt=0, le=1, description="fraction of saturated or too-dark frames raising an alarm"
+        0.8,
+        gt=0,
+        le=1,
+        description="a wavelength with no usable frame among a module's last 60: the share of them "
+        "saturated (or too dark) that raises the alarm",
     )
     gap_age_s: float = Field(30.0, ge=0, description="a sequence gap open this long raises an alarm")
     disk_min_free_gb: float = Field(

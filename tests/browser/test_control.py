@@ -181,6 +181,8 @@ def send_schedule(page: Any, preset: str, apply: str, expect: str, artifacts: Pa
     page.evaluate(WATCH_TRACKER)
     page.click("#confirm-ok")
     page.wait_for_selector("#send-note:has-text('Sent as command')")
+    # the editor now holds what was sent, and says so (it kept naming where the edit had started)
+    assert page.inner_text("#start-note").startswith(f"Sent: {preset} v"), page.inner_text("#start-note")
     return page.get_attribute("#tracker", "data-command-id")
 
 

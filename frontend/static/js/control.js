@@ -302,6 +302,9 @@ async function sendSchedule(ev) {
     });
     follow(cmd);
     setText(note, `Sent as command #${cmd.id.slice(0, 8)}.`);
+    // what the editor holds is now what was sent, whatever it was started from
+    state.startNote = `${spec.name} v${version}, as sent to ${lrm(m.id)} (command #${cmd.id.slice(0, 8)}).`;
+    setText($("#start-note"), `Sent: ${state.startNote}`);
   } catch (err) {
     if (err instanceof ApiError && err.status === 422) {
       editor.showProblems(err.detail || [{ field: "schedule", reason: err.message }]);

@@ -63,6 +63,7 @@ class Link:
     camera_error: str | None = None
     sensor_errors: int = 0  # sensor reads that failed this boot
     sensor_error: str | None = None
+    deferred_shots: int = 0  # shots its runner took at a later turn of their colour this boot
     frames: deque[float] = field(default_factory=lambda: deque(maxlen=2000))
     last_frame_unix_s: float | None = None
     last_heartbeat_sent: float = 0.0
@@ -274,6 +275,7 @@ class Network:
             link.card_skipped, link.card_error = msg.card_skipped, msg.card_error
             link.capture_errors, link.camera_error = msg.capture_errors, msg.camera_error
             link.sensor_errors, link.sensor_error = msg.sensor_errors, msg.sensor_error
+            link.deferred_shots = msg.deferred_shots
             if not link.welcomed:  # the ship restarted under a running module: greet it again
                 self._welcome(link)
             self.q.put(Incoming("heartbeat", module, msg, None, t_unix, t_mono))

@@ -348,6 +348,7 @@ class IngestService:
                 "card_skipped": link.card_skipped,
                 "capture_errors": link.capture_errors,
                 "sensor_errors": link.sensor_errors,
+                "deferred_shots": link.deferred_shots,
                 "in_flight": link.in_flight,
                 "clock_offset_s": round(link.clock_offset_s, 3) if link.clock_offset_s is not None else None,
                 "last_seq": link.last_seq,

@@ -324,6 +324,7 @@ class Agent(CommandHandling, Producing):
                             camera_error=self.device_errors.get("camera"),
                             sensor_errors=self.counters["sensor_errors"],
                             sensor_error=self.device_errors.get("sensors"),
+                            deferred_shots=self.runner.deferred_shots if self.runner is not None else 0,
                             **dive,
                         ),
                     )

@@ -59,6 +59,7 @@ def health(hub: HubDep, store: StoreDep, settings: SettingsDep) -> dict[str, Any
             "card_skipped": h.get("card_skipped") if h else None,
             "capture_errors": h.get("capture_errors") if h else None,
             "sensor_errors": h.get("sensor_errors") if h else None,
+            "deferred_shots": h.get("deferred_shots") if h else None,
             "clock_offset_s": h.get("clock_offset_s") if h else None,
             "boot": h["boot"] if h else m["boot"],
             "distance_m": m["distance_m"],

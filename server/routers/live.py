@@ -53,6 +53,7 @@ def build_snapshot(store: Store, hub: LiveHub, settings: ServerSettings) -> dict
             "last_seen_unix_s": m["last_seen_unix_s"],
             "frames_per_s": h["frames_per_s"] if h else None,
             "frames_last_min": h.get("frames_last_min") if h else None,
+            "deferred_shots": h.get("deferred_shots") if h else None,
             "last_frame_age_s": h.get("last_frame_age_s") if h else None,
             "schedule": h["schedule"] if h else m["schedule"],
             "latest_frame": frame,

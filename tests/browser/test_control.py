@@ -113,6 +113,11 @@ def test_read_only_browser_sees_the_schedule_but_cannot_send(
                      headers: {'Content-Type': 'application/json'}}).then(r => r.status)"""
         )
         assert status == 401
+        # trex-subsampled's runs (60.4 s a colour) are a little longer than the LEM's 60 s: the module
+        # takes what a turn leaves at the next, and the page says how many since its start.
+        deferred = page.locator("#deferred-shots")
+        deferred.wait_for(timeout=60_000)
+        assert "taken at a later turn of their colour" in deferred.inner_text()
         page.screenshot(path=artifacts / "control-read-only.png", full_page=True)
         # The full T-REX grid takes ~25 min of shots a colour: the preview says the LEM's 60 s turns
         # spread it, and what that means for a visit, before anyone sends it.

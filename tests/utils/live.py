@@ -124,13 +124,15 @@ def make_agent(
     schedule: Schedule | None = None,
     sensors: bool = True,
     keys_dir: Path | None = None,
+    lem: Any = None,
     **config: Any,
 ) -> tuple[Agent, SmallSimCamera]:
     """A module agent on a simulated camera: CURVE with the keys of ``keys_dir`` (see `link_keys`),
-    else a plaintext link (for an in-process ingest started with ``plaintext=True``)."""
+    else a plaintext link (for an in-process ingest started with ``plaintext=True``). ``lem``: the
+    LEM's colour clock the runner follows (`lrm.runner.LemClock`; none: every shot at once)."""
     camera = SmallSimCamera(module)
     clock = RealClock()
-    runner = ScheduleRunner(camera, clock, schedule or quick_schedule())
+    runner = ScheduleRunner(camera, clock, schedule or quick_schedule(), lem=lem)
     if keys_dir is not None:
         config["keys"] = wire.module_keys(keys_dir, module)
     else:

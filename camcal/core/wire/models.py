@@ -191,6 +191,10 @@ class ModuleHeartbeat(_ModuleHeader):
     camera_error: Annotated[str, Strict(), Field(max_length=200)] | None = None
     sensor_errors: Count = 0
     sensor_error: Annotated[str, Strict(), Field(max_length=200)] | None = None
+    #: Shots the schedule runner took at a later turn of their colour since the boot, because the
+    #: LEM moved on (or was about to) amid a wavelength's shots: a schedule longer than the LEM shows
+    #: a colour, or a module running slow (revision 1.6).
+    deferred_shots: Count = 0
 
 
 class CommandStatus(_ModuleHeader):

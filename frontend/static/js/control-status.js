@@ -50,6 +50,15 @@ export function renderStatus(box, list, m) {
       `link ${m.link}`,
       up ? "" : " — commands wait (pending) until the module reconnects",
     ),
+    m.deferred_shots
+      ? el(
+          "p",
+          { class: "muted", id: "deferred-shots" },
+          `${m.deferred_shots} shot${m.deferred_shots === 1 ? "" : "s"} since its start taken at a later turn of their colour: `,
+          "a wavelength's run of shots is longer than the LEM shows a colour (the schedule's preview says by how much), ",
+          "so each λ_att visit holds part of the settings",
+        )
+      : "",
   );
   list.replaceChildren(
     ...(m.recent.length

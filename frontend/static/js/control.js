@@ -59,7 +59,7 @@ function pushFrame(m, f) {
 function onSnapshot(d) {
   for (const [id, sm] of Object.entries(d.modules || {})) {
     const m = moduleState(id);
-    Object.assign(m, { link: sm.link, schedule: sm.schedule, distance_m: sm.distance_m });
+    Object.assign(m, { link: sm.link, schedule: sm.schedule, distance_m: sm.distance_m, deferred_shots: sm.deferred_shots });
     pushFrame(m, sm.latest_frame);
   }
   if (!state.selected || !state.modules.has(state.selected)) pickModule();
@@ -80,7 +80,7 @@ function onEvent(msg) {
     for (const [id, h] of Object.entries(p.modules || {})) {
       const m = moduleState(id);
       const before = JSON.stringify(m.schedule);
-      Object.assign(m, { link: h.link, schedule: h.schedule });
+      Object.assign(m, { link: h.link, schedule: h.schedule, deferred_shots: h.deferred_shots });
       if (id === state.selected && before !== JSON.stringify(h.schedule)) startOptions();
     }
     if (!state.selected) pickModule();

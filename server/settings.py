@@ -17,6 +17,9 @@ class ServerSettings:
     ``operator_tokens`` maps operator names to tokens; without any, nobody
     can change anything (watching needs no token). ``station_depth_m``, the
     dive plan's station depth, tells the live view's station from test stops.
+    ``simulation_speed``: the modules are `camcal up`'s simulated ones, at that
+    speed; their frames' and sensors' times run on the simulation's clock, and
+    the pages say so (None: real modules).
 
     The bounds (`server.guard`, `server.jobs`, the live WebSocket): request
     bodies up to ``max_body_bytes`` (a route may allow more), at most
@@ -47,3 +50,4 @@ class ServerSettings:
     max_reanalyses_queued: int = 4
     token_failures: int = 10
     token_window_s: float = 60.0
+    simulation_speed: float | None = None

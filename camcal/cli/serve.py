@@ -34,7 +34,13 @@ class HttpServer:
     signals and, in ``camcal up``, to watch the other parts.
     """
 
-    def __init__(self, settings: Settings, tokens: dict[str, str], events: str | None) -> None:
+    def __init__(
+        self,
+        settings: Settings,
+        tokens: dict[str, str],
+        events: str | None,
+        simulation_speed: float | None = None,
+    ) -> None:
         import ssl
 
         import uvicorn
@@ -53,6 +59,7 @@ class HttpServer:
             max_body_bytes=int(settings.http_max_body_mb * 1024 * 1024),
             max_websockets_per_client=settings.http_max_connections_per_client,
             max_requests_per_client=2 * settings.http_max_connections_per_client,
+            simulation_speed=simulation_speed,
         )
         # Opened here, not in the app's start-up: a database that cannot be opened is one line
         # (`storage.store.StoreUnavailable`) before anything runs, not uvicorn's traceback.

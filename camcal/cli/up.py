@@ -138,7 +138,8 @@ def up(
             logs / "ingest.log",
             child_environment(),
         )
-        http = HttpServer(s, tokens, events)  # the dashboard starts while the ingest does
+        # the dashboard starts while the ingest does; it says when the modules are simulated
+        http = HttpServer(s, tokens, events, simulation_speed=speed if profile is not None else None)
         http.start(http_sock)
         if sup.wait_ready(ingest, INGEST_READY_S, stop) is None:
             raise Interrupted

@@ -69,7 +69,12 @@ def health(hub: HubDep, store: StoreDep, settings: SettingsDep) -> dict[str, Any
         out.setdefault(mid, {**h, "distance_m": None, "phase": hub.phase(mid)})
     return {
         "status": "ok" if ingest["up"] and database["ok"] else "degraded",
-        "server": {"version": __version__, "time_unix_s": now, "clients": len(hub.clients)},
+        "server": {
+            "version": __version__,
+            "time_unix_s": now,
+            "clients": len(hub.clients),
+            "simulation_speed": settings.simulation_speed,
+        },
         "database": database,
         "ingest": ingest,
         "modules": out,

@@ -71,6 +71,7 @@ def build_snapshot(store: Store, hub: LiveHub, settings: ServerSettings) -> dict
         "ingest": ingest,
         "stale_after_s": settings.stale_after_s,
         "station_depth_m": settings.station_depth_m,
+        "simulation_speed": settings.simulation_speed,
         "modules": out_modules,
         "attenuation": {str(k): v[-300:] for k, v in attenuation.items()},
         "alarms": r["alarms"],

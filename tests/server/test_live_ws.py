@@ -51,6 +51,7 @@ def test_snapshot_then_sequenced_events(tmp_path: Path, publisher: tuple[zmq.Soc
         first = ws.receive_json()
         assert first["type"] == "snapshot" and first["seq"] == 1
         assert {"modules", "attenuation", "alarms", "ingest", "dive"} <= set(first["data"])
+        assert first["data"]["simulation_speed"] is None  # real modules: no "simulated dive" note
         wait_subscribed(ws, pub)
         publish(pub, "result", {"frame_id": 7, "status": "ok"})
         publish(pub, "sensors", {"t_unix_s": 1.0, "depth_m": 3400.0, "humidity_pct": 31.0})

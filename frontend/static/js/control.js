@@ -12,7 +12,7 @@ import { scheduleSources } from "./control-sources.js";
 import { renderPermissions, renderStatus, renderTabs } from "./control-status.js";
 import { plural } from "./format.js";
 import { LiveSocket } from "./livesocket.js";
-import { $, confirmDialog, initTheme, lrm, mountOperator, setText, toast } from "./ui.js";
+import { $, confirmDialog, initTheme, lrm, mountOperator, setText, showSimulation, toast } from "./ui.js";
 
 const RECENT_FRAMES = 8;
 const PREVIEW_DELAY_MS = 350;
@@ -57,6 +57,7 @@ function pushFrame(m, f) {
 }
 
 function onSnapshot(d) {
+  showSimulation(d.simulation_speed);
   for (const [id, sm] of Object.entries(d.modules || {})) {
     const m = moduleState(id);
     Object.assign(m, { link: sm.link, schedule: sm.schedule, distance_m: sm.distance_m, deferred_shots: sm.deferred_shots });

@@ -9,7 +9,7 @@ import { createCard, showThumbnail, updateCard, updateQuality } from "./live-car
 import { LiveSocket } from "./livesocket.js";
 import { upsertVisit } from "./lambda-profile.js";
 import { drawLambda, renderAlarms, renderLambdaNow, renderRefused } from "./live-panels.js";
-import { $, initTheme, mountOperator, setText, toast } from "./ui.js";
+import { $, initTheme, mountOperator, setText, showSimulation, toast } from "./ui.js";
 
 const RECENT = 40; // ticks in a card's strip of latest frames
 const PHASE_WINDOW_S = 30;
@@ -85,6 +85,7 @@ function onSnapshot(d) {
   state.runId = d.run_id;
   state.staleAfter = d.stale_after_s ?? 5;
   state.stationDepth = d.station_depth_m ?? null;
+  showSimulation(d.simulation_speed);
   state.ingestUp = Boolean(d.ingest?.up);
   state.healthAt = state.ingestUp ? now - (d.ingest.age_s || 0) * 1000 : null;
   state.refused = d.refused_connections || null;

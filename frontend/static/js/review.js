@@ -7,7 +7,7 @@ import { showAttenuation, showAttitude, showLinearity } from "./review-analysis.
 import { openFrame, showFrames } from "./review-frames.js";
 import { showAudit } from "./review-audit.js";
 import { showReanalysis } from "./review-runs.js";
-import { $, el, initTheme, mountOperator, setText } from "./ui.js";
+import { $, el, initTheme, mountOperator, setText, showSimulation } from "./ui.js";
 
 const TABS = {
   frames: showFrames,
@@ -119,3 +119,6 @@ window.addEventListener("camcal:theme", () => {
   showTab(ctx.tab);
 });
 loadDives();
+api("/api/health")
+  .then((h) => showSimulation(h.server?.simulation_speed))
+  .catch(() => {}); // only the note in the top bar: the page works without it

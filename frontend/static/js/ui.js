@@ -34,6 +34,23 @@ export function lrm(id) {
   return /^lrm/i.test(s) ? s : `LRM-${s}`;
 }
 
+/**
+ * Say in the top bar that the modules are `camcal up`'s simulated ones (speed: the simulation's, or
+ * null for real modules): their frames' and sensors' times run on the simulation's clock, ahead of
+ * the ship's, which alarms, commands and the audit log keep.
+ */
+export function showSimulation(speed) {
+  const chip = document.getElementById("sim-note");
+  if (!chip) return;
+  chip.hidden = !speed;
+  if (!speed) return;
+  setText(chip, `simulated dive ${speed}×`);
+  chip.title =
+    `The modules are simulated, their dive running ${speed} times faster than the clock: frame, sensor ` +
+    "and λ_att times are the simulation's (ahead of the ship's clock); alarms, commands and the audit " +
+    "log carry the ship's.";
+}
+
 /** Set text only when it changed (cheap to call on every render). */
 export function setText(node, text) {
   const s = String(text);

@@ -42,7 +42,8 @@ def check_frame(frame: np.ndarray, name: str = "frame") -> np.ndarray:
         dtype = getattr(frame, "dtype", type(frame).__name__)
         raise FrameFormatError(f"{name} must be 2-D uint8, got shape {shape} dtype {dtype}")
     if frame.shape[0] < 8 or frame.shape[1] < 8:
-        raise FrameFormatError(f"{name} is too small to hold a source: shape {frame.shape}")
+        h, w = frame.shape
+        raise FrameFormatError(f"{name} is {w} x {h} px: too small to hold the LEM (at least 8 x 8 px)")
     return frame
 
 

@@ -8,7 +8,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from analysis.detect import Detection, check_frame, locate_source
+from analysis.detect import Detection, FrameFormatError, check_frame, locate_source
 from analysis.profile import (
     DEFAULT_CENTER_PIXELS,
     DEFAULT_CROP_PX,
@@ -45,7 +45,7 @@ REASON_HELP: dict[str, str] = {
     Reason.NO_SOURCE: "no LEM found: check the LEM is on and in the field of view",
     Reason.OFF_EDGE: "LEM cut by the frame edge: the module is tilted too far",
     Reason.UNREADABLE: "file missing or not a decodable image",
-    Reason.BAD_FORMAT: "image is not 8-bit grayscale",
+    Reason.BAD_FORMAT: "image is not 8-bit grayscale, or too small to hold the LEM (under 8 x 8 px)",
     Reason.BAD_METADATA: "manifest row has an invalid value",
 }
 
@@ -174,7 +174,10 @@ def analyze_frame(frame: np.ndarray, config: FrameConfig | None = None) -> Frame
     6. I_center = centre mean - fitted constant, with errors added in quadrature.
     """
     config = config or FrameConfig()
-    frame = check_frame(frame)
+    try:
+        frame = check_frame(frame)
+    except FrameFormatError as exc:  # one frame of a set, not the set: rejected, never raised
+        return rejected(Reason.BAD_FORMAT, str(exc))
     det: Detection = locate_source(frame, expected_radius_px=config.expected_radius_px)
     if not det.found:
         size = f"{config.expected_radius_px:.0f} px" if config.expected_radius_px else "any size"

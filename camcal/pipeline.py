@@ -6,7 +6,7 @@ import math
 import os
 from collections import Counter
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -114,6 +114,8 @@ class FrameSetAnalysis:
     result: SetResult | None
     geometry: Geometry | None
     problem: str | None
+    #: What was kept but looks wrong (`Setup.warnings`, cameras λ_att cannot use), for the person.
+    warnings: list[str] = field(default_factory=list)
 
     def counts(self) -> Counter[str]:
         return Counter("ok" if f.ok else (f.reason or "rejected") for f in self.frames)
@@ -193,7 +195,26 @@ def analyze_rows(
     if geometry is not None:
         ratios = {wl: EmissionRatio(r.value, r.err) for wl, r in setup.emission_ratio.items()}
         result = analyze_records(records, geometry, ratios, tuple(setup.linear_range))  # type: ignore[arg-type]
-    return FrameSetAnalysis(folder, setup, rows, frames, result, geometry, problem)
+    warnings = setup.warnings() + _unused_cameras(rows, setup, geometry)
+    return FrameSetAnalysis(folder, setup, rows, frames, result, geometry, problem, warnings)
+
+
+def _unused_cameras(rows: list[ManifestRow], setup: Setup, geometry: Geometry | None) -> list[str]:
+    """The manifest's cameras whose frames λ_att does not use: not in the setup, or between the two."""
+    n = Counter(r.camera for r in rows if not r.error)
+    out = []
+    for cam in sorted(n):
+        if cam not in setup.cameras:
+            out.append(
+                f"camera {cam!r} ({n[cam]} frames) is not in setup.json (its cameras: "
+                f"{', '.join(sorted(setup.cameras))}): its frames are measured but not used for λ_att; "
+                "name it in setup.json or correct the manifest"
+            )
+        elif geometry is not None and cam not in (geometry.near_camera, geometry.far_camera):
+            out.append(
+                f"camera {cam!r} ({n[cam]} frames) lies between the nearest and the farthest: not used"
+            )
+    return out
 
 
 def _num(x: float | None, digits: int = 4) -> float | None:
@@ -290,6 +311,7 @@ def to_json(an: FrameSetAnalysis) -> dict[str, Any]:
         "linearity": linearity,
         "skipped": {str(k): v for k, v in (an.result.skipped if an.result else {}).items()},
         "problem": an.problem,
+        "warnings": an.warnings,
         "summary": dict(an.counts()),
         "inputs": {"folder": str(an.folder), "setup": an.setup.to_json()},
         "software": {"name": "camcal", "version": __version__},

@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
@@ -50,6 +51,10 @@ class ImportReport:
     dive_id: int
     imported: int = 0
     already_present: int = 0
+    #: Of those, frames found by their content: the same image at the same setting (and time, where
+    #: both have one) as a stored frame of the camera, under another key (the manifest had no boot
+    #: column and changed since the set was imported, or it lists one image twice).
+    same_content: int = 0
     sensor_batches: int = 0
     analysed: int = 0
     problems: list[tuple[str, str]] = field(default_factory=list)
@@ -70,6 +75,19 @@ class ImportReport:
 def _frames_folder(folder: RemoteFolder) -> RemoteFolder:
     """An outbox root holds its frame set in ``frames/``; a plain frame set is the folder itself."""
     return folder.child("frames") if folder.exists("frames/manifest.csv") else folder
+
+
+def _copy_of_stored(
+    stored: Sequence[tuple[int, float, float, float]], row: ManifestRow, captured: float | None
+) -> bool:
+    """Whether a row's image is a stored frame again: same bytes (the caller's sha256), setting and,
+    where both have one, capture time (two lens-capped frames can share their bytes, not their time)."""
+    for wl, exp, gain, t in stored:
+        if (wl, exp, gain) != (row.wavelength_nm, row.exposure_s, row.gain_db):
+            continue
+        if captured is None or math.isnan(t) or abs(t - captured) < 1e-3:
+            return True
+    return False
 
 
 def _fallback_boot(manifest: bytes) -> str:
@@ -162,6 +180,7 @@ def import_frame_set(
         batch.clear()
 
     stored: dict[tuple[str, str], set[int]] = {}
+    contents: dict[str, dict[str, list[tuple[int, float, float, float]]]] = {}  # per camera, by sha256
     first_row: dict[tuple[str, str, int], int] = {}  # the row of the folder that holds each number
     for i, row in enumerate(rows):
         if progress:
@@ -200,8 +219,6 @@ def import_frame_set(
                 (row.file, f"timestamp {exc}: correct it in the manifest and import again")
             )
             continue
-        if stamped is None:
-            report.unstamped += 1
         captured = stamped - offsets.get(row.camera, 0.0) if stamped is not None else time.time()
         if captured < TIME_MIN_UNIX_S:
             report.problems.append((row.file, _unset_clock(row.camera, stamped or 0.0)))
@@ -215,6 +232,19 @@ def import_frame_set(
         except (OSError, FrameReadError, UnsafePath) as exc:
             report.problems.append((row.file, getattr(exc, "detail", str(exc))))
             continue
+        sha = hashlib.sha256(data).hexdigest()
+        if row.camera not in contents:
+            contents[row.camera] = store.call(queries.frame_contents, dive_id, row.camera)
+        when = captured if stamped is not None else None
+        if _copy_of_stored(contents[row.camera].get(sha, ()), row, when):
+            report.already_present += 1
+            report.same_content += 1
+            continue
+        if stamped is None:
+            report.unstamped += 1
+        contents[row.camera].setdefault(sha, []).append(
+            (row.wavelength_nm, row.exposure_s, row.gain_db, when if when is not None else math.nan)
+        )
         encoding = "png" if data.startswith(b"\x89PNG") else "tiff"
         rel = store.files.relative_path(dive_id, row.camera, boot, seq, encoding)
         store.files.write(rel, data)
@@ -233,7 +263,7 @@ def import_frame_set(
                 height_px=frame.shape[0],
                 path=rel,
                 size_bytes=len(data),
-                sha256=hashlib.sha256(data).hexdigest(),
+                sha256=sha,
                 schedule_version=row.schedule_version or 0,
                 source="import",
             )

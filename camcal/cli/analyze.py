@@ -10,7 +10,7 @@ import typer
 from rich.table import Table
 from rich.text import Text
 
-from camcal.cli.common import console, fail, labelled, progress_bar
+from camcal.cli.common import console, fail, labelled, progress_bar, writable_output
 from camcal.cli.overrides import (
     DistanceErrOption,
     DistanceOption,
@@ -52,6 +52,8 @@ def analyze(
     """
     if not folder.exists():
         raise fail(f"{folder}: no such frame-set folder or frame file")
+    writable_output(json_out, "--json")
+    writable_output(plots, "--plots", folder=True)
     single = folder.is_file()
     from camcal.core.frameset import FrameSetError
     from camcal.pipeline import analyze_rows, load_frame_set, to_json
@@ -143,6 +145,8 @@ def print_summary(an: FrameSetAnalysis) -> None:
     console.print(table)
     if an.problem:
         console.print(labelled("no λ_att:", "yellow", an.problem))
+    for w in an.warnings:
+        console.print(labelled("warning:", "yellow", w))
     if an.result is not None:
         for wl, why in sorted(an.result.skipped.items()):
             console.print(labelled(f"{wl} nm skipped:", "yellow", why))

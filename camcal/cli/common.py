@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -53,6 +54,29 @@ DbUrlOption = Annotated[
         show_default=False,
     ),
 ]
+
+
+def writable_output(path: Path | None, option: str, *, folder: bool = False) -> None:
+    """Refuse (one line, exit 2) an output path the command could not write, before any work.
+
+    ``folder``: the option names a folder to create (``--plots``), else a file (``--json``). The
+    folder that will hold the output is created and a file tried in it, as the command would.
+    """
+    if path is None:
+        return
+    if not folder and (str(path) == "." or path.is_dir()):
+        raise fail(f"{option} {str(path)!r}: a folder, not a file: name a file, e.g. {path / 'result.json'}")
+    if folder and path.exists() and not path.is_dir():
+        raise fail(f"{option} {path}: a file, not a folder: choose a folder for the figures")
+    target = path if folder else path.parent
+    try:
+        target.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=target):
+            pass
+    except OSError as exc:
+        raise fail(
+            f"{option} {path}: cannot write in {target} ({exc.strerror or exc}): choose another path"
+        ) from None
 
 
 def fail(message: str, code: int = 2) -> typer.Exit:

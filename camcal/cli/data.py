@@ -134,6 +134,13 @@ def import_cmd(
         + (f", {report.visits} λ_att visits" if report.visits is not None else ""),
         soft_wrap=True,
     )
+    if report.same_content:
+        console.print(
+            f"{report.same_content} of those already present by their content: the same image, setting "
+            "(and time) as a frame the dive holds under another number (a manifest without a boot "
+            "column that changed since, or a row listed twice): not stored again.",
+            soft_wrap=True,
+        )
     if report.unstamped:
         console.print(
             f"{report.unstamped} frames had no capture time (the manifest's timestamp column): "

@@ -153,6 +153,12 @@ def _trex_ratios() -> dict[int, RatioSetup]:
     }
 
 
+#: Beyond these a setup value is kept but questioned (`Setup.warnings`): the LEM is not seen farther
+#: in sea water, and I0'/I0 is a ratio of two sides of one sphere.
+PLAUSIBLE_DISTANCE_M = 300.0
+PLAUSIBLE_RATIO = (0.2, 5.0)
+
+
 class Setup(BaseModel):
     """The contents of ``setup.json``; anything missing takes the T-REX value."""
 
@@ -197,6 +203,36 @@ class Setup(BaseModel):
             raise ValueError(f"must satisfy 0 <= low < high <= 255, got [{lo}, {hi}]")
         return v
 
+    def warnings(self) -> list[str]:
+        """What in this setup is kept but looks wrong: keys the format does not know (ignored, so
+        a misspelt one leaves the T-REX value in force) and values far outside what the method can
+        mean (a distance in centimetres, a ratio in per cent)."""
+        out = [
+            f"setup.json: unknown key {key!r} ignored (the keys: {', '.join(Setup.model_fields)})"
+            for key in sorted(self.model_extra or {})
+        ]
+        for cam, c in sorted(self.cameras.items()):
+            out += [
+                f"setup.json: camera {cam}: unknown key {k!r} ignored" for k in sorted(c.model_extra or {})
+            ]
+            if c.distance_m > PLAUSIBLE_DISTANCE_M:
+                out.append(
+                    f"setup.json: camera {cam} {c.distance_m:g} m from the LEM: in metres? (the LEM is "
+                    f"seen to ~{PLAUSIBLE_DISTANCE_M:g} m in sea water; λ_att scales with the distance)"
+                )
+        for wl, r in sorted(self.emission_ratio.items()):
+            out += [
+                f"setup.json: emission_ratio {wl}: unknown key {k!r} ignored"
+                for k in sorted(r.model_extra or {})
+            ]
+            lo, hi = PLAUSIBLE_RATIO
+            if not lo <= r.value <= hi:
+                out.append(
+                    f"setup.json: emission_ratio {wl} = {r.value:g}: I0'/I0 is a ratio near 1 (T-REX's "
+                    f"1.04-1.27), not a percentage; outside {lo:g}-{hi:g} it rules λ_att"
+                )
+        return out
+
     def to_json(self) -> dict[str, Any]:
         data = self.model_dump(mode="json")
         data["emission_ratio"] = {str(k): v for k, v in data["emission_ratio"].items()}
@@ -210,7 +246,7 @@ def read_setup(folder: Path) -> Setup:
     if not path.exists():
         return Setup()
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = json.loads(path.read_text(encoding="utf-8-sig"))  # a BOM, as a manifest may have
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise FrameSetError(f"{path}: not valid JSON ({exc})") from exc
     return parse_setup(data, str(path))

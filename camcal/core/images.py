@@ -28,6 +28,9 @@ def decode_frame(data: bytes | np.ndarray, name: str = "frame") -> np.ndarray:
     buf = np.frombuffer(data, dtype=np.uint8) if isinstance(data, bytes | bytearray) else data
     if buf.size == 0:
         raise FrameReadError("unreadable", f"{name}: empty file")
+    other = _not_png_or_tiff(bytes(buf[:12]))
+    if other:
+        raise FrameReadError("unreadable", f"{name}: {other}, not PNG or TIFF: frames must be lossless")
     image = _decode_unfiltered_png(buf)
     if image is None:  # any other PNG, a TIFF, or a damaged file: OpenCV decides
         image = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
@@ -43,6 +46,24 @@ def decode_frame(data: bytes | np.ndarray, name: str = "frame") -> np.ndarray:
 
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_TIFF_SIGNATURES = (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")  # classic and BigTIFF
+_OTHER_FORMATS = ((b"\xff\xd8\xff", "JPEG data"), (b"BM", "BMP data"), (b"GIF8", "GIF data"))
+
+
+def _not_png_or_tiff(head: bytes) -> str | None:
+    """What a file that is neither PNG nor TIFF holds ("JPEG data", "WebP data"), else None.
+
+    OpenCV would decode a JPEG renamed .png, and its lossy blocks would move I_center: the frame-set
+    format takes PNG and TIFF only. Unknown bytes are left to the decoder (it says unreadable).
+    """
+    if head.startswith(_PNG_SIGNATURE) or head.startswith(_TIFF_SIGNATURES):
+        return None
+    if head.startswith(b"RIFF") and head[8:12] == b"WEBP":
+        return "WebP data"
+    for magic, what in _OTHER_FORMATS:
+        if head.startswith(magic):
+            return what
+    return None
 
 
 def _decode_unfiltered_png(buf: np.ndarray) -> np.ndarray | None:

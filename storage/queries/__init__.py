@@ -24,6 +24,7 @@ from storage.queries.frames import (
     recent_outcomes,
 )
 from storage.queries.ingest import (
+    frame_contents,
     known_seqs,
     load_counters,
     open_gaps,
@@ -111,6 +112,7 @@ __all__ = [
     "dives_with_frames",
     "downsampled",
     "events_after",
+    "frame_contents",
     "frame_dict",
     "frame_file",
     "frame_modules",

@@ -58,6 +58,21 @@ def known_seqs(s: Session, module_id: str, boot: str) -> set[int]:
     return {int(x) for x in a} | {int(x) for x in b}
 
 
+def frame_contents(
+    s: Session, dive_id: int, module_id: str
+) -> dict[str, list[tuple[int, float, float, float]]]:
+    """A module's frames of a dive by the sha256 of their file: (wavelength, exposure, gain, capture
+    time) of each (an import tells a copy of a stored frame from a frame of its own)."""
+    out: dict[str, list[tuple[int, float, float, float]]] = {}
+    q = select(
+        Frame.sha256, Frame.wavelength_nm, Frame.exposure_s, Frame.gain_db, Frame.captured_unix_s
+    ).where(Frame.dive_id == dive_id, Frame.module_id == module_id)
+    for sha, wl, exp, gain, t in s.execute(q):
+        if sha:
+            out.setdefault(sha, []).append((int(wl), float(exp), float(gain), float(t)))
+    return out
+
+
 def open_gaps(s: Session, module_id: str | None = None) -> list[Gap]:
     q = select(Gap).where(Gap.filled_unix_s.is_(None))
     if module_id:

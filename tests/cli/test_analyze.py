@@ -119,6 +119,15 @@ def broken_set(trex_small_set: Path, tmp_path: Path) -> tuple[Path, dict[str, st
     expected[rows[5]["file"]] = "bad_metadata"
     rows[6]["wavelength_nm"] = "blue"
     expected[rows[6]["file"]] = "bad_metadata"
+    # a frame too small to hold the LEM crashed the whole run (analysis.detect.FrameFormatError)
+    cv2.imwrite(str(folder / ok_files[7]), np.full((1, 1), 40, np.uint8))
+    expected[ok_files[7]] = "bad_format"
+    cv2.imwrite(str(folder / ok_files[8]), np.full((3, 320), 40, np.uint8))
+    expected[ok_files[8]] = "bad_format"
+    # a JPEG under a .png name was measured: its lossy blocks move I_center
+    _, jpeg = cv2.imencode(".jpg", img)
+    (folder / ok_files[9]).write_bytes(jpeg.tobytes())
+    expected[ok_files[9]] = "unreadable"
     with (folder / "manifest.csv").open("w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
         w.writeheader()
@@ -141,6 +150,45 @@ def test_bad_frames_are_rejected_with_reasons_and_the_run_goes_on(broken_set, tm
     good = [f for name, f in by_file.items() if name not in expected]
     assert sum(f["status"] == "ok" for f in good) >= len(good) // 2
     assert {a["wavelength_nm"] for a in doc["attenuation"]} == {405, 460, 525}
+
+
+def test_what_is_kept_but_looks_wrong_is_said_in_warnings(trex_small_set: Path, tmp_path: Path) -> None:
+    """A camera the setup does not know, a distance in centimetres, a ratio in per cent and a
+    misspelt key each gave a λ_att (or left a frame out of it) without a word."""
+    folder = tmp_path / "set"
+    shutil.copytree(trex_small_set, folder)
+    text = (folder / "manifest.csv").read_text().splitlines()
+    header = text[0].split(",")
+    cam = header.index("camera")
+    first = text[1].split(",")
+    first[cam] = "C"
+    text[1] = ",".join(first)
+    (folder / "manifest.csv").write_text("\n".join(text) + "\n")
+    setup = json.loads((folder / "setup.json").read_text())
+    setup["cameras"]["B"]["distance_m"] = 4162.0
+    setup["emission_ratio"]["460"]["value"] = 127.0
+    setup["emission_ratios"] = {"525": {"value": 2.5}}
+    (folder / "setup.json").write_text("\ufeff" + json.dumps(setup))  # with a BOM, as editors write
+    out = tmp_path / "r.json"
+    proc = run_cli("analyze", str(folder), "--json", str(out), "--quiet", "--workers", "1")
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
+    warnings = json.loads(out.read_text())["warnings"]
+    assert any("camera 'C' (1 frames) is not in setup.json" in w for w in warnings), warnings
+    assert any("camera B 4162 m from the LEM: in metres?" in w for w in warnings), warnings
+    assert any("emission_ratio 460 = 127" in w and "not a percentage" in w for w in warnings), warnings
+    assert any("unknown key 'emission_ratios' ignored" in w for w in warnings), warnings
+    assert proc.stdout.count("warning:") == len(warnings) == 4
+
+
+@pytest.mark.parametrize("where", ["folder", "proc", "empty"])
+def test_an_output_that_cannot_be_written_is_refused_before_the_work(
+    trex_small_set: Path, tmp_path: Path, where: str
+) -> None:
+    target = {"folder": str(tmp_path), "proc": "/proc/camcal-result.json", "empty": ""}[where]
+    proc = run_cli("analyze", str(trex_small_set), "--json", target, "--quiet")
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1 and "--json" in proc.stderr
+    assert "λ_att" not in proc.stdout  # refused before analysing, not after
 
 
 @pytest.mark.parametrize(

@@ -48,3 +48,53 @@ def test_a_repeated_sequence_number_is_named_and_the_first_row_keeps_it(tmp_path
     for _, _, path, sha in stored:  # every stored file is its row's image
         assert hashlib.sha256((data / path).read_bytes()).hexdigest() == sha
     assert stored[1][3] == hashlib.sha256(images["A_460_2.png"]).hexdigest()
+
+
+def _card(
+    folder: Path, frames: list[tuple[str, bytes, int, str | None]], columns_reversed: bool = False
+) -> None:
+    """A frame set without a boot column: (file, image bytes, wavelength, timestamp or None)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    header = ["file", "camera", "wavelength_nm", "exposure_s", "gain_db", "timestamp"]
+    order = header[::-1] if columns_reversed else header
+    with open(folder / "manifest.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(order)
+        for name, image, wl, stamp in frames:
+            (folder / name).write_bytes(image)
+            row = dict(zip(header, [name, "A", wl, 0.05, 8.0, stamp or ""], strict=True))
+            w.writerow([row[c] for c in order])
+
+
+def _stored(data: Path) -> int:
+    with sqlite3.connect(data / "camcal.db") as db:
+        return int(db.execute("SELECT count(*) FROM frames").fetchone()[0])
+
+
+def test_the_same_images_under_a_changed_manifest_are_not_stored_again(tmp_path: Path) -> None:
+    """Without a boot column the keys come from the manifest's bytes: a copy whose manifest changed
+    at all (columns reordered, a typo fixed) stored every frame a second time, and the dive's counts,
+    export and report doubled without a word. Now the images are found by their content."""
+    render = renderer("trex", 21.56, camera=SMALL_CAMERA, camera_id="A")
+    frames = []
+    for k, wl in enumerate((405, 460, 525)):
+        pixels, _ = render.render(wl, 0.05, 8.0, rng=np.random.default_rng(k))
+        frames.append((f"A_{wl}.png", encode_png(pixels), wl, f"2026-11-28T03:00:{10 + k:02d}Z"))
+    data = tmp_path / "data"
+    _card(tmp_path / "set", frames)
+    assert camcal_cli("import", str(tmp_path / "set"), "--data", str(data), "--dive", "d1").returncode == 0
+    _card(tmp_path / "copy", frames, columns_reversed=True)
+    res = camcal_cli("import", str(tmp_path / "copy"), "--data", str(data), "--dive", "d1")
+    out = re.sub(r"\s+", " ", res.stdout + res.stderr)
+    assert res.returncode == 0 and "0 frames imported, 3 already present" in out, out
+    assert "3 of those already present by their content" in out, out
+    assert _stored(data) == 3
+
+
+def test_lens_capped_frames_that_share_their_bytes_but_not_their_time_are_all_kept(tmp_path: Path) -> None:
+    black = encode_png(np.zeros((64, 80), np.uint8))  # a zero black level: every dark frame the same bytes
+    frames = [(f"A_dark_{k}.png", black, 460, f"2026-11-28T03:01:{10 + k:02d}Z") for k in range(3)]
+    _card(tmp_path / "set", frames)
+    res = camcal_cli("import", str(tmp_path / "set"), "--data", str(tmp_path / "data"), "--dive", "d1")
+    assert res.returncode == 0 and "3 frames imported" in re.sub(r"\s+", " ", res.stdout), res.stdout
+    assert _stored(tmp_path / "data") == 3

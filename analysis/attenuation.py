@@ -134,6 +134,21 @@ class AttenuationResult:
         return math.hypot(self.stat_err_m, self.sys_err_m)
 
 
+def not_dimmer_note(log_ratio: float, ratio: EmissionRatio) -> str:
+    """Why no λ_att follows when ln(I_near/I_far) + ln(I0'/I0) <= 0, naming both terms: the
+    cameras' intensities, or an emission ratio that is wrong (a far camera that is dimmer in the
+    frames can still come out "not dimmer" once a too small I0'/I0 is applied)."""
+    lead = (
+        "the far camera is not dimmer than the near one"
+        if log_ratio <= 0
+        else f"I0'/I0 = {ratio.value:g} outweighs how much dimmer the far camera is"
+    )
+    return (
+        f"{lead} (ln(I_near/I_far) = {log_ratio:.3g}, ln(I0'/I0) = {math.log(ratio.value):.3g}): "
+        "no attenuation measurable; check the emission ratio and which camera is near"
+    )
+
+
 def _lambda_with_errors(
     log_ratio: float, log_ratio_err: float, geometry: Geometry, ratio: EmissionRatio
 ) -> tuple[float | None, float | None, float | None]:
@@ -196,7 +211,7 @@ def combine_pairs(pairs: Sequence[PairResult], geometry: Geometry, ratio: Emissi
     lam, stat, sys = _lambda_with_errors(mean, err, geometry, ratio)
     note = None
     if lam is None:
-        note = "the far camera is not dimmer than the near one: no attenuation measurable"
+        note = not_dimmer_note(mean, ratio)
     return AttenuationResult(
         wavelength_nm=usable[0].wavelength_nm,
         lambda_att_m=lam,

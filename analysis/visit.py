@@ -45,7 +45,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from analysis.attenuation import EmissionRatio, Geometry
+from analysis.attenuation import EmissionRatio, Geometry, not_dimmer_note
 
 
 @dataclass(frozen=True)
@@ -349,7 +349,7 @@ def visit_attenuation(
         stat = dlam_dx * q_err
         sys = math.hypot(geometry.baseline_err_m / x, dlam_dx * ratio.err / ratio.value)
     else:
-        note = "the far camera is not dimmer than the near one: no attenuation measurable"
+        note = not_dimmer_note(q_mean, ratio)
     return VisitResult(
         wavelength_nm=int(wavelength_nm),
         lambda_att_m=lam,

@@ -105,3 +105,13 @@ def test_geometry_and_ratio_validation() -> None:
         Geometry("A", "B", 41.0, 0.1, 21.0, 0.1)
     with pytest.raises(ValueError, match="emission ratio"):
         EmissionRatio(-1.0)
+
+
+def test_a_ratio_that_outweighs_the_dimming_is_named_not_the_cameras() -> None:
+    """The far camera 20 % dimmer and I0'/I0 typed 0.3: the note blamed the cameras ("the far camera
+    is not dimmer than the near one"); it names the emission ratio."""
+    from analysis.attenuation import EmissionRatio, not_dimmer_note
+
+    note = not_dimmer_note(math.log(1.25), EmissionRatio(0.3, 0.01))
+    assert note.startswith("I0'/I0 = 0.3 outweighs how much dimmer the far camera is"), note
+    assert "not dimmer" in not_dimmer_note(-0.1, EmissionRatio(1.0, 0.01))

@@ -67,8 +67,10 @@ def geometry_from_setup(setup: Setup, cameras_present: set[str]) -> Geometry:
         (c for c in cameras_present if c in setup.cameras),
         key=lambda c: setup.cameras[c].distance_m,
     )
+    if not cameras_present:
+        raise FrameSetError("the manifest lists no usable frame (no rows, or none with valid values)")
     if len(known) < 2:
-        have = ", ".join(sorted(cameras_present)) or "none"
+        have = ", ".join(sorted(cameras_present))
         raise FrameSetError(
             f"λ_att needs two cameras with distances in setup.json; manifest cameras: {have}, "
             f"setup cameras: {', '.join(sorted(setup.cameras))}"

@@ -259,7 +259,8 @@ def parse_setup(data: Any, where: str = "setup") -> Setup:
     except ValidationError as exc:
         first = exc.errors()[0]
         loc = ".".join(str(p) for p in first["loc"])
-        raise FrameSetError(f"{where}: {loc}: {first['msg']}") from exc
+        what = first["msg"] if loc else "must be a JSON object (cameras, emission_ratio...: docs/frameset.md)"
+        raise FrameSetError(f"{where}: {loc + ': ' if loc else ''}{what}") from exc
 
 
 # -------------------------------------------------------------- manifest.csv

@@ -198,6 +198,7 @@ def test_an_output_that_cannot_be_written_is_refused_before_the_work(
         ("no_column", "required column gain_db missing"),
         ("no_folder", "no such frame-set folder"),
         ("bad_setup", "setup.json"),
+        ("setup_list", "setup.json: must be a JSON object"),
     ],
 )
 def test_fatal_problems_exit_2_with_one_line(
@@ -217,6 +218,8 @@ def test_fatal_problems_exit_2_with_one_line(
         folder = tmp_path / "missing"
     elif damage == "bad_setup":
         (folder / "setup.json").write_text('{"cameras": {"A": {"distance_m": -3}}}')
+    elif damage == "setup_list":
+        (folder / "setup.json").write_text("[]")
     proc = run_cli("analyze", str(folder))
     assert proc.returncode == 2
     assert message in proc.stderr

@@ -180,10 +180,16 @@ def analyze_frame(frame: np.ndarray, config: FrameConfig | None = None) -> Frame
         return rejected(Reason.BAD_FORMAT, str(exc))
     det: Detection = locate_source(frame, expected_radius_px=config.expected_radius_px)
     if not det.found:
+        if np.median(frame) >= 255:  # not a missing LEM: light everywhere (daylight, a gain far too high)
+            return rejected(
+                Reason.SATURATED,
+                "the whole frame is at 255: far too much light (shorter exposure, lower gain; daylight?)",
+            )
         size = f"{config.expected_radius_px:.0f} px" if config.expected_radius_px else "any size"
+        best = f"{det.significance:.1f} σ" if math.isfinite(det.significance) else "none measurable"
         return rejected(
             Reason.NO_SOURCE,
-            f"no disk ({size}) above the noise: best {det.significance:.1f} σ; brightest region "
+            f"no disk ({size}) above the noise: best {best}; brightest region "
             f"{det.peak_gray:.0f} gray over a background of "
             f"{det.background.level_gray:.1f} ± {det.background.noise_gray:.1f}",
         )

@@ -184,6 +184,8 @@ def export_cmd(
         d = pick_dive(store, dive)
         run = store.analysis_run(d.id, "live", create=False)
         formats = tuple(f.strip() for f in fmt.split(",") if f.strip())
+        if not formats:
+            raise ValueError("--format: name csv, parquet or both (csv,parquet)")
         files = export_dive(store, d.id, out, formats, run.id if run else None)
     except ValueError as exc:
         raise fail(str(exc)) from None

@@ -77,3 +77,16 @@ def test_linear_range_is_configurable(near) -> None:
 def test_invalid_config_is_refused() -> None:
     with pytest.raises(ValueError, match="linear_range_gray"):
         FrameConfig(linear_range_gray=(240, 5))
+
+
+def test_a_frame_full_of_light_is_saturated_and_no_detail_reads_infinite() -> None:
+    """An all-255 frame was `no_source` ("check the LEM is on"): it is light everywhere, `saturated`.
+    A 9 x 9 px frame with a disk of 11 px expected read "best -inf σ"."""
+    full = analyze_frame(np.full((120, 160), 255, np.uint8))
+    assert (full.status, full.reason) == ("rejected", "saturated") and "whole frame is at 255" in full.detail
+    tiny = np.random.default_rng(1).normal(2.0, 0.3, (9, 9)).round().astype(np.uint8)
+    tiny[4, 4] = 200  # one hot pixel: the matched filter (11 px) finds nothing to weigh at all
+    small = analyze_frame(tiny, FrameConfig(expected_radius_px=11.0))
+    assert small.reason == "no_source" and "inf" not in small.detail and "nan" not in small.detail, (
+        small.detail
+    )

@@ -102,6 +102,8 @@ def test_every_store_command_reads_the_configured_store(ship: dict[str, Any], tm
     code, out = run(["calibration", "show", "env-check"], env)
     assert code == 0 and '"name": "env-check"' in out, out
 
+    code, out = run(["export", "--out", tmp_path / "none", "--format", ""], env)
+    assert code == 2 and "--format: name csv, parquet or both" in out, out  # it wrote run.json alone
     code, out = run(["export", "--out", tmp_path / "export", "--format", "csv"], env)
     assert code == 0 and f"dive {name}" in out, out
     assert (tmp_path / "export" / "frames.csv").read_text().count("\n") > 10

@@ -418,6 +418,13 @@ def parse_manifest(text: str, where: str = MANIFEST) -> list[ManifestRow]:
     try:
         reader = csv.DictReader(io.StringIO(text.removeprefix("\ufeff"), newline=""))
         header = [h.strip() for h in (reader.fieldnames or [])]
+        known = set(REQUIRED_COLUMNS) | set(OPTIONAL_COLUMNS)
+        twice = sorted({h for h in header if h in known and header.count(h) > 1})
+        if twice:  # which of the two would be the frame's value? (csv keeps the last, silently)
+            raise FrameSetError(
+                f"{where}: column{'s' if len(twice) > 1 else ''} {', '.join(twice)} appear"
+                f"{'' if len(twice) > 1 else 's'} twice in the header: keep one"
+            )
         missing = [c for c in REQUIRED_COLUMNS if c not in header]
         if missing:
             raise FrameSetError(

@@ -199,6 +199,7 @@ def test_an_output_that_cannot_be_written_is_refused_before_the_work(
         ("no_folder", "no such frame-set folder"),
         ("bad_setup", "setup.json"),
         ("setup_list", "setup.json: must be a JSON object"),
+        ("column_twice", "column exposure_s appears twice in the header"),
     ],
 )
 def test_fatal_problems_exit_2_with_one_line(
@@ -220,6 +221,11 @@ def test_fatal_problems_exit_2_with_one_line(
         (folder / "setup.json").write_text('{"cameras": {"A": {"distance_m": -3}}}')
     elif damage == "setup_list":
         (folder / "setup.json").write_text("[]")
+    elif damage == "column_twice":  # csv kept the last of the two, silently
+        lines = (folder / "manifest.csv").read_text().splitlines()
+        idx = lines[0].split(",").index("exposure_s")
+        lines = [f"{line},{line.split(',')[idx]}" for line in lines]
+        (folder / "manifest.csv").write_text("\n".join(lines) + "\n")
     proc = run_cli("analyze", str(folder))
     assert proc.returncode == 2
     assert message in proc.stderr

@@ -65,6 +65,19 @@ def analyze(
         rows, setup = load_frame_set(folder, overrides)
     except FrameSetError as exc:
         raise fail(str(exc)) from None
+    cameras, wavelengths = {r.camera for r in rows}, {r.wavelength_nm for r in rows}
+    unused = [
+        f"--distance {c}=...: the manifest has no camera {c}"
+        for c in overrides.distances_m or {}
+        if c not in cameras
+    ]
+    unused += [
+        f"--ratio {wl}=...: the manifest has no frame at {wl} nm"
+        for wl in overrides.emission_ratios or {}
+        if wl not in wavelengths
+    ]
+    for u in unused:  # an option that names what the set lacks changes nothing: say so
+        console.print(labelled("warning:", "yellow", u))
     if single:
         rows = [r for r in rows if Path(r.file).name == name and (folder / r.file).samefile(folder / name)]
         if not rows:

@@ -329,3 +329,12 @@ def test_one_pair_has_no_chi2_to_show(tmp_path: Path) -> None:
     for line in rows:
         cells = [c.strip() for c in line.strip("│┃ ").split("│")]
         assert cells[-2:] == ["1", "—"], line  # pairs, χ²/ndof
+
+
+def test_an_option_naming_what_the_set_lacks_is_said_to_change_nothing(trex_small_set: Path) -> None:
+    proc = run_cli(
+        "analyze", str(trex_small_set), "--quiet", "--workers", "1", "--distance", "C=5", "--ratio", "999=1.2"
+    )
+    assert proc.returncode == 0, proc.stderr
+    out = " ".join(proc.stdout.split())
+    assert "--distance C=...: the manifest has no camera C" in out and "no frame at 999 nm" in out, out

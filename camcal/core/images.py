@@ -13,6 +13,10 @@ import cv2
 import deflate
 import numpy as np
 
+# OpenCV's own warnings ("[ WARN:0@0.09] global grfmt_png.cpp ... PNG input buffer is incomplete")
+# would reach the user's console beside the frame's reason, which says it better: errors only.
+cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+
 
 class FrameReadError(Exception):
     """One image cannot be used; ``reason`` is the frame-set reason word."""
@@ -31,6 +35,11 @@ def decode_frame(data: bytes | np.ndarray, name: str = "frame") -> np.ndarray:
     other = _not_png_or_tiff(bytes(buf[:12]))
     if other:
         raise FrameReadError("unreadable", f"{name}: {other}, not PNG or TIFF: frames must be lossless")
+    if bytes(buf[:8]) == _PNG_SIGNATURE and b"IEND" not in bytes(buf[-1024:]):
+        # cut short (a copy or a card that stopped): said here, before libpng prints its own error
+        raise FrameReadError(
+            "unreadable", f"{name}: PNG cut short (no IEND chunk at its end): a truncated file"
+        )
     image = _decode_unfiltered_png(buf)
     if image is None:  # any other PNG, a TIFF, or a damaged file: OpenCV decides
         image = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)

@@ -11,7 +11,7 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
-from sqlalchemy import select
+from sqlalchemy import select, true
 
 from camcal.core.files import write_whole
 from storage import queries
@@ -21,6 +21,7 @@ from storage.models import (
     AttenuationPoint,
     AttitudeSample,
     AuditEntry,
+    Dive,
     Frame,
     FrameResult,
     LinearityCheck,
@@ -38,9 +39,14 @@ def _columns(model: Any) -> list[Any]:
 
 def dive_tables(store: Store, dive_id: int, run_id: int | None = None) -> dict[str, pa.Table]:
     """The dive's tables as Arrow tables: frames (with their results in ``run_id``), sensors,
-    attitude, λ_att series, linearity, alarms and the audit log."""
+    attitude, the λ_att series (of ``run_id``: a re-analysis's points are not mixed with the live
+    run's), linearity, and the alarms and audit entries of the dive's time (the ship's clock, from
+    the dive's start to its end or now; they carry no dive of their own)."""
     out: dict[str, pa.Table] = {}
     with store.read() as s:
+        dive = s.get(Dive, dive_id)
+        t0 = dive.started_unix_s if dive is not None else 0.0
+        t1 = dive.ended_unix_s if dive is not None and dive.ended_unix_s is not None else now_unix_s()
         fcols = _columns(Frame)
         rcols = [c for c in _columns(FrameResult) if c.name not in ("id", "frame_id")]
         q = select(*fcols, *rcols).select_from(Frame)
@@ -55,7 +61,12 @@ def dive_tables(store: Store, dive_id: int, run_id: int | None = None) -> dict[s
         tables: tuple[tuple[str, Any, Any], ...] = (
             ("sensor_samples", SensorSample, SensorSample.dive_id == dive_id),
             ("attitude", AttitudeSample, AttitudeSample.dive_id == dive_id),
-            ("attenuation", AttenuationPoint, AttenuationPoint.dive_id == dive_id),
+            (
+                "attenuation",
+                AttenuationPoint,
+                (AttenuationPoint.dive_id == dive_id)
+                & (AttenuationPoint.run_id == run_id if run_id is not None else true()),
+            ),
         )
         for name, model, where in tables:
             cols = _columns(model)
@@ -65,10 +76,15 @@ def dive_tables(store: Store, dive_id: int, run_id: int | None = None) -> dict[s
             cols = _columns(LinearityCheck)
             rows = s.execute(select(*cols).where(LinearityCheck.run_id == run_id)).all()
             out["linearity"] = _table([c.name for c in cols], rows)
-        logs: tuple[tuple[str, Any], ...] = (("alarms", Alarm), ("audit_log", AuditEntry))
-        for name, model in logs:
+        logs: tuple[tuple[str, Any, Any], ...] = (
+            ("alarms", Alarm, Alarm.raised_unix_s.between(t0, t1)),
+            ("audit_log", AuditEntry, AuditEntry.t_unix_s.between(t0, t1)),
+        )
+        for name, model, when in logs:
             cols = _columns(model)
-            out[name] = _table([c.name for c in cols], s.execute(select(*cols).order_by(model.id)).all())
+            out[name] = _table(
+                [c.name for c in cols], s.execute(select(*cols).where(when).order_by(model.id)).all()
+            )
     return out
 
 
@@ -78,9 +94,16 @@ def _table(names: list[str], rows: Sequence[Any]) -> pa.Table:
 
 
 def export_dive(
-    store: Store, dive_id: int, out: Path, formats: tuple[str, ...] = FORMATS, run_id: int | None = None
+    store: Store,
+    dive_id: int,
+    out: Path,
+    formats: tuple[str, ...] = FORMATS,
+    run_id: int | None = None,
+    extra: dict[str, list[dict[str, Any]]] | None = None,
 ) -> list[Path]:
     """Write each table as ``<out>/<table>.csv`` and/or ``.parquet``; returns the files.
+
+    ``extra``: more tables as rows of plain values (``ingest.dive_export`` adds ``lambda_att``).
 
     With a run, also ``setup.json`` (what its numbers were computed with: distances, I0'/I0, the
     linear range, the series' settings, in the frame-set format) and ``run.json`` (which dive and
@@ -92,7 +115,10 @@ def export_dive(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     written = [] if run_id is None else _write_run(store, dive_id, run_id, out)
-    for name, table in dive_tables(store, dive_id, run_id).items():
+    tables = dive_tables(store, dive_id, run_id)
+    for name, rows in (extra or {}).items():
+        tables[name] = pa.Table.from_pylist(rows) if rows else pa.table({})
+    for name, table in tables.items():
         # Each table whole or not at all: a full disk leaves no half-written file, and an older
         # export's file is replaced only by a whole one.
         if "csv" in formats:

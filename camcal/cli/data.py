@@ -177,7 +177,7 @@ def export_cmd(
     fmt: Annotated[str, typer.Option("--format", help="csv, parquet, or csv,parquet.")] = "csv,parquet",
 ) -> None:
     """Write a dive's tables (frames with results, sensors, attitude, λ_att, alarms...) to CSV and Parquet."""
-    from storage.export import export_dive
+    from ingest.dive_export import export_dive_with_results
 
     store = open_store(data, db_url)
     try:
@@ -186,7 +186,7 @@ def export_cmd(
         formats = tuple(f.strip() for f in fmt.split(",") if f.strip())
         if not formats:
             raise ValueError("--format: name csv, parquet or both (csv,parquet)")
-        files = export_dive(store, d.id, out, formats, run.id if run else None)
+        files = export_dive_with_results(store, d.id, out, formats, run.id if run else None)
     except ValueError as exc:
         raise fail(str(exc)) from None
     except OSError as exc:  # a full or read-only disk: the tables written so far are whole

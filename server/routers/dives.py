@@ -17,6 +17,7 @@ from starlette.background import BackgroundTask
 
 from camcal.core.frameset import Setup, parse_setup
 from ingest.derived import Span, attenuation_dict, attenuation_over_span
+from ingest.dive_export import export_dive_with_results
 from ingest.reanalysis import (
     ReanalysisInputError,
     ReanalysisOptions,
@@ -38,7 +39,6 @@ from server.schemas import (
     Timeline,
 )
 from storage import queries
-from storage.export import export_dive
 from storage.models import Dive
 from storage.store import Store
 
@@ -248,7 +248,7 @@ def _export_zip(store: Store, dive_id: int, fmt: str, run_id: int) -> str:
     os.close(fd)
     try:
         with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(name, "w", zipfile.ZIP_DEFLATED) as zf:
-            for f in export_dive(store, dive_id, Path(tmp), (fmt,), run_id):
+            for f in export_dive_with_results(store, dive_id, Path(tmp), (fmt,), run_id):
                 zf.write(f, f.name)
     except BaseException:
         os.unlink(name)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import io
 import re
 import zipfile
@@ -197,6 +198,18 @@ def test_review_reanalysis_side_by_side_and_audit(
     page.wait_for_selector("#att-table tbody tr[data-wl]")
     assert "live run" in page.locator("#att-run option:checked").inner_text()
     assert page.locator(".span-control[data-for=attenuation] select").input_value() == "all"
+    # Shown, that run is what the export takes: its λ_att visits alone (they came mixed with the
+    # live run's) and its λ_att per wavelength, the table's numbers
+    new_id = page.locator("#att-run option:has-text('B at 41.80 m')").get_attribute("value")
+    page.select_option("#att-run", new_id)
+    page.wait_for_function(f"() => document.querySelector('#export-csv').href.endsWith('&run={new_id}')")
+    assert f"run #{new_id}" in page.inner_text("#export-label")
+    resp = page.request.get(system.url(page.get_attribute("#export-csv", "href")))
+    exported = zipfile.ZipFile(io.BytesIO(resp.body()))
+    visits = list(csv.DictReader(io.TextIOWrapper(exported.open("attenuation.csv"))))
+    assert visits and {v["run_id"] for v in visits} == {new_id}
+    headline = list(csv.DictReader(io.TextIOWrapper(exported.open("lambda_att.csv"))))
+    assert headline and all(h["run_id"] == new_id and float(h["stat_err_m"]) > 0 for h in headline)
 
     page.click(".tabs [data-tab=audit]")
     page.wait_for_selector("#audit-table tbody tr:has-text('reanalysis.start')")

@@ -145,6 +145,16 @@ function pairsTable(pairs) {
   );
 }
 
+/** Point the export links at a run of the dive (null: the live run, the server's default). */
+export function exportRun(diveId, runId) {
+  for (const fmt of ["csv", "parquet"]) {
+    const a = $(`#export-${fmt}`);
+    a.href = `/api/dives/${diveId}/export?format=${fmt}${runId ? `&run=${runId}` : ""}`;
+    a.title = `the dive's tables${runId ? ` with the results of run #${runId}` : ""} as ${fmt} files in a ZIP`;
+  }
+  setText($("#export-label"), runId ? `export the dive, run #${runId}:` : "export the dive:");
+}
+
 export async function showAttenuation(ctx) {
   const select = $("#att-run");
   fillRuns(select, ctx.runs, select.dataset.dive === String(ctx.dive.id) && select.value ? select.value : ctx.liveRunId);
@@ -165,6 +175,7 @@ function describeSpan(sp, mode) {
 
 async function loadAttenuation(ctx, runId) {
   const id = ctx.dive.id;
+  exportRun(id, runId === ctx.liveRunId ? null : runId); // the export takes the run the tab shows
   try {
     const [table, series] = await Promise.all([
       api(`/api/dives/${id}/attenuation${query({ run: runId, ...spanParams(ctx) })}`),

@@ -3,7 +3,7 @@
 
 import { api } from "./api.js";
 import { fmt, utc } from "./format.js";
-import { showAttenuation, showAttitude, showLinearity } from "./review-analysis.js";
+import { exportRun, showAttenuation, showAttitude, showLinearity } from "./review-analysis.js";
 import { openFrame, showFrames } from "./review-frames.js";
 import { showAudit } from "./review-audit.js";
 import { showReanalysis } from "./review-runs.js";
@@ -75,8 +75,7 @@ async function selectDive(id) {
     ? `${utc(dive.first_frame_unix_s, { date: false })}–${utc(dive.last_frame_unix_s, { date: false })} UTC`
     : "no frames";
   setText($("#dive-summary"), `${span} · ${dive.ended_unix_s ? "ended" : "open"}`);
-  $("#export-csv").href = `/api/dives/${id}/export?format=csv`;
-  $("#export-parquet").href = `/api/dives/${id}/export?format=parquet`;
+  exportRun(id, null);
   try {
     const [settings, runs] = await Promise.all([
       api(`/api/dives/${id}/settings`).catch(() => null),

@@ -197,7 +197,10 @@ class FrameMark(BaseModel):
 
 
 class Timeline(BaseModel):
-    depth: DepthSeries
+    depth: DepthSeries = Field(description="every module's sensor depth together (downsampled)")
+    depth_by_module: dict[str, DepthSeries] = Field(
+        default_factory=dict, description="each module's own sensor depth (they hang apart)"
+    )
     frames: list[FrameMark]
     frame_step: int = Field(description="every n-th frame is marked (at most ~2000 marks)")
     alarms: list[AlarmPublic]

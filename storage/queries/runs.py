@@ -278,11 +278,31 @@ def timeline(s: Session, dive_id: int, max_points: int = 600) -> dict[str, Any]:
     ).all()
     step = max(1, len(frames) // 2000)
     marks = [{"t_unix_s": t, "depth_m": d, "module": m, "id": i} for t, d, m, i in frames[::step]]
+    # Each module's own depth: the two hang ~20 m apart, and one series of both zigzags between them.
+    modules = sorted({m for _, _, m, _ in frames})
+    by_module = {}
+    for m in modules:
+        d = downsampled(
+            s,
+            SensorSample,
+            ("depth_m",),
+            module=m,
+            dive_id=dive_id,
+            t_from=None,
+            t_to=None,
+            max_points=max(50, max_points // max(1, len(modules))),
+        )
+        if d["t_unix_s"]:
+            by_module[m] = {"t_unix_s": d["t_unix_s"], "depth_m": d["depth_m"]}
     dive = s.get(Dive, dive_id)
     t_lo = frames[0][0] if frames else (dive.started_unix_s if dive else None)
-    alarm_rows = s.scalars(select(Alarm).where(Alarm.raised_unix_s >= (t_lo or 0) - 3600)).all()
+    t_hi = max(frames[-1][0] if frames else 0.0, (dive.ended_unix_s or now_unix_s()) if dive else 0.0)
+    alarm_rows = s.scalars(  # the dive's time (its frames', or the ship's while it is open), an hour around
+        select(Alarm).where(Alarm.raised_unix_s.between((t_lo or 0) - 3600, t_hi + 3600))
+    ).all()
     return {
         "depth": {"t_unix_s": depth["t_unix_s"], "depth_m": depth["depth_m"]},
+        "depth_by_module": by_module,
         "frames": marks,
         "frame_step": step,
         "alarms": [alarm_dict(a) for a in alarm_rows],

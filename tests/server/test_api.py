@@ -22,6 +22,10 @@ def test_dives_and_timeline(client: TestClient, dive_data) -> None:
     tl = client.get(f"/api/dives/{d['id']}/timeline").json()
     assert len(tl["depth"]["t_unix_s"]) > 10 and max(tl["depth"]["depth_m"]) > 3300
     assert len(tl["frames"]) >= 10
+    # each module's own depth: B hangs ~20 m above A (one series of both zigzagged between them)
+    by = tl["depth_by_module"]
+    assert set(by) == {"A", "B"}, set(by)
+    assert max(by["A"]["depth_m"]) - max(by["B"]["depth_m"]) == pytest.approx(20.06, abs=3.0)
     assert client.get("/api/dives/999").status_code == 404
 
 

@@ -188,19 +188,21 @@ async function drawTimeline() {
   }
   view.timeline = tl;
   const traces = [];
-  const depth = tl.depth || { t_unix_s: [], depth_m: [] };
-  if (depth.t_unix_s.length) {
+  const modules = [...new Set(tl.frames.map((f) => f.module))].sort();
+  // each module's own depth (they hang ~20 m apart: one line of both zigzagged between them)
+  modules.forEach((m, i) => {
+    const depth = tl.depth_by_module?.[m];
+    if (!depth?.t_unix_s.length) return;
     traces.push({
       x: depth.t_unix_s.map(plotDate),
       y: depth.depth_m,
       type: "scatter",
       mode: "lines",
-      name: "depth (sensors)",
-      line: { color: "#93a4b8", width: 2 },
-      hovertemplate: "%{x}<br>%{y:.0f} m<extra></extra>",
+      name: `depth ${lrm(m)} (sensors)`,
+      line: { color: MODULE_COLORS[i % MODULE_COLORS.length], width: 1.5, dash: i ? "dot" : "solid" },
+      hovertemplate: `${lrm(m)} %{x}<br>%{y:.0f} m<extra></extra>`,
     });
-  }
-  const modules = [...new Set(tl.frames.map((f) => f.module))].sort();
+  });
   modules.forEach((m, i) => {
     const fs = tl.frames.filter((f) => f.module === m);
     traces.push({

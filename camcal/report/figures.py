@@ -93,7 +93,7 @@ def timeline(
     if alarms:
         ax.plot([], [], "--", color=SEVERITY_COLORS["MAJOR"], label=f"alarms raised ({len(alarms)})")
     ax.invert_yaxis()
-    ax.set_ylabel("LEM depth [m]")
+    ax.set_ylabel("module depth [m]")  # each module's own (the frames' too); the LEM hangs below
     _time_axis(ax)
     ax.grid(alpha=0.3)
     if ax.get_legend_handles_labels()[0]:
@@ -233,6 +233,7 @@ def attenuation_depth(series: dict[int, list[dict[str, Any]]]) -> str:
     ax.invert_yaxis()
     ax.set_xlabel("λ_att [m] (error: stat ⊕ sys)")
     ax.set_ylabel("LEM depth [m]")
+    ax.ticklabel_format(axis="y", useOffset=False, style="plain")  # 3420 m, not "+3.42e3" and ±0.04
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()

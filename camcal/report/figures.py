@@ -230,6 +230,10 @@ def attenuation_depth(series: dict[int, list[dict[str, Any]]]) -> str:
             capsize=2,
             label=f"{wl} nm",
         )
+    lo, hi = ax.get_ylim()
+    if hi - lo < 20.0:  # one stop: centimetres of the LEM's swell would read as a depth profile
+        mid = (hi + lo) / 2
+        ax.set_ylim(mid - 10.0, mid + 10.0)
     ax.invert_yaxis()
     ax.set_xlabel("λ_att [m] (error: stat ⊕ sys)")
     ax.set_ylabel("LEM depth [m]")

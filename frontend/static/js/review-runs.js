@@ -207,7 +207,7 @@ function progress(ctx, r) {
 function renderRuns(ctx) {
   const t = $("#runs-table");
   t.replaceChildren(
-    el("thead", {}, el("tr", {}, ...["run", "kind", "label", "created (UTC)", "status", "progress", "distances", "I0'/I0", "linear range"].map((h) => el("th", {}, h)))),
+    el("thead", {}, el("tr", {}, ...["run", "kind", "label", "created (UTC)", "status", "progress", "distances (m)", "I0'/I0", "linear range (gray)"].map((h) => el("th", {}, h)))),
     el(
       "tbody",
       {},
@@ -222,8 +222,8 @@ function renderRuns(ctx) {
           el("td", {}, utc(r.created_unix_s)),
           statusCell(ctx, r),
           el("td", { class: "r" }, r.kind === "live" ? `${r.n_frames} of ${plural(ctx.dive.n_frames || 0, "frame")}` : progress(ctx, r)),
-          el("td", { style: { whiteSpace: "normal" } }, Object.entries(c.cameras || {}).map(([m, d]) => `${m} ${fmt(d.distance_m, 2)}±${fmt(d.distance_err_m, 2)}` + (d.clock_offset_s ? ` (clock ${d.clock_offset_s > 0 ? "+" : ""}${fmt(d.clock_offset_s, 1)} s)` : "")).join(", ")),
-          el("td", { style: { whiteSpace: "normal" } }, Object.entries(c.emission_ratio || {}).map(([wl, e]) => `${wl}: ${fmt(e.value, 2)}`).join(", ")),
+          el("td", { style: { whiteSpace: "normal" } }, Object.entries(c.cameras || {}).map(([m, d]) => `${m} ${fmt(d.distance_m, 2)} ± ${fmt(d.distance_err_m, 2)} m` + (d.clock_offset_s ? ` (clock ${d.clock_offset_s > 0 ? "+" : ""}${fmt(d.clock_offset_s, 1)} s)` : "")).join(", ")),
+          el("td", { style: { whiteSpace: "normal" } }, Object.entries(c.emission_ratio || {}).map(([wl, e]) => `${wl} nm: ${fmt(e.value, 3)} ± ${fmt(e.err, 3)}`).join(", ")),
           el("td", {}, c.linear_range ? `${c.linear_range[0]}–${c.linear_range[1]}` : "–"),
         );
       }),

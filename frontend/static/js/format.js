@@ -17,6 +17,17 @@ export function fmt(value, digits = 1) {
   return Number(value).toFixed(digits);
 }
 
+/**
+ * A value with its error, both to the error's two significant digits: "11.153 ± 0.0083" would be
+ * "11.1530 ± 0.0083", and "11.3 ± 0.0" (an error rounded away) never shows.
+ */
+export function fmtPm(value, err) {
+  if (value === null || value === undefined) return "–";
+  if (!err || !Number.isFinite(err) || err <= 0) return fmt(value, 1);
+  const digits = Math.max(0, Math.min(6, 1 - Math.floor(Math.log10(err))));
+  return `${fmt(value, digits)} ± ${fmt(err, digits)}`;
+}
+
 /** Exposure: 0.02 s, 0.5 s, 1 s. */
 export function fmtExposure(s) {
   if (s === null || s === undefined) return "–";

@@ -1,7 +1,7 @@
 // Review: the λ_att table and series of a run, the linearity fits per module, attitude and housing.
 
 import { api, query } from "./api.js";
-import { fmt, fmtExposure, plural, wlColor } from "./format.js";
+import { fmt, fmtExposure, fmtPm, plural, wlColor } from "./format.js";
 import { drawVisitSeries } from "./lambda-profile.js";
 import { showChisqFit } from "./review-chisq.js";
 import { draw, linearityFigure, stackedFigure } from "./plots.js";
@@ -260,7 +260,7 @@ function fitsTable(checks) {
             el(
               "td",
               { class: "r", title: `intercept ${fmt(c.intercept_gray, 2)} gray` },
-              `${fmt(c.slope, 1)}${c.slope_err ? ` ± ${fmt(c.slope_err, 1)}` : ""} ${c.sweep === "exposure" ? "gray/s" : "gray per ×1 gain"}`,
+              `${fmtPm(c.slope, c.slope_err)} ${c.sweep === "exposure" ? "gray/s" : "gray per ×1 gain"}`,
             ),
             el("td", { class: "r", "data-r2": c.r2 }, c.r2 === null ? "–" : c.r2.toFixed(4)),
             el("td", { class: "r" }, c.n_used),

@@ -332,7 +332,7 @@ export async function openFrame(id) {
 }
 
 function numbers(fr) {
-  const pm = (v, e, d = 2) => (v === null || v === undefined ? "–" : `${fmt(v, d)}${e !== null && e !== undefined ? ` ± ${fmt(e, d)}` : ""}`);
+  const pm = (v, e, d = 2) => (v === null || v === undefined ? "–" : `${fmt(v, d)}${e !== null && e !== undefined ? ` ± ${fmt(e, d)}` : ""} gray`);
   const fit = fr.fit || {};
   const rows = [
     ["status", fr.status === "rejected" ? `rejected: ${fr.reason}` : fr.status],
@@ -343,7 +343,7 @@ function numbers(fr) {
     ["centroid (x, y)", fr.centroid_px ? `${fmt(fr.centroid_px[0], 2)}, ${fmt(fr.centroid_px[1], 2)} px` : "–"],
     ["LEM radius", fr.radius_px === null ? "–" : `${fmt(fr.radius_px, 1)} px`],
     ["elongation", fmt(fr.elongation, 3)],
-    ["centre gray", pm(fr.center_gray, fr.center_err_gray)],
+    ["centre", pm(fr.center_gray, fr.center_err_gray)],
     ["background", pm(fr.background_gray, fr.background_err_gray)],
     ["I_center", pm(fr.i_center_gray, fr.i_center_err_gray)],
     ["fit", fit.scale_px ? `A ${fmt(fit.amplitude_gray, 1)} gray, scale ${fmt(fit.scale_px, 1)} px, r ≥ ${fmt(fit.r_min_px, 0)} px` : "–"],

@@ -186,6 +186,15 @@ def attenuation_over_span(
     table, ``camcal report`` and ``camcal fit --dive`` all take their span here.
     """
     sel, info = (span or Span()).select(rows)
+    gr = geometry_and_ratios(setup)
+    if gr is not None and sel:
+        near, far = gr[0].near_camera, gr[0].far_camera
+        present = sorted({r["module"] for r in sel})
+        if near not in present or far not in present:  # the modules hang apart: a depth range can cut one
+            info["note"] = (
+                f"the span holds frames of {', '.join(present)} only: λ_att needs both {near} and {far} "
+                f"({gr[0].baseline_m:.0f} m apart along the cable): widen it"
+            )
     return info, span_attenuation([result_row(r) for r in sel], setup)
 
 

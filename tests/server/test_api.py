@@ -237,3 +237,16 @@ def test_a_filter_naming_what_does_not_exist_is_refused_not_answered_as_empty(cl
     assert r.status_code == 422 and "swap them" in r.json()["error"]["message"]
     live = client.get(f"/api/frames?dive={dive_id}&limit=1").json()  # what exists still answers
     assert live["total"] > 0
+
+
+def test_a_span_that_cuts_one_module_out_says_why_it_has_no_lambda(client) -> None:
+    """The modules hang ~20 m apart: a depth range around the deeper one held its frames alone and
+    answered "no λ_att in this span" with nothing to say why."""
+    d = client.get("/api/dives").json()[0]
+    station = client.get(f"/api/dives/{d['id']}/attenuation").json()
+    assert station["rows"] and "note" not in station["span"]
+    deep = client.get(
+        f"/api/dives/{d['id']}/attenuation", params={"depth_min_m": d["max_depth_m"] - 5.0}
+    ).json()
+    assert deep["span"]["n_frames"] > 0 and not [r for r in deep["rows"] if r["lambda_att_m"]]
+    assert "frames of A only" in deep["span"]["note"] and "widen it" in deep["span"]["note"], deep["span"]

@@ -184,7 +184,7 @@ async function loadAttenuation(ctx, runId) {
     const sp = table.span;
     setText(
       $("#att-span"),
-      `${describeSpan(sp, ctx.span?.mode)}: ${sp.n_frames} frames`,
+      `${describeSpan(sp, ctx.span?.mode)}: ${sp.n_frames} frames${sp.note ? ` — ${sp.note}` : ""}`,
     );
     $("#att-table").replaceWith(Object.assign(attenuationTable(table), { id: "att-table" }));
     showChisqFit($("#chisq-fit"), ctx.dive, runId).catch((err) => toast(err.message));

@@ -180,7 +180,7 @@ def analyze_frame(frame: np.ndarray, config: FrameConfig | None = None) -> Frame
         return rejected(Reason.BAD_FORMAT, str(exc))
     det: Detection = locate_source(frame, expected_radius_px=config.expected_radius_px)
     if not det.found:
-        if np.median(frame) >= 255:  # not a missing LEM: light everywhere (daylight, a gain far too high)
+        if det.background.level_gray >= 254.5:  # not a missing LEM: light everywhere (daylight, gain)
             return rejected(
                 Reason.SATURATED,
                 "the whole frame is at 255: far too much light (shorter exposure, lower gain; daylight?)",

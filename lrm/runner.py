@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any, Protocol
 
-from camcal.core.schedule import Schedule, Shot
+from camcal.core.schedule import Schedule, Shot, defer_rest_of_run
 
 log = logging.getLogger("camcal.lrm")
 
@@ -205,17 +205,12 @@ class ScheduleRunner:
         """
         with self._cv:
             i = self._index
-            if version != self._schedule.version or self._last_taken != i - 1 or i >= len(self._shots):
+            if version != self._schedule.version or self._last_taken != i - 1:
                 return False
-            wl = self._shots[i].wavelength_nm
-            if self._shots[i - 1].wavelength_nm != wl:
+            j = defer_rest_of_run(self._shots, i)
+            if j is None:
                 return False
-            a, j = i - 1, i
-            while a > 0 and self._shots[a - 1].wavelength_nm == wl:
-                a -= 1
-            while j < len(self._shots) and self._shots[j].wavelength_nm == wl:
-                j += 1
-            self._shots[a:j] = self._shots[i:j] + self._shots[a:i]
+            wl = self._shots[i - 1].wavelength_nm
             self._index = j
             self._last_taken = None
             self.deferred_shots += j - i

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from camcal.core.schedule import KNOWN_WAVELENGTHS_NM, Schedule, Shot
+from camcal.core.schedule import KNOWN_WAVELENGTHS_NM, Schedule, Shot, defer_rest_of_run
 
 #: Passes walked per phase of the LEM (the first is dropped: it starts wherever the LEM stood).
 _PASSES = 3
@@ -86,9 +86,11 @@ def plan_pass(
     """Walk the schedule's passes against a LEM showing each colour ``lem_dwell_s`` in turn."""
     shots = list(schedule.shots())
     shooting = sum(s.exposure_s + readout_s for s in shots)
-    runs: dict[int, float] = {}
+    runs: dict[int, float] = {}  # per wavelength, its longest run
+    per_pass: dict[int, float] = {}  # per wavelength, all its shots
     for wl, t in _runs(shots, readout_s):
         runs[wl] = max(runs.get(wl, 0.0), t)
+        per_pass[wl] = per_pass.get(wl, 0.0) + t
     if not lem_dwell_s or not shots:
         return PassPlan(shooting + schedule.pause_s, shooting, None, runs, {}, schedule.pause_s)
     missing = {s.wavelength_nm for s in shots} - set(lem_wavelengths_nm)
@@ -96,7 +98,6 @@ def plan_pass(
         raise ValueError(f"the LEM never shows {sorted(missing)} nm")
     phases = max(1, min(_PHASES, _MAX_STEPS // (len(shots) * _PASSES)))
     cycle_s = lem_dwell_s * len(lem_wavelengths_nm)
-    per_pass = {wl: sum(t for w, t in _runs(shots, readout_s) if w == wl) for wl in runs}
     elapsed = taken_s = 0.0
     dwells: dict[int, int] = {}
     taken_wl: dict[int, float] = {}
@@ -108,7 +109,7 @@ def plan_pass(
         window = walk.take(len(shots) * (_PASSES - 1))
         elapsed += walk.t - start
         taken_s += sum(d for _, _, d in window)
-        for wl, (n, t) in window_use(window, lem_dwell_s).items():
+        for wl, (n, t) in _window_use(window, lem_dwell_s).items():
             dwells[wl] = dwells.get(wl, 0) + n
             taken_wl[wl] = taken_wl.get(wl, 0.0) + t
     # the shots a window holds are not exactly one pass's (what a turn left moves on): scale by time
@@ -116,7 +117,7 @@ def plan_pass(
     return PassPlan(shooting * elapsed / taken_s, shooting, lem_dwell_s, runs, turns, schedule.pause_s)
 
 
-def window_use(taken: list[tuple[float, int, float]], dwell_s: float) -> dict[int, tuple[int, float]]:
+def _window_use(taken: list[tuple[float, int, float]], dwell_s: float) -> dict[int, tuple[int, float]]:
     """Per wavelength, of shots taken as (start, wavelength, duration): the LEM's dwells and the time used.
 
     The window's first and last dwells are left out: the window may cut them.
@@ -202,14 +203,8 @@ class _Walk:
         return exposure_s >= self.dwell_s or round(self.t + exposure_s, 6) <= change
 
     def _defer(self) -> bool:
-        i, shots = self.index, self.shots
-        if self.last_taken != i - 1 or i == 0 or shots[i - 1].wavelength_nm != shots[i].wavelength_nm:
+        j = defer_rest_of_run(self.shots, self.index) if self.last_taken == self.index - 1 else None
+        if j is None:
             return False
-        wl, a, j = shots[i].wavelength_nm, i - 1, i
-        while a > 0 and shots[a - 1].wavelength_nm == wl:
-            a -= 1
-        while j < len(shots) and shots[j].wavelength_nm == wl:
-            j += 1
-        shots[a:j] = shots[i:j] + shots[a:i]
         self.index, self.last_taken = j, None
         return True

@@ -153,6 +153,25 @@ class Schedule(BaseModel):
                         yield Shot(wl, exp, gain, k)
 
 
+def defer_rest_of_run(shots: list[Shot], i: int) -> int | None:
+    """Amid one wavelength's run of consecutive shots (shot ``i - 1`` taken, ``i`` next) the LEM
+    moved on: turn the run in place so that the shots not taken come first at its next turn.
+
+    Returns the index just after the run (where to go on), or None when ``i`` starts a run (nothing
+    to defer: wait for its colour). The schedule runner (`lrm.runner`) and the ship's estimate of a
+    pass (`camcal.core.passplan`) share it.
+    """
+    if not 0 < i < len(shots) or shots[i - 1].wavelength_nm != shots[i].wavelength_nm:
+        return None
+    wl, a, j = shots[i].wavelength_nm, i - 1, i
+    while a > 0 and shots[a - 1].wavelength_nm == wl:
+        a -= 1
+    while j < len(shots) and shots[j].wavelength_nm == wl:
+        j += 1
+    shots[a:j] = shots[i:j] + shots[a:i]
+    return j
+
+
 @dataclass(frozen=True)
 class CameraLimits:
     """What a module's camera can take."""

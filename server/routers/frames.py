@@ -50,10 +50,12 @@ def list_frames(
     offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
 ) -> dict[str, Any]:
     """Frames with their result (in the live run, or ``run``), filtered and paged."""
-    for lo, hi, what in ((depth_min_m, depth_max_m, "depth_min_m"), (t_from, t_to, "t_from")):
+    for lo, hi, names in (
+        (depth_min_m, depth_max_m, ("depth_min_m", "depth_max_m")),
+        (t_from, t_to, ("t_from", "t_to")),
+    ):
         if lo is not None and hi is not None and lo > hi:
-            other = "depth_max_m" if what == "depth_min_m" else "t_to"
-            raise Invalid(f"{what} ({lo:g}) is above {other} ({hi:g}): nothing could match; swap them")
+            raise Invalid(f"{names[0]} ({lo:g}) is above {names[1]} ({hi:g}): nothing could match; swap them")
     f = queries.FrameFilter(
         dive,
         module,

@@ -114,7 +114,6 @@ function onSnapshot(d) {
     if (lf) {
       m.setting ??= lf;
       if (!m.shown || m.shown.id !== lf.id) queueThumbnail(m, { ...lf, thumb: lf.thumbnail_url }, null);
-      if (!m.recent.length && lf.status !== "pending") m.recent = [lf.status === "ok" ? "ok" : lf.reason || "rejected"];
     }
     if (sm.recent_outcomes?.length) m.recent = sm.recent_outcomes.slice(-RECENT); // the server's, after a reload
   }

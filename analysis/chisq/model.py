@@ -14,6 +14,10 @@ from analysis.transport.disk import BandPixels, disk_radius_px, disk_transmittan
 from analysis.transport.templates import EmissionProfile, TemplateGrid
 
 
+#: Prior width of the edge's mixture weights (per setting and camera; see `Problem.chi2`).
+EDGE_WEIGHT_PRIOR = 1.0
+
+
 class Problem:
     """Precomputed data and geometry of one wavelength; evaluates the profiled χ²."""
 
@@ -42,12 +46,15 @@ class Problem:
         n = min(n_tmpl, *(len(p.mean_gray) for s in settings for p in (s.near, s.far)))
         self.n = n
         self.radius_px = np.arange(n) + 0.5
+        # With a free edge (`FitConfig.edge_sigmas_px`) the blur's width per setting and camera is
+        # among the linear parameters, and the one PSF width of the nuisances would repeat it.
+        self.edge_sigmas = tuple(float(x) for x in config.edge_sigmas_px)
         sig = np.array(
             [
                 geometry.distance_near_err_m,
                 geometry.distance_far_err_m,
                 ratio.err / ratio.value,
-                config.psf_sigma_err_px,
+                0.0 if self.edge_sigmas else config.psf_sigma_err_px,
                 config.focal_rel_err,
                 config.halo_scale_err,
             ]
@@ -125,6 +132,9 @@ class Problem:
             d_s.append([p[2] for p in per_cam])
         self.disk_m1 = np.nan_to_num(np.array([[p[3] for p in cams] for cams in pieces]))
         self.disk_m2 = np.nan_to_num(np.array([[p[4] for p in cams] for cams in pieces]))
+        # (set, cam, basis, band): the disk blurred more or less than the working PSF, minus the disk
+        # at it; each conserves the disk's light and moves it across the edge only.
+        self.edge_basis = np.nan_to_num(np.array([[p[5] for p in cams] for cams in pieces]))
         self.disk = np.nan_to_num(np.array(disk))
         self.disk_dr = np.nan_to_num(np.array(d_r))
         self.disk_ds = np.nan_to_num(np.array(d_s))
@@ -146,7 +156,11 @@ class Problem:
         ds = (pixels.disk_profile(r, psf + 0.05)[: self.n] - pixels.disk_profile(r, lo)[: self.n]) / (
             psf + 0.05 - lo
         )
-        return base, dr, ds, m1, m2
+        ref = pixels.disk_profile(r, psf)[: self.n]
+        edge = np.array([pixels.disk_profile(r, w)[: self.n] - ref for w in self.edge_sigmas]).reshape(
+            len(self.edge_sigmas), self.n
+        )
+        return base, dr, ds, m1, m2, edge
 
     # -- the model --------------------------------------------------------
     def model(self, lambda_abs_m: float, lambda_sca_m: float) -> dict[str, np.ndarray]:
@@ -203,7 +217,7 @@ class Problem:
         deriv[4] = (
             amp[None, :, None] * self.disk_dr * self.disk_r[None, :, None] - (self.radius_px * dh)[None]
         )
-        return {"total": total, "halo": halo, "halo_err": halo_err, "deriv": deriv}
+        return {"total": total, "halo": halo, "halo_err": halo_err, "deriv": deriv, "amp": amp}
 
     def chi2(
         self, lambda_abs_m: float, lambda_sca_m: float, *, detail: bool = False
@@ -230,13 +244,24 @@ class Problem:
         wgt = np.where(self.used, 1.0 / var, 0.0)
         n_set, _, n_band = t.shape
         # Local design per setting: s·T + β_near·[cam 0] + β_far·[cam 1].
-        x = np.zeros((n_set, 3, 2, n_band))
+        # Plus, per camera, the edge's blur: the disk blurred by each of `edge_sigmas` instead of the
+        # working PSF, in the disk's own amplitude (a coefficient is then a mixture weight times s).
+        n_edge = len(self.edge_sigmas)
+        x = np.zeros((n_set, 3 + 2 * n_edge, 2, n_band))
         x[:, 0] = t
         x[:, 1, 0] = 1.0
         x[:, 2, 1] = 1.0
+        for c in range(2):
+            cols = slice(3 + c * n_edge, 3 + (c + 1) * n_edge)
+            x[:, cols, c] = self.edge_basis[:, c] * (mod["amp"][c] / norm)[:, None, None]
         y = self.data
         prior = 1.0 / self.prior_sigma[self.active] ** 2
         a = np.einsum("sicb,scb,sjcb->sij", x, wgt, x)
+        # A weak prior on the edge's mixture weights (±1, a whole disk's worth of blur) keeps the local
+        # problem regular where a camera's edge holds few bands; it adds Σ w² to χ² below.
+        ridge = np.zeros(x.shape[1])
+        ridge[3:] = 1.0 / EDGE_WEIGHT_PRIOR**2
+        a = a + np.diag(ridge)[None]
         a_inv = np.linalg.inv(a)
         cvec = np.einsum("sicb,scb,scb->si", x, wgt, y)
         # The nuisances act on s·T: solve with s = 1, rescale their columns by the fitted s, solve again.
@@ -255,7 +280,11 @@ class Problem:
             scale = loc[:, 0].copy()
         fit = np.einsum("si,sicb->scb", loc, x) + np.einsum("k,kscb->scb", eps, gs)
         resid = y - fit
-        chi2 = float(np.sum(wgt * resid**2) + np.sum(prior * (self.work[self.active] + eps) ** 2))
+        chi2 = float(
+            np.sum(wgt * resid**2)
+            + np.sum(prior * (self.work[self.active] + eps) ** 2)
+            + np.sum(ridge[None] * loc**2)
+        )
         info: dict[str, object] = {}
         if detail:
             shifts = self.work.copy()

@@ -51,6 +51,7 @@ class FitConfig:
 
     psf_sigma_px: float = 1.2
     psf_sigma_err_px: float = 0.3
+    edge_sigmas_px: tuple[float, ...] = (0.6, 2.0, 3.2)
     focal_rel_err: float = 0.003
     halo_scale_err: float = 0.005
     lambda_sca_sys_rel: float = 0.005

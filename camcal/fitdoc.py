@@ -9,6 +9,8 @@ from typing import Any
 import numpy as np
 
 from analysis.chisq import ChiSquareFit, Estimate, SystematicBudget
+from analysis.chisq.phase_results import PHASE_FIXED, PhaseFit
+from analysis.chisq.quality import fit_quality
 from analysis.chisq.results import cases_text, sys_text
 from camcal.core import __version__
 from camcal.fitset import AttenuationCheck, FolderFit
@@ -49,6 +51,81 @@ def fit_detail(fit: ChiSquareFit) -> dict[str, Any]:
             }
             for m in fit.settings
         ],
+    }
+
+
+def quality_entry(f: ChiSquareFit) -> dict[str, Any]:
+    """χ²/ndof, χ² per radial band, and the verdicts (`analysis.chisq.quality`)."""
+    q = fit_quality(f)
+    return {
+        "chi2_ndof": _r(q.chi2_ndof, 3),
+        "chi2_bands": [b.to_dict() for b in q.bands],
+        "fit_failed": q.failed,
+        "chi2_concentrated": q.concentrated,
+        "fit_quality_ok": q.ok,
+        "fit_quality_reason": q.reason or None,
+    }
+
+
+def phase_entry(f: ChiSquareFit) -> dict[str, Any]:
+    """The phase function: measured (values, errors, limits, Δχ² map) or the values the fit held fixed.
+
+    ``mean_cos_theta`` is (1 - Rayleigh share)·(Mie ⟨cos θ⟩): Rayleigh
+    scattering's mean cosine is 0. A parameter the fit held fixed says so
+    (``g_mie_fixed``) and carries no error.
+    """
+    p: PhaseFit | None = f.phase
+    if p is None:
+        return {
+            "g_mie": f.mie_g,
+            "g_mie_err": None,
+            "g_mie_fixed": True,
+            "rayleigh_share": f.rayleigh_share,
+            "rayleigh_share_err": None,
+            "rayleigh_share_fixed": True,
+            "mean_cos_theta": _r((1.0 - f.rayleigh_share) * f.mie_g, 5),
+            "mean_cos_theta_err": None,
+            "phase_case": PHASE_FIXED,
+            "phase_case_text": (
+                f"phase function held fixed at Mie ⟨cos θ⟩ {f.mie_g:g}, Rayleigh share {f.rayleigh_share:g} "
+                "(not measured: its spread is in the systematic budget)"
+            ),
+            "phase": None,
+            "phase_map": None,
+            "g_mie_sys_err": None,
+            "rayleigh_share_sys_err": None,
+        }
+    m = p.map
+    return {
+        "g_mie": _r(p.mie_g.value, 5),
+        "g_mie_err": _r(p.mie_g.err, 5),
+        "g_mie_sys_err": None,
+        "g_mie_fixed": False,
+        "rayleigh_share": _r(p.rayleigh_share.value, 4),
+        "rayleigh_share_err": _r(p.rayleigh_share.err, 4),
+        "rayleigh_share_sys_err": None,
+        "rayleigh_share_fixed": False,
+        "mean_cos_theta": _r(p.mean_cos_theta.value, 5),
+        "mean_cos_theta_err": _r(p.mean_cos_theta.err, 5),
+        "phase_case": p.case,
+        "phase_case_text": p.case_text,
+        "phase": {
+            "best": [_r(p.best[0], 5), _r(p.best[1], 4)],
+            "g_mie": p.mie_g.to_dict(),
+            "rayleigh_share": p.rayleigh_share.to_dict(),
+            "mean_cos_theta": p.mean_cos_theta.to_dict(),
+            "corr_g_mie_lambda_sca": _r(p.corr_lambda_sca[0], 3),
+            "corr_rayleigh_share_lambda_sca": _r(p.corr_lambda_sca[1], 3),
+            "lambda_envelope_m": [list(e) if e else None for e in p.lambda_envelope_m],
+        },
+        "phase_map": {
+            "g_mie": _sig(m.mie_g),
+            "rayleigh_share": _sig(m.rayleigh_share),
+            "dchi2": _sig(p.delta_chi2, 4),
+            "lambda_abs_m": _sig(np.exp(m.ln_lambda[0]), 4),
+            "lambda_sca_m": _sig(np.exp(m.ln_lambda[1]), 4),
+            "best": [_r(p.best[0], 5), _r(p.best[1], 4)],
+        },
     }
 
 
@@ -200,7 +277,9 @@ def fit_entry(f: ChiSquareFit, chk: AttenuationCheck) -> dict[str, Any]:
         "nuisance_check_relief": list(chk.relief) if chk.relief else None,
         "chi2": _r(f.chi2, 2),
         "ndof": f.ndof,
+        **quality_entry(f),
         "mie_g": f.mie_g,
+        **phase_entry(f),
         "at_edge": list(f.at_edge),
         "systematics": budget_entry(f.systematics) if f.systematics else None,
         "nuisances": [

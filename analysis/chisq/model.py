@@ -13,7 +13,6 @@ from analysis.chisq.results import FitConfig
 from analysis.transport.disk import BandPixels, disk_radius_px, disk_transmittance
 from analysis.transport.templates import EmissionProfile, TemplateGrid
 
-
 #: Prior width of the edge's mixture weights (per setting and camera; see `Problem.chi2`).
 EDGE_WEIGHT_PRIOR = 1.0
 
@@ -42,6 +41,8 @@ class Problem:
         self.focal_px = ts.focal_px
         self.lem_radius_m = ts.lem_radius_m
         self.mie_g = ts.mie_g_nodes[0] if config.mie_g is None else float(config.mie_g)
+        # The Rayleigh share: the templates' own unless a phase fit sets another (`set_phase`).
+        self.rayleigh_share = float(ts.rayleigh_fraction)
         n_tmpl = ts.n_bands
         n = min(n_tmpl, *(len(p.mean_gray) for s in settings for p in (s.near, s.far)))
         self.n = n
@@ -91,6 +92,12 @@ class Problem:
         self.n_eval = 0
         self.frozen_halo_err: np.ndarray | None = None
         self.set_working_point(np.zeros(6))
+
+    def set_phase(self, mie_g: float, rayleigh_share: float) -> None:
+        """Evaluate the model at another phase function (Mie ⟨cos θ⟩, Rayleigh share)."""
+        self.mie_g = float(mie_g)
+        self.rayleigh_share = float(rayleigh_share)
+        self.frozen_halo_err = None
 
     def freeze_template_errors(self, lambda_abs_m: float, lambda_sca_m: float) -> None:
         """Hold the templates' Monte Carlo errors at their values for this water.
@@ -168,7 +175,7 @@ class Problem:
         work = self.work
         ratio = self.ratio.value * (1.0 + work[2])
         lam_att = 1.0 / (1.0 / lambda_abs_m + 1.0 / lambda_sca_m)
-        tmpl = self.grid.halo(lambda_abs_m, lambda_sca_m, self.mie_g)
+        tmpl = self.grid.halo(lambda_abs_m, lambda_sca_m, self.mie_g, self.rayleigh_share)
         scale = 1.0 + work[4]
         halo_c = tmpl.radiance[:, :, : self.grid.settings.n_bands]
         halo_e = tmpl.error[:, :, : self.grid.settings.n_bands]

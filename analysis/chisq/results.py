@@ -8,6 +8,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from analysis.attenuation import EmissionRatio, Geometry
+from analysis.chisq.phase_results import PhaseConfig, PhaseFit
 from analysis.transport.templates import TemplateSettings
 
 #: Δχ² of a one-parameter 68 % interval and of the joint 2-D 68 % and 95 % regions.
@@ -45,13 +46,20 @@ class FitConfig:
     at their values for the current best water); switch it off when the data
     were simulated from the same template grid (a shared Monte Carlo sample
     is no independent error, and counting it de-weights the halo). ``mie_g``
-    (⟨cos θ⟩) is held at this value (None: the templates' first node).
+    (⟨cos θ⟩) is held at this value (None: the templates' first node), unless
+    ``phase`` is given and the templates span a range of phase functions: then
+    Mie ⟨cos θ⟩ and the Rayleigh share are fitted (`analysis.chisq.phase`).
+    ``edge_sigmas_px``: the disk's edge per setting and camera is the working
+    PSF's disk plus these blurs' disks in free proportions (flux-conserving:
+    light moves across the edge only), so that frames whose blur differs
+    from frame to frame (sway, focus) do not steer the fit; empty: one PSF
+    width for all, a nuisance with prior ``psf_sigma_err_px``.
     ``contour_points`` per axis of the Δχ² map.
     """
 
     psf_sigma_px: float = 1.2
     psf_sigma_err_px: float = 0.3
-    edge_sigmas_px: tuple[float, ...] = (0.6, 2.0, 3.2)
+    edge_sigmas_px: tuple[float, ...] = (0.6, 2.0, 3.2, 4.5)
     focal_rel_err: float = 0.003
     halo_scale_err: float = 0.005
     lambda_sca_sys_rel: float = 0.005
@@ -62,6 +70,7 @@ class FitConfig:
     mie_g: float | None = None
     lambda_abs_range_m: tuple[float, float] = (2.0, 2000.0)
     contour_points: int = 25
+    phase: PhaseConfig | None = None
 
     def __post_init__(self) -> None:
         if not self.psf_sigma_px > 0 or self.psf_sigma_err_px < 0:
@@ -342,6 +351,8 @@ class ChiSquareFit:
     lambda_abs_sys_err_m: float = 0.0
     lambda_att_sys_err_m: float = 0.0
     systematics: SystematicBudget | None = None
+    rayleigh_share: float = 0.17
+    phase: PhaseFit | None = None
 
     @property
     def lambda_sca_total_err_m(self) -> float:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 
@@ -12,7 +13,10 @@ from analysis.chisq.data import FitInputError, SettingProfiles
 from analysis.chisq.fit import Objective, curvature_covariance
 from analysis.chisq.limits import error_scale, estimate
 from analysis.chisq.model import Problem
+from analysis.chisq.phase import can_float, phase_estimates, scan_phase
+from analysis.chisq.phase_results import PhaseConfig, PhaseMap
 from analysis.chisq.results import (
+    MEASURED,
     NUISANCES,
     UNITS,
     ChiSquareFit,
@@ -71,8 +75,12 @@ def fit_wavelength(
     obj = make_objective(settings, grid, geometry, ratio, config)
     prob = obj.prob
     best = obj.minimise()
+    pmap = None
+    if config.phase is not None and can_float(grid, config.phase):
+        pmap = scan_phase(obj, best, config.phase)
+        best = _refit_at_best_phase(obj, pmap, config.phase)
     chi2_min = obj(best)
-    ndof = prob.n_bins() - prob.n_linear() - 2
+    ndof = prob.n_bins() - prob.n_linear() - 2 - (2 if pmap is not None else 0)
     scale = error_scale(chi2_min, ndof)
     cov = curvature_covariance(obj, best) * scale**2
     sigma = np.sqrt(np.maximum(np.diag(cov), 1e-8))
@@ -86,6 +94,12 @@ def fit_wavelength(
         intervals.append(interval)
         if open_side:
             edges.append(names[k])
+    phase = None
+    if pmap is not None and config.phase is not None:
+        ln_sigma = tuple(0.5 * math.log(iv[1] / iv[0]) for iv in intervals)
+        phase, _ = phase_estimates(pmap, scale, (ln_sigma[0], ln_sigma[1]), config.phase)
+        for k in range(2):
+            estimates[k], intervals[k] = _widened(estimates[k], intervals[k], phase.lambda_envelope_m[k])
     est = np.exp(best)
     # λ_att: 1/λ_att = 1/λ_abs + 1/λ_sca, with d(1/λ)/d(ln λ) = -1/λ.
     u = 1.0 / est
@@ -97,7 +111,30 @@ def fit_wavelength(
     raw = obj.contour(best, span, chi2_min, config.contour_points)
     contour = ContourMap(raw.lambda_abs_m, raw.lambda_sca_m, raw.delta_chi2 / scale**2)
     att = (lam_att, lam_att_err, corr)
-    return _result(wavelength_nm, prob, est, intervals, estimates, scale, att, edges, contour)
+    fit = _result(wavelength_nm, prob, est, intervals, estimates, scale, att, edges, contour)
+    return replace(fit, ndof=ndof, phase=phase)
+
+
+def _refit_at_best_phase(obj: Objective, pmap: PhaseMap, cfg: PhaseConfig) -> np.ndarray:
+    """Set the problem to the map's best phase function and refit the lengths there."""
+    located, _ = phase_estimates(pmap, 1.0, (0.01, 0.01), cfg)
+    g, f = located.best
+    i = int(np.argmin(np.abs(pmap.mie_g - g)))
+    j = int(np.argmin(np.abs(pmap.rayleigh_share - f)))
+    start = pmap.ln_lambda[:, j, i].copy()
+    start[1] += math.log((1 - pmap.mie_g[i]) / (1 - g))
+    obj.prob.set_phase(g, f)
+    return obj.minimise(start, near=True)
+
+
+def _widened(
+    est: Estimate, interval: tuple[float, float], envelope: tuple[float, float] | None
+) -> tuple[Estimate, tuple[float, float]]:
+    """A measured length's interval widened to its envelope over the phase functions the data allow."""
+    if est.status != MEASURED or envelope is None:
+        return est, interval
+    lo, hi = min(interval[0], envelope[0]), max(interval[1], envelope[1])
+    return replace(est, interval_m=(lo, hi), err_m=0.5 * (hi - lo)), (lo, hi)
 
 
 def _result(
@@ -147,6 +184,7 @@ def _result(
         chi2=float(chi2_val),
         ndof=prob.n_bins() - prob.n_linear() - 2,
         mie_g=prob.mie_g,
+        rayleigh_share=prob.rayleigh_share,
         nuisances=nuis,
         at_edge=tuple(sorted(set(edges))),
         contour=contour,

@@ -85,12 +85,29 @@ class TemplateGrid:
         nodes = self.settings.lambda_sca_nodes_m
         return nodes[0] / REWEIGHT_REACH, nodes[-1] * REWEIGHT_REACH
 
-    def halo(self, lambda_abs_m: float, lambda_sca_m: float, mie_g: float | None = None) -> HaloTemplate:
+    @property
+    def phase_ranges(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """The (Mie ⟨cos θ⟩, Rayleigh share) ranges the grid serves: its ⟨cos θ⟩ nodes, its one share."""
+        s = self.settings
+        return (s.mie_g_nodes[0], s.mie_g_nodes[-1]), (s.rayleigh_fraction, s.rayleigh_fraction)
+
+    def halo(
+        self,
+        lambda_abs_m: float,
+        lambda_sca_m: float,
+        mie_g: float | None = None,
+        rayleigh_share: float | None = None,
+    ) -> HaloTemplate:
         """The scattered-light template at one water.
 
-        Raises `ValueError` naming the parameter when it lies outside the grid.
+        Raises `ValueError` naming the parameter when it lies outside the grid
+        (a grid holds one Rayleigh share: another raises).
         """
         s = self.settings
+        if rayleigh_share is not None and abs(rayleigh_share - s.rayleigh_fraction) > 1e-9:
+            raise ValueError(
+                f"rayleigh_share {rayleigh_share:g}: these templates hold only {s.rayleigh_fraction:g}"
+            )
         g = s.mie_g_nodes[0] if mie_g is None else float(mie_g)
         if not lambda_abs_m > 0:
             raise ValueError(f"lambda_abs_m must be > 0, got {lambda_abs_m}")

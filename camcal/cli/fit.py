@@ -248,6 +248,8 @@ def fit_stored_dive(
 
 def print_fits(result: FolderFit) -> None:
     """Values or limits per wavelength, the λ_att check, the budget, and what was flagged or skipped."""
+    from analysis.chisq.quality import fit_quality
+
     table = Table(title="absorption and scattering lengths (χ² fit)", title_justify="left")
     for col in (
         "wavelength",
@@ -256,9 +258,11 @@ def print_fits(result: FolderFit) -> None:
         "λ_att fit [m]",
         "λ_att I_center [m]",
         "check",
+        "phase function",
         "χ²/ndof",
     ):
         table.add_column(col, justify="right")
+    quality = {wl: fit_quality(f) for wl, f in result.fits.items()}
     for wl, f in sorted(result.fits.items()):
         chk = result.checks[wl]
         verdict: str | Text = "—"
@@ -273,7 +277,9 @@ def print_fits(result: FolderFit) -> None:
             flag = Text("calibration FLAGGED", style="bold red")
             verdict = flag if verdict == "—" else Text.assemble(verdict, "\n", flag)
         chi2 = Text(f"{f.chi2:.0f}/{f.ndof}")
-        if f.error_scale > 1:
+        if not quality[wl].ok:
+            chi2.append(" FAILED", style="bold red")
+        elif f.error_scale > 1:
             chi2.append(f" (errors ×{f.error_scale:.2f})", style="yellow")
         table.add_row(
             str(wl),
@@ -282,6 +288,7 @@ def print_fits(result: FolderFit) -> None:
             f"{f.lambda_att_m:.2f} ± {chk.lambda_att_fit_err_m:.2f}",
             ic,
             verdict,
+            phase_text(f),
             chi2,
         )
     console.print(table)
@@ -295,6 +302,19 @@ def print_fits(result: FolderFit) -> None:
     for _, f in sorted(result.fits.items()):
         if f.systematics is not None:
             print_budget(f)
+    for wl, q in sorted(quality.items()):
+        if not q.ok:
+            console.print(
+                labelled(
+                    f"{wl} nm fit FAILED:",
+                    "bold red",
+                    f"{q.reason}. Do not quote λ_abs and λ_sca from it; the χ² per band is in the JSON "
+                    "(chi2_bands) and the profile plots (--plots) show where the model misses.",
+                )
+            )
+        phase = result.fits[wl].phase
+        if phase is not None:
+            console.print(labelled(f"{wl} nm phase function:", "cyan", phase.case_text))
     for wl, chk in sorted(result.checks.items()):
         if chk.flagged:
             console.print(labelled(f"{wl} nm flagged:", "bold red", chk.advice or ""))
@@ -306,6 +326,18 @@ def print_fits(result: FolderFit) -> None:
         console.print(labelled(f"{wl} nm:", "yellow", why))
     for wl, why in sorted(result.skipped.items()):
         console.print(labelled(f"{wl} nm skipped:", "yellow", why))
+
+
+def phase_text(f: ChiSquareFit) -> str:
+    """Mie ⟨cos θ⟩ and Rayleigh share as the fit has them: measured, bounded, or held fixed."""
+    p = f.phase
+    if p is None:
+        return f"fixed: g {f.mie_g:g}, Rayleigh {f.rayleigh_share:g}"
+    g, r = p.mie_g, p.rayleigh_share
+    gt = f"g {g.value:.3f} ± {g.err:.3f}" if g.value is not None and g.err is not None else f"g {p.case}"
+    measured = r.value is not None and r.err is not None
+    rt = f"Rayleigh {r.value:.2f} ± {r.err:.2f}" if measured else "Rayleigh —"
+    return f"{gt}, {rt}"
 
 
 def _length(e: Estimate, sys_down_up_m: tuple[float, float], *, budget: bool) -> str:

@@ -85,8 +85,24 @@ def scan_phase(obj: Objective, start: np.ndarray, config: PhaseConfig) -> PhaseM
     return PhaseMap(gs, fs, chi2, lnl)
 
 
+def source_phase_ranges(source: object) -> tuple[tuple[float, float], tuple[float, float]] | None:
+    """The (Mie ⟨cos θ⟩, Rayleigh share) ranges a halo source serves, None if it tells neither.
+
+    Template grids name them ``phase_ranges``; smooth templates ``mie_g_range`` and
+    ``rayleigh_share_range``.
+    """
+    if hasattr(source, "phase_ranges"):
+        return source.phase_ranges  # type: ignore[no-any-return]
+    if hasattr(source, "mie_g_range") and hasattr(source, "rayleigh_share_range"):
+        return tuple(source.mie_g_range), tuple(source.rayleigh_share_range)  # type: ignore[return-value]
+    return None
+
+
 def _ranges(source: object, config: PhaseConfig) -> tuple[tuple[float, float], tuple[float, float]]:
-    (sg_lo, sg_hi), (sf_lo, sf_hi) = source.phase_ranges  # type: ignore[attr-defined]
+    found = source_phase_ranges(source)
+    if found is None:
+        raise ValueError("these templates hold one phase function: the fit cannot float it")
+    (sg_lo, sg_hi), (sf_lo, sf_hi) = found
     g = (max(config.mie_g_range[0], sg_lo), min(config.mie_g_range[1], sg_hi))
     f = (max(config.rayleigh_range[0], sf_lo), min(config.rayleigh_range[1], sf_hi))
     return g, f
@@ -94,7 +110,7 @@ def _ranges(source: object, config: PhaseConfig) -> tuple[tuple[float, float], t
 
 def can_float(source: object, config: PhaseConfig) -> bool:
     """True when the templates span a range of both ⟨cos θ⟩ and the Rayleigh share."""
-    if not hasattr(source, "phase_ranges"):
+    if source_phase_ranges(source) is None:
         return False
     (g_lo, g_hi), (f_lo, f_hi) = _ranges(source, config)
     return g_hi - g_lo > 0.02 and f_hi - f_lo > 0.02

@@ -23,6 +23,12 @@ from analysis.transport.scene import (
 DEFAULT_LAMBDA_SCA_NODES_M: tuple[float, ...] = (12.0, 20.0, 33.0, 55.0, 90.0, 150.0, 250.0)
 
 
+def band_centres_px(edges_px: np.ndarray) -> np.ndarray:
+    """The area centroids of annular bands with these edges (px): (2/3)(r₁³ - r₀³)/(r₁² - r₀²)."""
+    e = np.asarray(edges_px, dtype=np.float64)
+    return (2.0 / 3.0) * (e[1:] ** 3 - e[:-1] ** 3) / (e[1:] ** 2 - e[:-1] ** 2)
+
+
 @dataclass(frozen=True)
 class EmissionProfile:
     """The LEM's intensity as a function of the emission direction's polar angle.

@@ -53,6 +53,7 @@ from analysis.transport.template_settings import (
     HaloTemplate,
     TemplateCamera,
     TemplateSettings,
+    band_centres_px,
 )
 
 #: How far beyond the outermost nodes the scattering length may be reweighted (factor).
@@ -148,8 +149,7 @@ class TemplateGrid:
                 f"{edges[-1]:.0f} px ({reach:.4g} rad); build them with a larger outer_px"
             )
         value, _ = self.halo(lambda_abs_m, lambda_sca_m, mie_g).total(emission)
-        centres = (2.0 / 3.0) * (edges[1:] ** 3 - edges[:-1] ** 3) / (edges[1:] ** 2 - edges[:-1] ** 2)
-        return np.interp(psi, np.arctan(centres / self.settings.focal_px), value[camera])
+        return np.interp(psi, np.arctan(band_centres_px(edges) / self.settings.focal_px), value[camera])
 
     def higher_orders(
         self, lambda_abs_m: float, lambda_sca_m: float, mie_g: float | None = None
@@ -220,10 +220,7 @@ def _coarse_to_fine_matrix(settings: TemplateSettings) -> tuple[np.ndarray, np.n
     mc_scene = settings.mc_scene()
     coarse = np.asarray(mc_scene.band_edges_px)
 
-    def centres(e: np.ndarray) -> np.ndarray:
-        return (2.0 / 3.0) * (e[1:] ** 3 - e[:-1] ** 3) / (e[1:] ** 2 - e[:-1] ** 2)
-
-    cf, cc = centres(fine), centres(coarse)
+    cf, cc = band_centres_px(fine), band_centres_px(coarse)
     mat = np.zeros((len(cf), len(cc)))
     for i, r in enumerate(cf):
         j = int(np.clip(np.searchsorted(cc, r) - 1, 0, len(cc) - 2))

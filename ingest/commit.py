@@ -16,6 +16,12 @@ message gets exactly one answer:
   must never cost a module its frames: those are refused ``internal_error``
   every time, and the module resends them once the ship recovers.
 
+A sensor batch the checking stage split in parts (`ingest.check.PART_ROWS`
+rows each) is committed a part per turn, each part beside the other
+modules' messages; it is answered with its last part. A resend of a stored
+batch, or a conflict, is told by its first part, and the parts after it are
+dropped.
+
 Nothing that happens after the commit (gaps, events, analysis queue) can
 turn a stored message into a refused one: those steps are guarded apart.
 """
@@ -25,39 +31,74 @@ from __future__ import annotations
 import logging
 import time
 from collections import OrderedDict, defaultdict
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable
+from typing import Any
 
 from camcal.core import wire
 from camcal.core.events import Event, EventKind
 from camcal.core.ratelog import RateLimitedLog
+from camcal.core.wire.sensorrows import rows_dicts
+from ingest.acknowledge import Acknowledge
+from ingest.alarms import AlarmEvaluator
+from ingest.analysis_pool import Job
+from ingest.counters import Counters
+from ingest.events import EventBus
 from ingest.faults import ships_fault
-from ingest.network import Incoming, nack
+from ingest.gaps import Gaps
+from ingest.messages import Checked, Key
 from ingest.quarantine import Quarantine
+from ingest.sensorbuf import SensorBuffers
 from storage import queries
-from storage.store import FrameRow, SensorBatchRow
-
-if TYPE_CHECKING:
-    from ingest.storeloop import StoreState
+from storage.store import FrameRow, SensorBatchRow, Store
 
 log = logging.getLogger("camcal.ingest")
-Key = tuple[str, str, int]
+Guard = Callable[..., bool]
 
 
 class Committer:
-    def __init__(self, state: StoreState) -> None:
-        self.st = state
-        self.svc = state.svc
-        self.store = state.store
+    def __init__(
+        self,
+        store: Store,
+        *,
+        dive_id: int,
+        fsync: bool,
+        counters: Counters,
+        alarms: AlarmEvaluator,
+        acknowledge: Acknowledge,
+        events: EventBus,
+        gaps: Gaps,
+        sensors: SensorBuffers,
+        analyse: Callable[[Job], None],
+        guarded: Guard,
+    ) -> None:
+        self.store = store
+        self.dive_id = dive_id
+        self.fsync = fsync
+        self.counters = counters
+        self.alarms = alarms
+        self.acknowledge = acknowledge
+        self.events = events
+        self.gaps = gaps
+        self.sensors = sensors
+        self.analyse = analyse
+        self.guarded = guarded
         self.quarantine = Quarantine(self.store.files.root)
         self.recent: OrderedDict[Key, str | None] = OrderedDict()  # committed keys -> sha256 (LRU)
         self.failures: dict[tuple[str, str, int, str], list[int]] = defaultdict(list)
         self.stored = 0  # messages committed so far (to tell a bad message from a bad disk)
+        #: Sensor batches answered by their first part (a resend, a conflict, a failure): their
+        #: later parts are dropped.
+        self.answered_early: set[Key] = set()
         self.warn = RateLimitedLog(log)
 
     # -- entry -----------------------------------------------------------
-    def commit(self, items: list[Incoming]) -> None:
+    def commit(self, items: list[Checked]) -> None:
         fresh = []
         for it in items:
+            if it.key in self.answered_early and it.part is not None and it.part[0] > 0:
+                if it.last_part:
+                    self.answered_early.discard(it.key)
+                continue
             if self.quarantine.holds(self._qkey(it)):
                 self._refuse(it, "quarantined", "this message failed twice on the ship; it is kept there")
             else:
@@ -81,36 +122,34 @@ class Committer:
                 self._failed(it, exc)
 
     # -- the transaction -------------------------------------------------
-    def _commit(self, items: list[Incoming]) -> None:
-        svc, files = self.svc, self.store.files
+    def _commit(self, items: list[Checked]) -> None:
+        files = self.store.files
         frames: list[FrameRow] = []
         sensors: list[SensorBatchRow] = []
         payloads: dict[Key, Any] = {}
-        ok: list[Incoming] = []  # stored now or before with the same content: acknowledged
+        ok: list[Checked] = []  # stored now or before with the same content (or a part of a batch)
+        parts: list[tuple[Checked, Any]] = []  # sensor batches (or parts) to store, with their rows
         seen: dict[Key, str] = {}
         # Frames and sensor messages share one sequence per boot: look each key up in both tables.
-        keys = [self._key(it) for it in items if self._key(it) not in self.recent]
+        firsts = [it for it in items if it.part is None or it.part[0] == 0]
+        keys = [it.key for it in firsts if it.key not in self.recent]
         stored_frames, stored_sensors = self.store.call(queries.stored_checksums, keys, keys)
         stored_before: dict[Key, str | None] = {**stored_sensors, **stored_frames}
         for it in items:
-            m, key = it.msg, self._key(it)
-            if key in seen:  # the same message twice in one batch (a resend crossed the first)
-                if seen[key] == m.sha256:
-                    ok.append(it)
-                else:
-                    self._conflict(it)
-                continue
-            if key in self.recent or key in stored_before:
-                stored = self.recent[key] if key in self.recent else stored_before[key]
-                if stored is None or stored == m.sha256:  # (None: stored before checksums were kept)
-                    ok.append(it)
-                else:
-                    self._conflict(it)
-                continue
-            seen[key] = m.sha256
+            m, key = it.msg, it.key
+            if it.part is None or it.part[0] == 0:
+                if key in seen:  # the same message twice in one batch (a resend crossed the first)
+                    self._settled_early(it, seen[key] == m.sha256, ok)
+                    continue
+                if key in self.recent or key in stored_before:
+                    stored = self.recent[key] if key in self.recent else stored_before[key]
+                    # (None: stored before checksums were kept)
+                    self._settled_early(it, stored is None or stored == m.sha256, ok)
+                    continue
+                seen[key] = m.sha256
             ok.append(it)
             if it.kind == "frame":
-                rel = files.relative_path(svc.dive.id, m.module, m.boot, m.seq, m.encoding)
+                rel = files.relative_path(self.dive_id, m.module, m.boot, m.seq, m.encoding)
                 payloads[key] = (rel, it.payload)
                 frames.append(
                     FrameRow(
@@ -132,11 +171,15 @@ class Committer:
                     )
                 )
             else:
+                rows = _part_rows(it)
+                parts.append((it, rows))
                 sensors.append(
-                    SensorBatchRow(m.module, m.boot, m.seq, it.received_unix_s, it.payload, m.sha256)
+                    SensorBatchRow(
+                        m.module, m.boot, m.seq, it.received_unix_s, rows_dicts(rows), m.sha256, part=it.part
+                    )
                 )
-        files.write_many(list(payloads.values()), fsync=svc.config.fsync)  # every file durable before its row
-        received = {self._key(it): it.received_mono for it in items}
+        files.write_many(list(payloads.values()), fsync=self.fsync)  # every file durable before its row
+        received = {it.key: it.received_mono for it in items}
         t_done = time.monotonic()
 
         def frame_event(f: FrameRow, fid: int) -> Event:
@@ -146,31 +189,56 @@ class Committer:
                 "schedule_version": f.schedule_version,
                 "stored_latency_s": round(t_done - received[(f.module_id, f.boot, f.seq)], 4),
             }
-            return Event(EventKind.FRAME, payload, time.time(), f.module_id, svc.dive.id)
+            return Event(EventKind.FRAME, payload, time.time(), f.module_id, self.dive_id)
 
-        outcome = self.store.commit_batch(svc.dive.id, frames, sensors, frame_event=frame_event)
+        outcome = self.store.commit_batch(self.dive_id, frames, sensors, frame_event=frame_event)
         # -- committed: from here on nothing may refuse these messages --
-        self.stored += len(ok)
-        svc.counters.inc("frames_stored", len(outcome.new_frames))
-        svc.counters.inc("duplicates", len(ok) - len(outcome.new_frames) - len(outcome.new_sensor_batches))
+        new_sensors = set(outcome.new_sensor_batches)
+        answered: list[Checked] = []
+        duplicates = 0
         for it in ok:
-            self._remember(self._key(it), it.msg.sha256)
-        self.st.guarded("ack", self._ack, ok)
-        self.st.guarded("events", svc.events.published_stored, outcome.events)
+            first = it.part is None or it.part[0] == 0
+            new = it.key in outcome.new_frames or it.key in new_sensors
+            duplicates += first and not new
+            if it.part is not None and first and not new:  # stored before all the same (another ingest)
+                if not it.last_part:
+                    self.answered_early.add(it.key)
+                answered.append(it)
+            elif it.last_part:
+                answered.append(it)
+        self.stored += len(answered)
+        self.counters.inc("frames_stored", len(outcome.new_frames))
+        self.counters.inc("duplicates", duplicates)
+        for it in answered:
+            self._remember(it.key, it.msg.sha256)
+        self.guarded("ack", self.acknowledge.ack, [it.key for it in answered])
+        self.guarded("events", self.events.published_stored, outcome.events)
         by_key = {(f.module_id, f.boot, f.seq): f for f in frames}
         for key, fid in outcome.new_frames.items():
             f = by_key[key]
-            svc.queue_analysis(fid, f.path, {**_frame_meta(f), "received_mono": received[key]})
-        for b in sensors:
-            if (b.module_id, b.boot, b.seq) in outcome.new_sensor_batches:
-                self.st.guarded("sensor samples", self.st.sensor_samples, b)
-        self.st.guarded("gaps", self.st.gaps.arrived, ok)
+            self.analyse(Job(fid, f.path, {**_frame_meta(f), "received_mono": received[key]}))
+        for it, rows in parts:
+            if it.key in new_sensors:
+                self.guarded("sensor samples", self.sensors.add, it.module, rows)
+        self.guarded("gaps", self.gaps.arrived, [it.msg for it in answered])
+
+    def _settled_early(self, it: Checked, same: bool, ok: list[Checked]) -> None:
+        """A message stored before (``same`` content: acknowledged with the others) or a conflict;
+        a batch in parts is settled by its first part."""
+        if it.part is not None and not it.last_part:
+            self.answered_early.add(it.key)
+        if same:
+            if it.part is not None and not it.last_part:  # acknowledged now, its other parts dropped
+                it = Checked(it.msg, it.payload, it.received_unix_s, it.received_mono, it.nbytes)
+            ok.append(it)
+        else:
+            self._conflict(it)
 
     # -- refusals --------------------------------------------------------
-    def _conflict(self, it: Incoming) -> None:
+    def _conflict(self, it: Checked) -> None:
         m = it.msg
-        self.svc.counters.inc("conflicts")
-        self.st.alarms.observe_conflict(m.module, m.boot, m.seq, time.time())
+        self.counters.inc("conflicts")
+        self.alarms.observe_conflict(m.module, m.boot, m.seq, time.time())
         self._refuse(
             it,
             "conflict",
@@ -178,7 +246,7 @@ class Committer:
             "the first copy: compare the module's SD card with `camcal import`",
         )
 
-    def _failed(self, it: Incoming, exc: Exception) -> None:
+    def _failed(self, it: Checked, exc: Exception) -> None:
         key = self._qkey(it)
         fails = self.failures[key]
         fails.append(self.stored)
@@ -205,11 +273,13 @@ class Committer:
             payload = (
                 bytes(it.payload)
                 if it.kind == "frame"
-                else wire.sensors_payload([[r.get(c) for c in wire.SENSOR_COLUMNS] for r in it.payload])
+                else wire.sensors_payload(
+                    [[r.get(c) for c in wire.SENSOR_COLUMNS] for r in rows_dicts(it.payload)]
+                )
             )
             where = self.quarantine.put(key, header, payload, f"{type(exc).__name__}: {exc}")
             del self.failures[key]
-            self.svc.counters.inc("quarantined")
+            self.counters.inc("quarantined")
             self._refuse(
                 it, "quarantined", f"failed twice on the ship ({type(exc).__name__}); kept in {where}"
             )
@@ -218,42 +288,15 @@ class Committer:
                 it, "internal_error", f"the ship failed to store it ({type(exc).__name__}); resend later"
             )
 
-    def _refuse(self, it: Incoming, reason: str, detail: str) -> None:
-        m = it.msg
-        self.svc.counters.refuse(reason, malformed=False)
-        self.svc.send_to_module(
-            m.module, nack(reason, detail, {"type": m.type, "boot": m.boot, "seq": m.seq})
-        )
-
-    # -- acknowledgements ------------------------------------------------
-    def _ack(self, items: list[Incoming]) -> None:
-        """Acknowledge committed messages, new or duplicate, as ranges per module."""
-        per_module: dict[str, dict[str, list[int]]] = defaultdict(lambda: defaultdict(list))
-        for it in items:
-            per_module[it.msg.module][it.msg.boot].append(it.msg.seq)
-        for module, boots in per_module.items():
-            ranges: list[tuple[str, int, int]] = []
-            for boot, seqs in boots.items():
-                seqs = sorted(set(seqs))
-                start = prev = seqs[0]
-                for q in seqs[1:]:
-                    if q != prev + 1:
-                        ranges.append((boot, start, prev))
-                        start = q
-                    prev = q
-                ranges.append((boot, start, prev))
-            self.svc.send_to_module(
-                module, wire.Ack(module="ship", ranges=tuple(ranges), window=self.svc.window)
-            )
-            self.svc.counters.inc("acks_sent")
+    def _refuse(self, it: Checked, reason: str, detail: str) -> None:
+        """Refuse a data message (a batch in parts: with the part that failed, the rest dropped)."""
+        if it.part is not None and not it.last_part:
+            self.answered_early.add(it.key)
+        self.acknowledge.refuse(it.msg, reason, detail)
 
     # -- helpers ---------------------------------------------------------
     @staticmethod
-    def _key(it: Incoming) -> Key:
-        return (it.msg.module, it.msg.boot, it.msg.seq)
-
-    @staticmethod
-    def _qkey(it: Incoming) -> tuple[str, str, int, str]:
+    def _qkey(it: Checked) -> tuple[str, str, int, str]:
         return (it.msg.module, it.msg.boot, it.msg.seq, it.msg.sha256)
 
     def _remember(self, key: Key, sha: str) -> None:
@@ -261,6 +304,14 @@ class Committer:
         self.recent.move_to_end(key)
         while len(self.recent) > 4096:
             self.recent.popitem(last=False)
+
+
+def _part_rows(it: Checked) -> Any:
+    """The sensor rows of a batch, or of the part ``it`` is of it."""
+    if it.part is None:
+        return it.payload
+    first, n, _ = it.part
+    return it.payload[first : first + n]
 
 
 def _frame_meta(f: FrameRow) -> dict[str, Any]:

@@ -2,38 +2,34 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Iterable
+from typing import Any
 
 from camcal.core.events import EventKind, GapPayload
+from ingest.events import EventBus
 from ingest.seqtrack import SeqTracker
 from storage import queries
-
-if TYPE_CHECKING:
-    from ingest.storeloop import StoreState
+from storage.store import Store
 
 
 class Gaps:
-    def __init__(self, state: StoreState) -> None:
-        self.st = state
-        self.svc = state.svc
-        self.store = state.store
+    def __init__(self, store: Store, events: EventBus, dive_id: int, serves: Callable[[str], bool]) -> None:
+        self.store = store
+        self.events = events
+        self.dive_id = dive_id
         self.seqs = SeqTracker()
         self.gappy: set[tuple[str, str]] = {
-            (g.module_id, g.boot)
-            for g in self.store.call(queries.open_gaps)
-            if self.svc.config.serves(g.module_id)
+            (g.module_id, g.boot) for g in self.store.call(queries.open_gaps) if serves(g.module_id)
         }
 
     def _known(self, module: str, boot: str) -> None:
         if not self.seqs.known(module, boot):
             self.seqs.seed(module, boot, self.store.call(queries.known_seqs, module, boot))
 
-    def arrived(self, items: Iterable[Any]) -> None:
+    def arrived(self, msgs: Iterable[Any]) -> None:
         """Committed messages (new or resent): record jumps as gaps, close gaps they fill."""
         touched = set()
-        for it in items:
-            m = it.msg
+        for m in msgs:
             self._known(m.module, m.boot)
             gap = self.seqs.add(m.module, m.boot, m.seq)
             touched.add((m.module, m.boot))
@@ -42,11 +38,11 @@ class Gaps:
         for module, boot in touched & self.gappy:
             covers = lambda a, b, m=module, bt=boot: self.seqs.covers(m, bt, a, b)  # noqa: E731
             for gid in self.store.fill_gaps(module, boot, covers):
-                self.svc.events.emit(
+                self.events.emit(
                     EventKind.GAP_FILLED,
                     {"gap_id": gid, "boot": boot},
                     module=module,
-                    dive_id=self.svc.dive.id,
+                    dive_id=self.dive_id,
                 )
             if not self.seqs.missing(module, boot):
                 self.gappy.discard((module, boot))
@@ -71,4 +67,4 @@ class Gaps:
         payload: GapPayload = {"boot": boot, "first_seq": gap[0], "last_seq": gap[1]}
         if reason:
             payload["reason"] = reason
-        self.svc.events.emit(EventKind.GAP, payload, module=module, dive_id=self.svc.dive.id)
+        self.events.emit(EventKind.GAP, payload, module=module, dive_id=self.dive_id)

@@ -14,16 +14,16 @@ import logging
 import shutil
 import time
 from collections import defaultdict
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from analysis.attitude import attitude_from_samples
 from camcal.core import wire
 from camcal.core.events import EventKind
-from ingest.network import Incoming, nack
+from ingest.context import StoreContext
+from ingest.gaps import Gaps
+from ingest.messages import Note
+from ingest.sensorbuf import SensorBuffers
 from storage import queries
-
-if TYPE_CHECKING:
-    from ingest.storeloop import StoreState
 
 log = logging.getLogger("camcal.ingest")
 
@@ -34,11 +34,12 @@ COUNTERS_SAVE_S = 5.0
 
 
 class Housekeeping:
-    def __init__(self, state: StoreState) -> None:
-        self.st = state
-        self.svc = state.svc
-        self.store = state.store
-        cfg = self.svc.config
+    def __init__(self, ctx: StoreContext, gaps: Gaps, sensors: SensorBuffers) -> None:
+        self.st = ctx
+        self.store = ctx.store
+        self.gaps = gaps
+        self.sensors = sensors
+        cfg = ctx.config
         self.active_alarms = {
             a.key
             for a in self.store.call(queries.active_alarms)
@@ -50,21 +51,21 @@ class Housekeeping:
         self.last_counters_save = -1e18
 
     # -- links and modules ----------------------------------------------
-    def link(self, it: Incoming) -> None:
-        info = it.msg
-        self.svc.events.emit(
+    def link(self, it: Note) -> None:
+        info = it.info or {}
+        self.st.events.emit(
             EventKind.LINK,
             {"state": "up" if info["up"] else "down", "reason": info.get("reason")},
             module=it.module,
-            dive_id=self.svc.dive.id,
+            dive_id=self.st.dive_id,
         )
         if not info["up"] and info.get("boot") and info.get("last_seq"):
-            self.st.gaps.link_down(it.module, info["boot"], int(info["last_seq"]))
+            self.gaps.link_down(it.module, info["boot"], int(info["last_seq"]))
 
-    def module_info(self, it: Incoming) -> None:
+    def module_info(self, it: Note) -> None:
         m = it.msg
         sched = m.schedule
-        cameras = self.svc.config.setup.cameras
+        cameras = self.st.config.setup.cameras
         self.store.touch_module(
             m.module,
             seen_unix_s=it.received_unix_s,
@@ -77,24 +78,20 @@ class Housekeeping:
         )
 
     # -- commands --------------------------------------------------------
-    def command_status(self, it: Incoming) -> None:
+    def command_status(self, it: Note) -> None:
         m = it.msg
         cmd = self.store.call(queries.command, m.command_id)
         if cmd is None or cmd["module"] != m.module:
-            self.svc.counters.refuse("invalid_field", malformed=False)
-            self.svc.send_to_module(
-                m.module,
-                nack(
-                    "invalid_field",
-                    f"command_status: no command {m.command_id!r} was sent to module {m.module}",
-                    {"type": m.type, "boot": m.boot},
-                ),
+            self.st.acknowledge.refuse(
+                m,
+                "invalid_field",
+                f"command_status: no command {m.command_id!r} was sent to module {m.module}",
             )
             return
         cmd = self.store.update_command(m.command_id, m.state, m.reason, actor=f"module:{m.module}")
         self.module_info(it)
         if cmd is not None:
-            self.svc.events.emit(
+            self.st.events.emit(
                 EventKind.COMMAND,
                 {
                     "command_id": cmd["id"],
@@ -104,7 +101,7 @@ class Housekeeping:
                     "target_version": cmd["target_version"],
                 },
                 module=m.module,
-                dive_id=self.svc.dive.id,
+                dive_id=self.st.dive_id,
             )
 
     def deliver_commands(self) -> None:
@@ -113,19 +110,19 @@ class Housekeeping:
         Oldest first: commands queued while a module was offline (pause, then
         resume) must reach it in the order the operator issued them.
         """
-        svc = self.svc
+        st = self.st
         now = time.time()
-        links = svc.network.links if svc.network else {}
+        links = st.links
         for cmd in reversed(self.store.call(queries.commands, states=("pending", "sent", "accepted"))):
             link = links.get(cmd["module"])
             if link is None or not link.up:
                 continue  # stays pending: delivered when the module is back
             if cmd["state"] == "accepted" or (
-                cmd["attempts"] and now - cmd["updated_unix_s"] < svc.config.command_retry_s
+                cmd["attempts"] and now - cmd["updated_unix_s"] < st.config.command_retry_s
             ):
                 continue
             schedule = (cmd["payload"] or {}).get("schedule")
-            svc.send_to_module(
+            st.acknowledge.send(
                 cmd["module"],
                 wire.Command(
                     module="ship",
@@ -139,7 +136,7 @@ class Housekeeping:
             )
             self.store.mark_command_sent(cmd["id"])
             if not cmd["attempts"]:
-                svc.events.emit(
+                st.events.emit(
                     EventKind.COMMAND,
                     {
                         "command_id": cmd["id"],
@@ -148,7 +145,7 @@ class Housekeeping:
                         "target_version": cmd["target_version"],
                     },
                     module=cmd["module"],
-                    dive_id=svc.dive.id,
+                    dive_id=st.dive_id,
                 )
 
     # -- once a second ---------------------------------------------------
@@ -162,37 +159,36 @@ class Housekeeping:
         if mono - self.last_housekeeping >= 30.0:
             self.last_housekeeping = mono
             g("disk", self._disk, now)
-        crashes = list(self.svc.analysis.crashes)
+        crashes = list(self.st.analysis.crashes)
         g("analysis crashes", self.st.alarms.observe_analysis_crashes, crashes)
         g("alarms", self._apply_alarms, self.st.alarms.evaluate(now))
-        g("unsaved results", self.st.results.store_unsaved)
-        g("linearity", self.st.results.update_linearity)
-        g("visits", self.st.results.close_idle_visits)
         g("commands", self.deliver_commands)
-        g("window", self._adapt_window)
+        g("window", lambda: self.st.credit.adapt(self.st.backlog()))
         if mono - self.last_counters_save >= COUNTERS_SAVE_S:
             self.last_counters_save = mono
             g("counters", self.save_counters)
-        g("health", lambda: self.svc.events.transient(EventKind.HEALTH, self.svc.health()))
+
+    def publish_health(self) -> None:
+        self.st.events.transient(EventKind.HEALTH, self.st.health())
 
     def save_counters(self) -> None:
-        values = self.svc.counters.flat_if_changed()
+        values = self.st.counters.flat_if_changed()
         if values:
-            self.store.save_counters(self.svc.ingest_id, values)
+            self.store.save_counters(self.st.ingest_id, values)
 
     def _attitude(self) -> None:
-        svc = self.svc
+        st = self.st
         rows = []
-        for module, buf in self.st.sensors.items():
+        for module, buf in self.sensors.sensors.items():
             if len(buf) < 5 or self.attitude_t.get(module) == buf[-1][0]:
                 continue  # too few samples, or none new since the last tick
             self.attitude_t[module] = buf[-1][0]
-            recent = self.st.sensor_tail(module, ATTITUDE_WINDOW_S)
+            recent = self.sensors.tail(module, ATTITUDE_WINDOW_S)
             est = attitude_from_samples(recent[:, 0], recent[:, 1:4], recent[:, 4:7])
             self.st.alarms.observe_tilt(module, est.tilt_deg)
             row = {
                 "module_id": module,
-                "dive_id": svc.dive.id,
+                "dive_id": st.dive_id,
                 "t_unix_s": float(recent[-1, 0]),
                 "tilt_deg": est.tilt_deg,
                 "tilt_x_deg": est.tilt_x_deg,
@@ -202,15 +198,15 @@ class Housekeeping:
                 "heave_amplitude_m_s2": est.heave_amplitude_m_s2,
             }
             rows.append(row)
-            svc.events.transient(
+            st.events.transient(
                 EventKind.ATTITUDE, {k: v for k, v in row.items() if k != "module_id"}, module=module
             )
         self.store.add_attitude(rows)
 
     def _observe_links(self, mono: float) -> None:
-        svc = self.svc
-        for link in list(svc.network.links.values()) if svc.network else []:
-            age_up = link.up and mono - link.last_seen_mono <= svc.config.link_timeout_s
+        st = self.st
+        for link in list(st.links.values()):
+            age_up = link.up and mono - link.last_seen_mono <= st.config.link_timeout_s
             self.st.alarms.observe_link(
                 link.module, age_up, link.last_seen_unix_s or None, signed_off=link.down_reason == "bye"
             )
@@ -221,41 +217,41 @@ class Housekeeping:
             alarms.observe_clock(link.module, link.clock_offset_s)
 
     def _observe_gaps(self) -> None:
-        svc = self.svc
+        st = self.st
         gaps: dict[str, list[tuple[int, int, float]]] = defaultdict(list)
         for g in self.store.call(queries.open_gaps):  # one query for every module, not one per module
-            if svc.config.serves(g.module_id):
+            if st.config.serves(g.module_id):
                 gaps[g.module_id].append((g.first_seq, g.last_seq, g.detected_unix_s))
-        links = svc.network.links if svc.network else {}
+        links = st.links
         for module in set(gaps) | set(links):
             self.st.alarms.observe_gaps(module, gaps.get(module, []))
 
     def _disk(self, now: float) -> None:
         """Free disk (an alarm when it runs low) and, hourly, the retention of old frame files."""
-        svc = self.svc
-        free_gb = shutil.disk_usage(svc.store.files.root).free / 1e9
-        svc.disk_free_gb = round(free_gb, 2)
+        st = self.st
+        free_gb = shutil.disk_usage(st.store.files.root).free / 1e9
+        st.disk_free_gb = round(free_gb, 2)
         self.st.alarms.observe_disk(free_gb)
-        days = svc.config.retention_days
+        days = st.config.retention_days
         if days and time.monotonic() - self.last_purge >= 3600.0:
             self.last_purge = time.monotonic()
-            n, freed = self.store.purge_frame_files(now - days * 86400.0, svc.config.modules)
+            n, freed = self.store.purge_frame_files(now - days * 86400.0, st.config.modules)
             if n:
                 log.info(
                     "retention: deleted %d frame files older than %g days (%.1f MB)", n, days, freed / 1e6
                 )
-                svc.events.emit(
+                st.events.emit(
                     EventKind.RETENTION,
                     {"files": n, "bytes": freed, "older_than_days": days},
-                    dive_id=svc.dive.id,
+                    dive_id=st.dive_id,
                 )
 
     def _apply_alarms(self, conditions: dict[str, Any]) -> None:
-        svc = self.svc
+        st = self.st
         for key, c in conditions.items():
             alarm, changed = self.store.raise_alarm(key, c.kind, c.severity, c.message, c.module)
             if changed or key not in self.active_alarms:
-                svc.events.emit(
+                st.events.emit(
                     EventKind.ALARM,
                     {
                         "alarm_id": alarm.id,
@@ -265,14 +261,14 @@ class Housekeeping:
                         "message": c.message,
                     },
                     module=c.module,
-                    dive_id=svc.dive.id,
+                    dive_id=st.dive_id,
                 )
             self.active_alarms.add(key)
         for key in list(self.active_alarms - set(conditions)):
             cleared = self.store.clear_alarm(key)
             self.active_alarms.discard(key)
             if cleared is not None:
-                svc.events.emit(
+                st.events.emit(
                     EventKind.ALARM,
                     {
                         "alarm_id": cleared.id,
@@ -282,12 +278,5 @@ class Housekeeping:
                         "message": cleared.message,
                     },
                     module=cleared.module_id,
-                    dive_id=svc.dive.id,
+                    dive_id=st.dive_id,
                 )
-
-    def _adapt_window(self) -> None:
-        """Credit: shrink the window while the store queue or analysis backlog is deep."""
-        svc = self.svc
-        backlog = svc.backlog()
-        base = svc.config.window
-        svc.window = base if backlog < 4 * base else max(1, base // 4)

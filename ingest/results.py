@@ -6,20 +6,18 @@ import logging
 import time
 from collections import defaultdict, deque
 from concurrent.futures.process import BrokenProcessPool
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from camcal.core.events import Event, EventKind, ResultPayload
+from ingest.context import StoreContext
 from ingest.derived import linearity_rows
 from ingest.faults import ships_fault
-from ingest.network import Incoming
+from ingest.messages import Analysed
 from ingest.rolling import Changes, Sample, VisitSeries
 from storage import queries
 from storage.db import error_line
-
-if TYPE_CHECKING:
-    from ingest.storeloop import StoreState
 
 log = logging.getLogger("camcal.ingest")
 
@@ -40,34 +38,33 @@ def crashed_row() -> dict[str, Any]:
 
 
 class Results:
-    def __init__(self, state: StoreState) -> None:
-        self.st = state
-        self.svc = state.svc
-        self.store = state.store
+    def __init__(self, ctx: StoreContext) -> None:
+        self.st = ctx
+        self.store = ctx.store
         #: Commits the ship could not store yet (`store_unsaved`), oldest first.
         self.unsaved: deque[Commit] = deque()
         self.unsaved_retry_mono = 0.0
         self.series: VisitSeries | None = None
         self.last_result_mono = time.monotonic()
         try:
-            self.series = VisitSeries(self.svc.config.setup)
+            self.series = VisitSeries(ctx.config.setup)
         except ValueError:
             log.warning("no λ_att series: the setup has fewer than two cameras with distances")
         if self.series is not None:  # after a restart: the visits of the frames already analysed
-            served = self.svc.config.serves  # (another ingest's modules are its own business)
-            rows = self.store.call(queries.result_rows, self.svc.run.id, self.svc.dive.id)
+            served = ctx.config.serves  # (another ingest's modules are its own business)
+            rows = self.store.call(queries.result_rows, ctx.run_id, ctx.dive_id)
             self._store_points(self.series.add(Sample.from_result(r) for r in rows if served(r["module"])))
         self.linearity: dict[tuple[str, int], dict[tuple[float, float], list[float]]] = defaultdict(
             lambda: defaultdict(list)
         )
         self.linearity_dirty: set[tuple[str, int]] = set()
 
-    def handle(self, items: list[Incoming]) -> None:
+    def handle(self, items: list[Analysed]) -> None:
         rows = []
         done = []
         for it in items:
-            frame_id, meta, fut = it.msg
-            if self.svc.analysis.crashed(fut):  # its process died: analysed again, alone
+            frame_id, meta, fut = it.frame_id, it.meta, it.future
+            if self.st.analysis.crashed(fut):  # its process died: analysed again, alone
                 continue
             try:
                 row = fut.result()
@@ -104,13 +101,13 @@ class Results:
         samples: list[Sample],
     ) -> None:
         """Count a result, show it to the alarms and the linearity fits; its event and λ_att sample."""
-        svc = self.svc
+        st = self.st
         frame_id, meta, row, analysis_s = item
         module = meta["module"]
         if meta.get("received_mono") is not None:
-            svc.latency_s.append(now_mono - meta["received_mono"])
-        svc.counters.inc("frames_analysed")
-        svc.counters.inc(f"result_{row['status'] if row['status'] == 'ok' else row['reason']}")
+            st.latency_s.append(now_mono - meta["received_mono"])
+        st.counters.inc("frames_analysed")
+        st.counters.inc(f"result_{row['status'] if row['status'] == 'ok' else row['reason']}")
         centroid = (
             (row["centroid_x_px"], row["centroid_y_px"]) if row.get("centroid_x_px") is not None else None
         )
@@ -148,14 +145,14 @@ class Results:
             self.linearity[key][(meta["exposure_s"], meta["gain_db"])].append(row["center_gray"])
             self.linearity_dirty.add(key)
         sample = Sample.from_result({**meta, **row, "frame_id": frame_id})
-        events.append(Event(EventKind.RESULT, dict(payload), time.time(), module, svc.dive.id))
+        events.append(Event(EventKind.RESULT, dict(payload), time.time(), module, st.dive_id))
         samples.append(sample)
 
     def close_idle_visits(self) -> None:
         """The modules went quiet (no result for ``visit_idle_close_s``): their open visits are final."""
         if (
             self.series is not None
-            and time.monotonic() - self.last_result_mono > self.svc.config.visit_idle_close_s
+            and time.monotonic() - self.last_result_mono > self.st.config.visit_idle_close_s
         ):
             self._store_points(self.series.close_all())
 
@@ -190,7 +187,7 @@ class Results:
                         parts = unstorable(*failed, exc)
                         if not parts:
                             raise
-                        self.svc.counters.inc("handler_errors")
+                        self.st.counters.inc("handler_errors")
                         log.error(
                             "a result could not be stored, stored as rejected: %s: %s",
                             type(exc).__name__,
@@ -213,14 +210,14 @@ class Results:
             self.unsaved.popleft()
 
     def _commit_now(self, rows: list[dict[str, Any]], events: list[Event], changes: Changes | None) -> None:
-        svc = self.svc
+        st = self.st
         upserts = (
-            [{**r, "run_id": svc.run.id, "dive_id": svc.dive.id} for r in changes.upserts] if changes else []
+            [{**r, "run_id": st.run_id, "dive_id": st.dive_id} for r in changes.upserts] if changes else []
         )
         deletes = list(changes.deletes) if changes else []
 
         def point_events(ids: dict[str, int]) -> list[Event]:
-            now, dive = time.time(), svc.dive.id
+            now, dive = time.time(), st.dive_id
             out = [
                 Event(EventKind.ATTENUATION, {"visit_key": key, "deleted": True}, now, None, dive)
                 for key in deletes
@@ -234,20 +231,20 @@ class Results:
             return out
 
         stored = self.store.commit_results(
-            svc.run.id, rows, events, upserts=upserts, deletes=deletes, point_events=point_events
+            st.run_id, rows, events, upserts=upserts, deletes=deletes, point_events=point_events
         )
-        svc.events.published_stored(stored)
+        st.events.published_stored(stored)
 
     def update_linearity(self) -> None:
-        svc = self.svc
-        lr = tuple(svc.config.setup.linear_range)
+        st = self.st
+        lr = tuple(st.config.setup.linear_range)
         rows = []
         for module, wl in list(self.linearity_dirty):
             points = {k: float(np.mean(v)) for k, v in self.linearity[(module, wl)].items()}
             rows += [
                 {
                     **row,
-                    "run_id": svc.run.id,
+                    "run_id": st.run_id,
                     "module_id": module,
                     "wavelength_nm": wl,
                     "updated_unix_s": time.time(),

@@ -1,24 +1,32 @@
-"""The ingest service: receive, commit, acknowledge, analyse, publish.
+"""The ingest service: a pipeline of stages, each handing the next explicit messages.
 
-Three kinds of worker, each owning what it touches:
+    receive ─▶ check ─▶ store ─▶ acknowledge
+                         │  └──▶ analyse ─▶ (back to store) ─▶ publish
+                         └─────────────────────────────────▶ publish
 
-* the **network thread** (`ingest.network`) owns the ZeroMQ ROUTER: it
-  decodes and checks every message, answers ``hello`` with ``welcome`` and
-  every refused message with a ``nack``, keeps track of links and
-  heartbeats, and sends whatever the other threads hand it (acks, nacks,
-  commands) through an inproc socket;
-* the **store thread** (`ingest.storeloop`) is the single database writer:
-  it commits frames and sensor samples (`ingest.commit`: files, rows and
-  the frames' events in one transaction, then the acknowledgements), stores
-  analysis results, the rolling λ_att and linearity (`ingest.results`), and
-  runs the once-a-second work (`ingest.housekeeping`: attitude, alarms,
-  commands, counters);
-* a **process pool** (one process per core, `ingest.analysis_pool`) decodes
-  and analyses frames off the receive loop; a process that dies is replaced
-  and its frames analysed again.
+* **receive** (`ingest.receive`, thread ``ingest-receive``) owns the ZeroMQ
+  ROUTER: it checks every message's header and sender, keeps track of links
+  and heartbeats, answers ``hello`` with ``welcome`` and what it refuses with
+  a ``nack``, and sends the answers the other stages make;
+* **check** (`ingest.check`, thread ``ingest-check``) checks the payloads, a
+  few milliseconds at a time, the modules in turn;
+* **store** (`ingest.storeloop`, thread ``ingest-store``) is the single
+  database writer: it commits the checked messages a bounded amount per
+  module per turn (`ingest.commit`), stores the analyses (`ingest.results`)
+  and runs the once-a-second work (`ingest.housekeeping`);
+* **acknowledge** (`ingest.acknowledge`) makes and counts every answer and
+  hands it to the receiving thread;
+* **analyse** (`ingest.analysis_pool`): one process per core decodes and
+  analyses frames; a process that dies is replaced and its frames analysed again;
+* **publish** (`ingest.events`): the event log and the events socket.
 
-No message can stop a thread: each is handled inside a guard that counts,
-logs (rate-limited) and answers a failure.
+Between the stages every module has its own line (`ingest.fairness`), served
+in turns: a module that floods the ship waits behind itself, never in front
+of another module, and one that holds too much on the ship is refused
+``busy``. The messages between the stages are in `ingest.messages`; the
+imports follow the arrows (`lint-imports` checks their order). No message
+can stop a thread: each is handled inside a guard that counts, logs
+(rate-limited) and answers a failure.
 
 Several ingest processes may share one database (PostgreSQL) and one data
 folder, each serving its own set of modules (``modules``; see
@@ -33,18 +41,14 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import os
 import queue
 import secrets
 import socket
 import threading
 import time
 import uuid
-from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -53,56 +57,28 @@ import zmq
 from analysis import FrameConfig
 from camcal.core import __version__, wire
 from camcal.core.calibrations import setup_of
-from camcal.core.frameset import Setup
-from ingest.alarms import AlarmLimits
+from ingest.acknowledge import Acknowledge
+from ingest.alarms import AlarmEvaluator
 from ingest.analysis_pool import AnalysisPool, Job
+from ingest.check import Checker
 from ingest.commit import frame_meta_from_row
+from ingest.config import IngestConfig
+from ingest.context import StoreContext
 from ingest.counters import Counters
 from ingest.events import EventBus
+from ingest.fairness import Credit, FairQueue, sized
 from ingest.gatekeeper import Gatekeeper
-from ingest.network import Incoming, Link, Network
-from ingest.storeloop import run_store_loop
+from ingest.links import Link
+from ingest.messages import Analysed, Checked, DataIn, Note
+from ingest.receive import Receiver
+from ingest.storeloop import StoreLoop
 from storage import queries
 from storage.models import AnalysisRun, Dive
 from storage.store import Store
 
+__all__ = ["IngestConfig", "IngestService"]
+
 log = logging.getLogger("camcal.ingest")
-
-
-@dataclass(frozen=True)
-class IngestConfig:
-    """Settings of one ingest process."""
-
-    data_dir: Path
-    bind: str = "tcp://*:5555"
-    events_bind: str | None = "tcp://127.0.0.1:5556"
-    db_url: str | None = None
-    window: int = 8
-    heartbeat_s: float = 1.0
-    link_timeout_s: float = 5.0
-    ack_batch_s: float = 0.02
-    workers: int = 0
-    max_payload_bytes: int = wire.MAX_PAYLOAD_BYTES
-    fsync: bool = True
-    sqlite_synchronous: str = "FULL"
-    dive_name: str | None = None
-    setup: Setup = field(default_factory=Setup)
-    visit_idle_close_s: float = 60.0  # no frame result for this long: the open λ_att visits are final
-    command_retry_s: float = 3.0
-    retention_days: float | None = None
-    calibration: str | None = None
-    thumbnails: bool = True
-    alarm_limits: AlarmLimits = field(default_factory=AlarmLimits)
-    modules: tuple[str, ...] = ()  # the modules this process serves; empty: any module
-    keys_dir: Path | None = None  # the link's CURVE keys (`camcal.core.wire.keys`)
-    plaintext: bool = False  # no keys, no encryption: a lab bench only, and only when asked for
-
-    @property
-    def n_workers(self) -> int:
-        return self.workers or os.cpu_count() or 1
-
-    def serves(self, module: str) -> bool:
-        return not self.modules or module in self.modules
 
 
 class IngestService:
@@ -123,15 +99,20 @@ class IngestService:
         #: Which ingest this is: a new id at every start, told to each module in ``welcome``.
         self.instance = secrets.token_hex(8)
         self._stop = threading.Event()
-        self._q: queue.Queue[Incoming] = queue.Queue()
-        self.out_endpoint = f"inproc://ingest-out-{uuid.uuid4().hex}"
+        self.answers_endpoint = f"inproc://ingest-answers-{uuid.uuid4().hex}"
         self.counters = Counters()
-        self.network: Network | None = None
-        self.window = config.window
+        self.credit = Credit(config.window)
+        #: The pipeline's lines: received -> check -> store; analyses back to the store.
+        self.checkq: FairQueue[DataIn | Note] = FairQueue(sized)
+        self.storeq: FairQueue[Checked | Note] = FairQueue(sized)
+        self.results_q: queue.SimpleQueue[Analysed] = queue.SimpleQueue()
+        self.acknowledge = Acknowledge(self.ctx, self.answers_endpoint, self.counters, self.credit)
+        self.receiver: Receiver | None = None
+        self.checker: Checker | None = None
+        self.store_ctx: StoreContext | None = None
         self.endpoint = ""
         self.events_endpoint = ""
         self.pub: Any = None
-        self.push: Any = None
         self.events = EventBus(self.store, None)  # publishes once `start` has bound its socket
         self._threads: list[threading.Thread] = []
         thumbs = self.store.files.root / "thumbs"
@@ -145,10 +126,8 @@ class IngestService:
         )
         #: Set once every analysis process has started (imported the analysis).
         self.analysis_ready = self.analysis.ready
-        self.latency_s: deque[float] = deque(maxlen=2000)
         self.started = threading.Event()
         self.error: BaseException | None = None
-        self.disk_free_gb: float | None = None
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -163,6 +142,7 @@ class IngestService:
             self.config = dataclasses.replace(self.config, setup=setup_of(calibration))
         ship_keys = self._link_keys()
         self.store.files.remove_temporaries(self.config.modules)
+        self.store.remove_incomplete_sensor_batches(self.config.modules)
         self.link_ctx = zmq.Context()
         try:
             if ship_keys is not None:  # the ZAP handler first: no handshake may pass unasked
@@ -182,9 +162,9 @@ class IngestService:
         self.endpoint = router.getsockopt(zmq.LAST_ENDPOINT).decode()
         if self.gatekeeper is not None:
             self.gatekeeper.watch(router)
-        pull = self.ctx.socket(zmq.PULL)
-        pull.bind(self.out_endpoint)
-        self._sockets = [router, pull]
+        answers = self.ctx.socket(zmq.PULL)
+        answers.bind(self.answers_endpoint)
+        self._sockets = [router, answers]
         if self.config.events_bind:
             self.pub = self.ctx.socket(zmq.PUB)
             self.pub.setsockopt(zmq.SNDHWM, 10000)
@@ -205,10 +185,52 @@ class IngestService:
         if calibration is not None and self.run.calibration_id != calibration["id"]:
             self.store.use_calibration(self.dive.id, self.run.id, calibration["id"], actor="ingest")
         self.analysis.start()
-        self.network = Network(self, router, pull, self._q, self.gatekeeper)
+        receiver = self.receiver = Receiver(
+            self.config,
+            self.counters,
+            router,
+            answers,
+            self.checkq,
+            dive_name=self.dive.name,
+            instance=self.instance,
+            window=self.credit,
+            gatekeeper=self.gatekeeper,
+        )
+        checker = self.checker = Checker(self.checkq, self.storeq, self.acknowledge, self.counters)
+        self.store_ctx = StoreContext(
+            config=self.config,
+            store=self.store,
+            counters=self.counters,
+            events=self.events,
+            acknowledge=self.acknowledge,
+            alarms=AlarmEvaluator(self.config.alarm_limits),
+            dive_id=self.dive.id,
+            run_id=self.run.id,
+            ingest_id=self.ingest_id,
+            links=receiver.links,
+            analysis=self.analysis,
+            credit=self.credit,
+            backlog=self.backlog,
+            health=self.health,
+        )
+        receive_done, check_done = threading.Event(), threading.Event()
+
+        def receive() -> None:
+            try:
+                receiver.run(self._stop, self.started)
+            finally:
+                receive_done.set()
+
+        def check() -> None:
+            try:
+                checker.run(receive_done)
+            finally:
+                check_done.set()
+
         threads: list[tuple[str, Callable[[], None]]] = [
-            ("ingest-net", lambda: self.network.run(self._stop, self.started)),  # type: ignore[union-attr]
-            ("ingest-store", lambda: run_store_loop(self, self._q, self._stop)),
+            ("ingest-receive", receive),
+            ("ingest-check", check),
+            ("ingest-store", lambda: self._store_thread(check_done)),
         ]
         for name, target in threads:
             t = threading.Thread(target=self._guard(target), name=name, daemon=True)
@@ -221,6 +243,13 @@ class IngestService:
             self.events_endpoint,
             self.dive.name,
         )
+
+    def _store_thread(self, check_done: threading.Event) -> None:
+        assert self.store_ctx is not None
+        self.events.pub = self.pub  # the PUB socket is used by this thread only from now on
+        loop = StoreLoop(self.store_ctx, self.storeq, self.results_q, self.analysis.queue)
+        self.recover_unanalysed()
+        loop.run(self._stop, check_done.is_set)
 
     def _link_keys(self) -> wire.KeyPair | None:
         """The ship's key pair, or None for a plaintext link, which must be asked for explicitly."""
@@ -250,11 +279,12 @@ class IngestService:
         return run
 
     def stop(self, timeout: float = 10.0) -> None:
-        """Stop receiving, finish storing what arrived, wait for running analyses."""
+        """Stop receiving, finish checking and storing what arrived, wait for running analyses."""
         self._stop.set()
         for t in self._threads:
             t.join(timeout)
         self.analysis.stop()
+        self.acknowledge.close()
         if self.gatekeeper is not None:
             self._sockets[0].disable_monitor()
             self.gatekeeper.close()
@@ -270,44 +300,44 @@ class IngestService:
         if self.error is not None:
             raise RuntimeError(f"ingest stopped: {self.error}") from self.error
 
-    # ------------------------------------------------------------ for the store thread
     def send_to_module(self, module: str, msg: Any) -> None:
-        """Queue a message for a module (from the store thread)."""
-        self.push.send_multipart([module.encode(), *wire.encode(msg)])
+        """Send a message to a module (through the receiving thread)."""
+        self.acknowledge.send(module, msg)
 
     def backlog(self) -> int:
-        return self._q.qsize() + len(self.analysis.backlog) + len(self.analysis.suspects)
+        """Messages waiting to be checked, stored or analysed."""
+        return len(self.checkq) + len(self.storeq) + len(self.analysis.backlog) + len(self.analysis.suspects)
+
+    @property
+    def window(self) -> int:
+        return self.credit.value
 
     # -- analysis pool ---------------------------------------------------
-    def queue_analysis(self, frame_id: int, path: str, meta: dict[str, Any]) -> None:
-        self.analysis.queue(Job(frame_id, path, meta))
-
-    def analysis_done(self, n: int) -> None:
-        self.analysis.done(n)
-
-    def analysis_busy(self) -> bool:
-        """Whether analyses are running or waiting (more results are on their way)."""
-        return self.analysis.busy()
-
-    def feed_pool(self) -> None:
-        self.analysis.feed()
-
     def _deliver_result(self, job: Job, fut: Future[Any]) -> None:
-        """In the pool's thread: a finished analysis goes to the store thread's queue."""
-        item = (job.frame_id, job.meta, fut)
-        self._q.put(Incoming("result", job.meta["module"], item, None, time.time(), time.monotonic()))
+        """In the pool's thread: a finished analysis goes back to the store thread."""
+        self.results_q.put(Analysed(job.frame_id, job.meta, fut))
+        self.storeq.wake()
 
     def recover_unanalysed(self) -> None:
         """Frames committed before a crash but never analysed go back in the queue."""
         for f in self.store.call(
             queries.frames_without_result, self.dive.id, self.run.id, modules=self.config.modules
         ):
-            self.queue_analysis(f.id, f.path, frame_meta_from_row(f))
+            self.analysis.queue(Job(f.id, f.path, frame_meta_from_row(f)))
 
     # -- status ----------------------------------------------------------
     @property
     def links(self) -> dict[str, Link]:
-        return self.network.links if self.network else {}
+        return self.receiver.links if self.receiver else {}
+
+    @property
+    def latency_s(self) -> Any:
+        """Seconds from receiving a frame to storing its analysis (the newest 2000)."""
+        return self.store_ctx.latency_s if self.store_ctx else []
+
+    @property
+    def disk_free_gb(self) -> float | None:
+        return self.store_ctx.disk_free_gb if self.store_ctx else None
 
     @property
     def malformed(self) -> dict[str, int]:
@@ -352,6 +382,9 @@ class IngestService:
                 "in_flight": link.in_flight,
                 "clock_offset_s": round(link.clock_offset_s, 3) if link.clock_offset_s is not None else None,
                 "last_seq": link.last_seq,
+                "unanswered": len(link.unanswered),
+                "unanswered_bytes": link.unanswered_bytes,
+                "busy_refused": link.busy_refused,
             }
         counts = self.counters.snapshot()
         return {
@@ -361,7 +394,8 @@ class IngestService:
             "refused_connections": self.gatekeeper.refused.summary() if self.gatekeeper else None,
             "modules": modules,
             "queues": {
-                "store": self._q.qsize(),
+                "check": len(self.checkq),
+                "store": len(self.storeq),
                 "analysis_backlog": len(self.analysis.backlog) + len(self.analysis.suspects),
                 "analysis_in_flight": self.analysis.in_flight,
             },
@@ -379,5 +413,5 @@ class IngestService:
         }
 
 
-def _pct(values: deque[float], q: float) -> float | None:
+def _pct(values: Any, q: float) -> float | None:
     return round(float(np.percentile(list(values), q)), 4) if values else None

@@ -1,45 +1,45 @@
-"""The store thread: the single database writer of an ingest.
+"""Store: the store thread, the single database writer of an ingest.
 
-It drains what the network thread and the analysis pool hand it, in
-batches, and routes each item to its worker: `ingest.commit` (frames and
-sensor messages), `ingest.results` (analysis results), `ingest.housekeeping`
-(links, module state, commands, and the once-a-second tick). Every worker
-call is guarded: a failure is counted and logged (rate-limited) and the
-thread goes on. Data messages are answered by `ingest.commit` even when
-their storing fails.
+It serves the modules in turns (`ingest.fairness`): each turn takes, from
+each module's line, checked data messages worth at most `TURN_ROWS` sensor
+rows (a frame counts `FRAME_ROWS`, a part of a large sensor batch its rows)
+and the module's notes behind them, and commits them in one transaction
+(`ingest.commit`, which answers each through `ingest.acknowledge` and hands
+new frames to the analysis, `ingest.analysis_pool`). A module's batch of
+100 000 rows is stored over fifty turns, and another module's frame is
+stored in the next one. It also stores the analyses that come back
+(`ingest.results`), and does the once-a-second work (`ingest.housekeeping`).
+Every worker call is guarded: a failure is counted and logged
+(rate-limited) and the thread goes on. Data messages are answered by
+`ingest.commit` even when their storing fails.
 """
 
 from __future__ import annotations
 
-import itertools
 import logging
 import queue
 import time
-from collections import defaultdict, deque
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-import numpy as np
-import zmq
-
-from camcal.core.events import EventKind
-from camcal.core.ratelog import RateLimitedLog
-from ingest.alarms import AlarmEvaluator
+from ingest.analysis_pool import Job
+from ingest.check import PART_ROWS
 from ingest.commit import Committer
+from ingest.context import StoreContext
+from ingest.fairness import FairQueue
 from ingest.gaps import Gaps
 from ingest.housekeeping import Housekeeping
-from ingest.network import Incoming
+from ingest.messages import Analysed, Checked, Note
 from ingest.results import Results
-from storage.store import SensorBatchRow
-
-if TYPE_CHECKING:
-    from ingest.service import IngestService
+from ingest.sensorbuf import SensorBuffers
 
 log = logging.getLogger("camcal.ingest")
-Attitude = tuple[float, float, float, float, float, float, float]  # t, acc xyz, gyro xyz
 #: Results stored in one transaction at most, and how long one may wait for others (`store_results`).
 RESULT_BATCH = 16
 RESULT_HOLD_S = 0.25
+#: A module's share of one turn of the store, in sensor rows; what a frame counts.
+TURN_ROWS = PART_ROWS
+FRAME_ROWS = 100
 
 
 def results_due(pending: int, waited_s: float, busy: bool) -> bool:
@@ -49,59 +49,96 @@ def results_due(pending: int, waited_s: float, busy: bool) -> bool:
     return pending > 0 and (not busy or pending >= RESULT_BATCH or waited_s >= RESULT_HOLD_S)
 
 
-class StoreState:
-    """What the store thread's workers share: the service, the store, alarms, sensor buffers."""
+def turn_cost(item: Checked | Note) -> int:
+    """What an item costs of a module's turn (`TURN_ROWS`)."""
+    if isinstance(item, Note):
+        return 1
+    if item.kind == "frame":
+        return FRAME_ROWS
+    return max(1, item.part[1] if item.part is not None else len(item.payload))
 
-    def __init__(self, svc: IngestService) -> None:
-        self.svc = svc
-        self.store = svc.store
-        self.warn = RateLimitedLog(log)
-        self.alarms = AlarmEvaluator(svc.config.alarm_limits)
-        self.sensors: dict[str, deque[Attitude]] = defaultdict(lambda: deque(maxlen=20000))
-        self.last_sensor_event: dict[str, float] = {}
-        self.gaps = Gaps(self)
-        self.results = Results(self)
-        self.housekeeping = Housekeeping(self)
-        self.committer = Committer(self)
-        self.pending_results: list[Incoming] = []  # back from the analysis, not stored yet
+
+class StoreLoop:
+    """The store thread (see the module docstring)."""
+
+    def __init__(
+        self,
+        ctx: StoreContext,
+        storeq: FairQueue[Checked | Note],
+        results_q: queue.SimpleQueue[Analysed],
+        analyse: Callable[[Job], None],
+    ) -> None:
+        self.ctx = ctx
+        self.storeq = storeq
+        self.results_q = results_q
+        self.sensors = SensorBuffers(ctx.alarms, ctx.events)
+        self.gaps = Gaps(ctx.store, ctx.events, ctx.dive_id, ctx.config.serves)
+        self.results = Results(ctx)
+        self.housekeeping = Housekeeping(ctx, self.gaps, self.sensors)
+        self.committer = Committer(
+            ctx.store,
+            dive_id=ctx.dive_id,
+            fsync=ctx.config.fsync,
+            counters=ctx.counters,
+            alarms=ctx.alarms,
+            acknowledge=ctx.acknowledge,
+            events=ctx.events,
+            gaps=self.gaps,
+            sensors=self.sensors,
+            analyse=analyse,
+            guarded=ctx.guarded,
+        )
+        self.pending_results: list[Analysed] = []  # back from the analysis, not stored yet
         self.pending_since = 0.0
 
-    def guarded(self, what: str, fn: Callable[..., Any], *args: Any) -> bool:
-        """Run ``fn(*args)``; a failure is counted and logged, never raised. Returns whether it ran."""
-        try:
-            fn(*args)
-            return True
-        except Exception as exc:
-            self.svc.counters.inc("handler_errors")
-            self.warn(
-                logging.ERROR,
-                f"{what}:{type(exc).__name__}",
-                "ingest: %s failed: %s",
-                what,
-                exc,
-                exc_info=True,
-            )
-            return False
+    def run(self, stop: Any, upstream_done: Callable[[], bool]) -> None:
+        """Until stopped and everything upstream is stored: take turns, store results, tick, publish."""
+        ctx = self.ctx
+        last_tick = 0.0
+        while True:
+            if self.storeq.wait(0.05):
+                time.sleep(ctx.config.ack_batch_s)  # (a few more messages: one fsync for all of them)
+                self.handle(self.storeq.take(TURN_ROWS, cost=turn_cost))
+            self.take_results()
+            ctx.guarded("analysis queue", ctx.analysis.feed)
+            self.store_results()
+            now = time.monotonic()
+            if now - last_tick >= 1.0:
+                last_tick = now
+                self.tick()
+            ctx.guarded("events", ctx.events.flush)
+            if stop.is_set() and upstream_done() and not len(self.storeq) and self.results_q.empty():
+                self.store_results(now=True)
+                break
+        ctx.guarded("counters", self.housekeeping.save_counters)
 
-    def handle(self, items: list[Incoming]) -> None:
-        data = [i for i in items if i.kind in ("frame", "sensors")]
+    def handle(self, items: list[Checked | Note]) -> None:
+        data = [i for i in items if isinstance(i, Checked)]
         if data:
-            self.guarded("commit", self.committer.commit, data)
-        results = [i for i in items if i.kind == "result"]
+            self.ctx.guarded("commit", self.committer.commit, data)
+        hk, g = self.housekeeping, self.ctx.guarded
+        for i in items:
+            if not isinstance(i, Note):
+                continue
+            if i.kind == "link":
+                g("link", hk.link, i)
+            elif i.kind in ("hello", "heartbeat"):
+                g("module state", hk.module_info, i)
+            elif i.kind == "command_status":
+                g("command status", hk.command_status, i)
+
+    def take_results(self) -> None:
+        results = []
+        while True:
+            try:
+                results.append(self.results_q.get_nowait())
+            except queue.Empty:
+                break
         if results:
-            self.svc.analysis_done(len(results))
+            self.ctx.analysis.done(len(results))
             if not self.pending_results:
                 self.pending_since = time.monotonic()
             self.pending_results += results
-            self.store_results()
-        hk = self.housekeeping
-        for i in items:
-            if i.kind == "link":
-                self.guarded("link", hk.link, i)
-            elif i.kind in ("hello", "heartbeat"):
-                self.guarded("module state", hk.module_info, i)
-            elif i.kind == "command_status":
-                self.guarded("command status", hk.command_status, i)
 
     def store_results(self, *, now: bool = False) -> None:
         """Store the results that came back, in one transaction, unless more are about to come.
@@ -116,97 +153,17 @@ class StoreState:
         if not pending:
             return
         if not now and not results_due(
-            len(pending), time.monotonic() - self.pending_since, self.svc.analysis_busy()
+            len(pending), time.monotonic() - self.pending_since, self.ctx.analysis.busy()
         ):
             return
         self.pending_results = []
-        self.guarded("results", self.results.handle, pending)  # a bad result costs only itself
+        self.ctx.guarded("results", self.results.handle, pending)  # a bad result costs only itself
 
-    # -- sensor samples --------------------------------------------------
-    def sensor_samples(self, b: SensorBatchRow) -> None:
-        buf = self.sensors[b.module_id]
-        for s in b.samples:
-            t = s.get("t_unix_s")
-            ax, ay, az = s.get("acc_x_m_s2"), s.get("acc_y_m_s2"), s.get("acc_z_m_s2")
-            if t is None or ax is None or ay is None or az is None:
-                continue
-            buf.append(
-                (
-                    t,
-                    ax,
-                    ay,
-                    az,
-                    s.get("gyro_x_dps") or 0.0,
-                    s.get("gyro_y_dps") or 0.0,
-                    s.get("gyro_z_dps") or 0.0,
-                )
-            )
-            if s.get("humidity_pct") is not None:
-                self.alarms.observe_humidity(b.module_id, t, s["humidity_pct"])
-        if b.samples:
-            last = b.samples[-1]
-            tlast = last.get("t_unix_s") or 0.0
-            if tlast - self.last_sensor_event.get(b.module_id, -1e18) >= 0.5:
-                self.last_sensor_event[b.module_id] = tlast
-                self.svc.events.transient(EventKind.SENSORS, dict(last), module=b.module_id)
-
-    def sensor_tail(self, module: str, window_s: float) -> np.ndarray:
-        """The samples of the last ``window_s`` seconds (rows in time order), without copying the rest.
-
-        Once a second per module: converting the whole buffer (20 000 samples)
-        would cost ~13 ms a module, which 100 modules on one ingest cannot afford.
-        """
-        buf = self.sensors[module]
-        t_from = buf[-1][0] - window_s
-        n = 0
-        for row in reversed(buf):
-            if row[0] < t_from:
-                break
-            n += 1
-        return np.array(list(itertools.islice(reversed(buf), n))[::-1])
-
-
-def run_store_loop(svc: IngestService, q: queue.Queue[Incoming], stop: Any) -> None:
-    """The store thread's loop: drain, handle, feed the analysis pool, tick, publish; until stopped."""
-    push = svc.ctx.socket(zmq.PUSH)
-    push.setsockopt(zmq.LINGER, 1000)
-    push.connect(svc.out_endpoint)
-    svc.push = push
-    svc.events.pub = svc.pub
-    st = StoreState(svc)
-    svc.recover_unanalysed()
-    last_tick = 0.0
-    try:
-        while True:
-            items = _drain(q, svc.config.ack_batch_s, timeout=0.05)
-            if items:
-                st.handle(items)
-            st.guarded("analysis queue", svc.feed_pool)
-            st.store_results()
-            now = time.monotonic()
-            if now - last_tick >= 1.0:
-                last_tick = now
-                st.housekeeping.tick()
-            st.guarded("events", svc.events.flush)
-            if stop.is_set() and q.empty():
-                st.store_results(now=True)
-                break
-        st.guarded("counters", st.housekeeping.save_counters)
-    finally:
-        push.close()
-
-
-def _drain(q: queue.Queue[Incoming], batch_s: float, timeout: float) -> list[Incoming]:
-    try:
-        first = q.get(timeout=timeout)
-    except queue.Empty:
-        return []
-    items = [first]
-    deadline = time.monotonic() + batch_s
-    while len(items) < 64:
-        left = deadline - time.monotonic()
-        try:
-            items.append(q.get(timeout=max(left, 0)) if left > 0 else q.get_nowait())
-        except queue.Empty:
-            break
-    return items
+    def tick(self) -> None:
+        """The once-a-second work; each step guarded apart."""
+        g = self.ctx.guarded
+        self.housekeeping.tick()
+        g("unsaved results", self.results.store_unsaved)
+        g("linearity", self.results.update_linearity)
+        g("visits", self.results.close_idle_visits)
+        g("health", self.housekeeping.publish_health)

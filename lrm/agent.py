@@ -51,6 +51,9 @@ def new_boot_id(now: datetime | None = None) -> str:
 #: Resends of a message the ship refused with ``retry``, before the module gives up on it (not for
 #: a reason that is the ship's own state, ``until_it_works``: those are resent until they are stored).
 MAX_RESENDS = 5
+#: Seconds before a message the ship refused as ``busy`` (it holds enough of this module's data) is
+#: sent again; it is not a failed try.
+BUSY_RETRY_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -406,6 +409,9 @@ class Agent(CommandHandling, Producing):
             return
         key = (msg.boot, msg.seq)
         in_flight.pop(key, None)
+        if msg.reason == "busy":  # the ship holds enough of ours for now: again in a second, no try lost
+            retry_at[key] = time.monotonic() + BUSY_RETRY_S
+            return
         tries[key] += 1
         reason = wire.REASONS.get(msg.reason)
         until_it_works = reason is not None and reason.until_it_works

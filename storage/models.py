@@ -222,6 +222,9 @@ class SensorBatch(Base):
     count: Mapped[int] = mapped_column(Integer)
     received_unix_s: Mapped[float] = mapped_column(Float)
     sha256: Mapped[str | None] = mapped_column(String(64))  # of the payload; None before migration 0004
+    #: False while a large batch is stored a part per turn (`storage.store.Store.commit_batch`): not
+    #: acknowledged yet; a batch a crash left incomplete is removed at the next start and resent.
+    complete: Mapped[bool] = mapped_column(Boolean, default=True, server_default=text("true"))
 
 
 class SensorSample(Base):
@@ -233,6 +236,8 @@ class SensorSample(Base):
     module_id: Mapped[str] = mapped_column(ForeignKey("modules.id"))
     dive_id: Mapped[int | None] = mapped_column(ForeignKey("dives.id"))
     t_unix_s: Mapped[float] = mapped_column(Float)
+    #: The `SensorBatch` (row id) the sample came in (None before migration 0007).
+    batch_id: Mapped[int | None] = mapped_column(BigInteger, index=True)
     # One nullable column per sensor of the wire's definition (`camcal.core.wire.sensors.SENSOR_SPEC`):
     # temperature_c, humidity_pct, acc_{x,y,z}_m_s2, gyro_{x,y,z}_dps, depth_m.
     locals().update(

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
 
-from sqlalchemy import Table, case, insert, select, update
+from sqlalchemy import Table, and_, case, delete, insert, select, true, update
 from sqlalchemy.engine import make_url
 from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session
@@ -78,6 +78,9 @@ class SensorBatchRow:
     received_unix_s: float
     samples: list[dict[str, Any]] = field(default_factory=list)
     sha256: str | None = None
+    #: One part of a large batch, stored a part per turn: (first row, rows, rows of the batch); the
+    #: batch is complete (acknowledged) with its last part. None: the whole batch.
+    part: tuple[int, int, int] | None = None
 
 
 @dataclass
@@ -255,26 +258,17 @@ class Store(AnalysisWrites, OperationsWrites):
                 for fid, mid, boot, seq in s.execute(stmt, rows):
                     new_frames[(mid, boot, int(seq))] = int(fid)
             for b in sensors:
-                stmt = (
-                    self._insert(SensorBatch.__table__)
-                    .values(
-                        module_id=b.module_id,
-                        boot=b.boot,
-                        seq=b.seq,
-                        count=len(b.samples),
-                        received_unix_s=b.received_unix_s,
-                        sha256=b.sha256,
-                    )
-                    .on_conflict_do_nothing(index_elements=["module_id", "boot", "seq"])
-                    .returning(SensorBatch.id)
-                )
-                if s.execute(stmt).first() is None:
+                batch_id = self._sensor_batch(s, b)
+                if batch_id is None:
                     continue
                 new_sensors.append((b.module_id, b.boot, b.seq))
                 if b.samples:
                     s.execute(
                         insert(SensorSample),
-                        [{**smp, "module_id": b.module_id, "dive_id": dive_id} for smp in b.samples],
+                        [
+                            {**smp, "module_id": b.module_id, "dive_id": dive_id, "batch_id": batch_id}
+                            for smp in b.samples
+                        ],
                     )
             stored = list(events)
             if frame_event is not None and new_frames:
@@ -293,6 +287,56 @@ class Store(AnalysisWrites, OperationsWrites):
             duplicate_sensor_batches=[k for k in skeys if k not in new_sensors],
             events=stored,
         )
+
+    def _sensor_batch(self, s: Session, b: SensorBatchRow) -> int | None:
+        """The row of a sensor batch (or of a part of one) to store samples under; None for a batch
+        stored before (a resend). A first part starts an incomplete batch (replacing one a failure
+        left behind), the last part completes it."""
+        key = (SensorBatch.module_id == b.module_id, SensorBatch.boot == b.boot, SensorBatch.seq == b.seq)
+        first, n, total = b.part or (0, len(b.samples), len(b.samples))
+        last = first + n >= total
+        if first > 0:  # a later part of a batch whose first part is stored
+            batch_id = s.scalar(select(SensorBatch.id).where(*key, SensorBatch.complete.is_(False)))
+            if batch_id is None:
+                raise RuntimeError(
+                    f"sensor batch {b.module_id}/{b.boot}/{b.seq}: part {first} without its first"
+                )
+            if last:
+                s.execute(update(SensorBatch).where(SensorBatch.id == batch_id).values(complete=True))
+            return int(batch_id)
+        self._remove_incomplete(s, and_(*key))
+        stmt = (
+            self._insert(SensorBatch.__table__)
+            .values(
+                module_id=b.module_id,
+                boot=b.boot,
+                seq=b.seq,
+                count=total,
+                received_unix_s=b.received_unix_s,
+                sha256=b.sha256,
+                complete=last,
+            )
+            .on_conflict_do_nothing(index_elements=["module_id", "boot", "seq"])
+            .returning(SensorBatch.id)
+        )
+        row = s.execute(stmt).first()
+        return None if row is None else int(row[0])
+
+    @staticmethod
+    def _remove_incomplete(s: Session, where: Any) -> int:
+        """Delete incomplete sensor batches (``where``) and their samples; how many."""
+        ids = list(s.scalars(select(SensorBatch.id).where(where, SensorBatch.complete.is_(False))))
+        if ids:
+            s.execute(delete(SensorSample).where(SensorSample.batch_id.in_(ids)))
+            s.execute(delete(SensorBatch).where(SensorBatch.id.in_(ids)))
+        return len(ids)
+
+    def remove_incomplete_sensor_batches(self, modules: Sequence[str] = ()) -> int:
+        """Sensor batches a stopped ingest left incomplete (never acknowledged: their modules resend
+        them), with their samples; with ``modules``, only theirs. How many."""
+        with self.session() as s:
+            where = SensorBatch.module_id.in_(modules) if modules else true()
+            return self._remove_incomplete(s, where)
 
     def record_gap(self, module_id: str, boot: str, first_seq: int, last_seq: int) -> int:
         with self.session() as s:

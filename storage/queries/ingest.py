@@ -21,9 +21,12 @@ def _checksums_statement() -> Any:
     keys: Any = bindparam("keys", expanding=True)
     parts = [
         select(t.c.module_id, t.c.boot, t.c.seq, t.c.sha256, literal(is_frame).label("is_frame")).where(
-            tuple_(t.c.module_id, t.c.boot, t.c.seq).in_(keys)
+            tuple_(t.c.module_id, t.c.boot, t.c.seq).in_(keys), *extra
         )
-        for t, is_frame in ((Frame.__table__, True), (SensorBatch.__table__, False))
+        for t, is_frame, extra in (
+            (Frame.__table__, True, ()),
+            (SensorBatch.__table__, False, (SensorBatch.__table__.c.complete.is_(True),)),
+        )
     ]
     return union_all(*parts)
 
@@ -34,7 +37,7 @@ _CHECKSUMS = _checksums_statement()
 def stored_checksums(
     s: Session, frame_keys: Sequence[tuple[str, str, int]], sensor_keys: Sequence[tuple[str, str, int]]
 ) -> tuple[dict[tuple[str, str, int], str | None], dict[tuple[str, str, int], str | None]]:
-    """The sha256 of frames and sensor batches already stored under these keys (module, boot, seq).
+    """The sha256 of frames and (complete) sensor batches already stored under these keys (module, boot, seq).
 
     One statement for both tables (a frame and a sensor message share a boot's sequence); keys
     looked up in one table only are dropped from the other's answer."""
@@ -54,7 +57,11 @@ def stored_checksums(
 def known_seqs(s: Session, module_id: str, boot: str) -> set[int]:
     """Every sequence number of a module's boot that is stored (frames and sensor batches)."""
     a = s.scalars(select(Frame.seq).where(Frame.module_id == module_id, Frame.boot == boot))
-    b = s.scalars(select(SensorBatch.seq).where(SensorBatch.module_id == module_id, SensorBatch.boot == boot))
+    b = s.scalars(
+        select(SensorBatch.seq).where(
+            SensorBatch.module_id == module_id, SensorBatch.boot == boot, SensorBatch.complete.is_(True)
+        )
+    )
     return {int(x) for x in a} | {int(x) for x in b}
 
 

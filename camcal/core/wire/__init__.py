@@ -12,7 +12,9 @@ JSON headers and raw bytes only: never pickle.
 * `sensors`: the sensor columns, their units and ranges;
 * `image`: what a frame payload's first bytes say it is;
 * `reasons`: why a message is refused (``nack``), and whether to resend;
-* `codec`: `encode` and `decode`;
+* `codec`: `encode` and `decode` (and `decode` in two halves: `decode_header`, then `check_payload`
+  in steps);
+* `sensorrows`: a sensor payload checked in steps, its rows as an array;
 * `keys`: the link's CURVE keys (ship and modules) and their folder;
 * `sockets`: the ship's and a module's socket (CURVE with keys);
 * `schema`: the JSON Schema of the protocol.
@@ -22,8 +24,11 @@ from camcal.core.wire.codec import (
     ADAPTER,
     Message,
     ProtocolError,
+    check_payload,
     decode,
+    decode_header,
     encode,
+    message_ref,
     parse_sensor_rows,
     sensors_payload,
     sha256_hex,
@@ -84,9 +89,12 @@ __all__ = [
     "SensorsMsg",
     "ShipHeartbeat",
     "Welcome",
+    "check_payload",
     "decode",
+    "decode_header",
     "encode",
     "is_id",
+    "message_ref",
     "module_keys",
     "module_socket",
     "parse_sensor_rows",

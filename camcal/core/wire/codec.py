@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Generator
 from typing import Annotated, Any
 
 import zmq
 from pydantic import BaseModel, Field, TypeAdapter, ValidationError
 
-from camcal.core.wire import dialect, models, sensors
+from camcal.core.wire import dialect, models, sensorrows, sensors
 from camcal.core.wire.image import ImageHeaderError, check_frame
 from camcal.core.wire.limits import MAX_HEADER_BYTES, MAX_PAYLOAD_BYTES
 from camcal.core.wire.models import (
@@ -36,6 +37,8 @@ Message = Annotated[
 ADAPTER: TypeAdapter[Any] = TypeAdapter(Message)
 #: A sensor payload is a list of rows of numbers: depth 2.
 _SENSOR_DEPTH = 2
+#: Bytes of payload hashed per step of `check_payload`.
+_HASH_STEP = 4 * 1024 * 1024
 
 
 class ProtocolError(Exception):
@@ -97,6 +100,30 @@ def decode(
     checked rows (dicts keyed by every known column) for ``sensors``, None
     for the rest. Nothing but `ProtocolError` escapes, whatever the bytes.
     """
+    msg, payload = decode_header(frames, allowed=allowed, max_payload_bytes=max_payload_bytes)
+    if payload is None:
+        return msg, None
+    ref = message_ref(msg)
+    if sha256_hex(payload) != msg.sha256:
+        raise ProtocolError("bad_payload", "payload sha256 does not match the header", ref)
+    if msg.type == "frame":
+        _check_image(msg, payload, ref)
+        return msg, payload
+    return msg, _sensor_rows(msg, payload, ref)
+
+
+def decode_header(
+    frames: list[bytes] | list[zmq.Frame] | list[bytes | memoryview],
+    *,
+    allowed: frozenset[str] | None = None,
+    max_payload_bytes: int = MAX_PAYLOAD_BYTES,
+) -> tuple[Any, memoryview | None]:
+    """The checks of `decode` that read the header only (and the payload's length); returns
+    ``(message, payload)`` with the payload unchecked (`check_payload` checks it).
+
+    Cheap whatever the payload: a ship's receiving thread runs it on every message and leaves the
+    payload's checks (a checksum, an image header, up to 100 000 sensor rows) to `check_payload`.
+    """
     if not 1 <= len(frames) <= 2:
         raise ProtocolError("bad_framing", f"expected 1 or 2 frames, got {len(frames)}")
     raw = [f.buffer if isinstance(f, zmq.Frame) else memoryview(f) for f in frames]
@@ -138,15 +165,48 @@ def decode(
         raise ProtocolError("oversized", f"payload of {len(payload)} bytes exceeds {max_payload_bytes}", ref)
     if len(payload) != msg.size:
         raise ProtocolError("bad_payload", f"payload has {len(payload)} bytes, header says {msg.size}", ref)
-    if sha256_hex(payload) != msg.sha256:
+    return msg, payload
+
+
+def check_payload(msg: Any, payload: memoryview | bytes) -> Generator[None, None, Any]:
+    """The payload checks of `decode`, in steps (a generator: each ``next`` does a few milliseconds of
+    work); returns the image bytes of a ``frame``, or the rows of a ``sensors`` message as an array
+    (`camcal.core.wire.sensorrows.rows_array`). Raises `ProtocolError` naming what is wrong."""
+    ref = message_ref(msg)
+    digest = hashlib.sha256()
+    view = memoryview(payload)
+    for at in range(0, len(view), _HASH_STEP):
+        digest.update(view[at : at + _HASH_STEP])
+        yield
+    if digest.hexdigest() != msg.sha256:
         raise ProtocolError("bad_payload", "payload sha256 does not match the header", ref)
-    if kind == "frame":
-        try:
-            check_frame(payload, msg.encoding, msg.width_px, msg.height_px)
-        except ImageHeaderError as exc:
-            raise ProtocolError("bad_image", str(exc), ref) from None
-        return msg, payload
-    return msg, _sensor_rows(msg, payload, ref)
+    if msg.type == "frame":
+        _check_image(msg, payload, ref)
+        return payload
+    problem = sensors.check_columns(msg.columns)
+    if problem:
+        raise ProtocolError("invalid_field", f"sensors: {problem}", ref)
+    try:
+        return (yield from sensorrows.check_steps(msg.columns, payload, msg.count))
+    except sensorrows.PayloadError as exc:
+        raise ProtocolError("invalid_field", f"sensors payload: {exc}"[:300], ref) from None
+
+
+def message_ref(msg: Any) -> dict[str, Any]:
+    """What names a message in its refusal: type, module, boot, seq (where it has them)."""
+    return {
+        "type": msg.type,
+        "module": msg.module,
+        "boot": getattr(msg, "boot", None),
+        "seq": getattr(msg, "seq", None),
+    }
+
+
+def _check_image(msg: Any, payload: memoryview | bytes, ref: dict[str, Any]) -> None:
+    try:
+        check_frame(payload, msg.encoding, msg.width_px, msg.height_px)
+    except ImageHeaderError as exc:
+        raise ProtocolError("bad_image", str(exc), ref) from None
 
 
 def _sensor_rows(msg: SensorsMsg, payload: memoryview | bytes, ref: dict[str, Any]) -> list[dict[str, Any]]:

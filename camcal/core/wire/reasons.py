@@ -55,6 +55,13 @@ _ALL = (
         until_it_works=True,
     ),
     Reason(
+        "busy",
+        True,
+        "the ship holds too much of this module's data not yet stored (a flood): resend it once "
+        "earlier messages are acknowledged, after a pause; nothing is wrong with the message",
+        until_it_works=True,
+    ),
+    Reason(
         "conflict",
         False,
         "this (module, boot, seq) is stored with other content; the ship keeps the first and raises an alarm",

@@ -56,17 +56,20 @@ def check_columns(columns: tuple[str, ...]) -> str | None:
     return None
 
 
-def check_rows(columns: tuple[str, ...], rows: Any, count: int) -> list[dict[str, float | None]]:
+def check_rows(
+    columns: tuple[str, ...], rows: Any, count: int, *, first_row: int = 0
+) -> list[dict[str, float | None]]:
     """The rows of a payload as dicts of the known columns (all of them, missing ones None).
 
-    Raises ``ValueError`` naming the first row and column that is wrong.
+    Raises ``ValueError`` naming the first row and column that is wrong (``first_row``: the number
+    of the first of ``rows`` in the whole payload, when they are a part of it).
     """
     if not isinstance(rows, list) or len(rows) != count:
         raise ValueError(f"payload must be a list of {count} rows")
     width = len(columns)
     known = [(i, _BY_NAME[name]) for i, name in enumerate(columns) if name in _BY_NAME]
     out = []
-    for r, row in enumerate(rows):
+    for r, row in enumerate(rows, start=first_row):
         if not isinstance(row, list) or len(row) != width:
             raise ValueError(f"row {r}: must be a list of {width} values")
         sample: dict[str, float | None] = dict.fromkeys(SENSOR_COLUMNS)

@@ -27,12 +27,9 @@ from camcal.core import wire
 from camcal.core.ratelog import RateLimitedLog
 from ingest.acknowledge import Acknowledge
 from ingest.fairness import FairQueue
-from ingest.messages import Checked, DataIn, Note
+from ingest.messages import PART_ROWS, Checked, DataIn, Note
 
 log = logging.getLogger("camcal.ingest")
-
-#: Rows of a sensor batch the store commits in one turn (a larger batch goes in parts).
-PART_ROWS = 2000
 
 
 class Checker:

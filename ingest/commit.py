@@ -16,7 +16,7 @@ message gets exactly one answer:
   must never cost a module its frames: those are refused ``internal_error``
   every time, and the module resends them once the ship recovers.
 
-A sensor batch the checking stage split in parts (`ingest.check.PART_ROWS`
+A sensor batch the checking stage split in parts (`ingest.messages.PART_ROWS`
 rows each) is committed a part per turn, each part beside the other
 modules' messages; it is answered with its last part. A resend of a stored
 batch, or a conflict, is told by its first part, and the parts after it are

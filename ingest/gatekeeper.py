@@ -14,7 +14,7 @@ something that does not speak ZMTP at all). Each refused connection is
 counted and remembered by its source, so the dashboard shows "refused
 connections" once, with counts, instead of a module or an alarm per try;
 the log says each source once and then at most once every ten seconds.
-Both sockets are polled by the network thread (`ingest.network`): nothing
+Both sockets are polled by the receiving thread (`ingest.receive`): nothing
 here runs on a thread of its own.
 """
 

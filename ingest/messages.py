@@ -28,6 +28,8 @@ from camcal.core import wire
 from camcal.core.wire.reasons import REASONS
 
 Key = tuple[str, str, int]  # module, boot, seq: a data message's identity forever
+#: Rows of a sensor batch the store commits in one turn: a larger batch goes in parts (`Checked.part`).
+PART_ROWS = 2000
 
 
 @dataclass

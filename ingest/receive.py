@@ -40,7 +40,7 @@ from ingest.messages import DataIn, Note, nack
 
 if TYPE_CHECKING:
     from ingest.gatekeeper import Gatekeeper
-    from ingest.service import IngestConfig
+    from ingest.config import IngestConfig
 
 log = logging.getLogger("camcal.ingest")
 

@@ -23,13 +23,12 @@ from collections.abc import Callable
 from typing import Any
 
 from ingest.analysis_pool import Job
-from ingest.check import PART_ROWS
 from ingest.commit import Committer
 from ingest.context import StoreContext
 from ingest.fairness import FairQueue
 from ingest.gaps import Gaps
 from ingest.housekeeping import Housekeeping
-from ingest.messages import Analysed, Checked, Note
+from ingest.messages import PART_ROWS, Analysed, Checked, Note
 from ingest.results import Results
 from ingest.sensorbuf import SensorBuffers
 

@@ -159,6 +159,7 @@ def ingest(
         workers=s.workers,
         window=s.window,
         max_payload_bytes=int(s.max_payload_mb * 1024 * 1024),
+        module_queue_bytes=int(s.module_queue_mb * 1024 * 1024),
         fsync=s.fsync,
         sqlite_synchronous=s.sqlite_synchronous,
         alarm_limits=alarm_limits(s),

@@ -131,6 +131,12 @@ class Settings(BaseSettings):
     max_payload_mb: float = Field(
         32.0, gt=0, le=1024, description="largest frame or sensor payload a module may send (MiB)"
     )
+    module_queue_mb: float = Field(
+        64.0,
+        gt=0,
+        le=65536,
+        description="data of one module the ingest holds not yet stored (MiB); more is refused busy",
+    )
     fsync: bool = Field(True, description="fsync frame files before acknowledging them")
     sqlite_synchronous: str = Field(
         "FULL", pattern="^(OFF|NORMAL|FULL|EXTRA)$", description="SQLite durability"

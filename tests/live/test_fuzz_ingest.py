@@ -115,14 +115,19 @@ class Oracle:
         self.stored: dict[tuple[str, int], str] = {}  # (boot, seq) -> sha256 of what was acknowledged
 
     def expected(self, parts: list[bytes]) -> tuple[str, str | None] | None:
+        # In the document's order: the header, the sender, the dive, then a data message's payload.
         try:
-            msg, _ = wire.decode(parts, allowed=wire.MODULE_TYPES)
+            msg, _ = wire.decode_header(parts, allowed=wire.MODULE_TYPES)
         except wire.ProtocolError as exc:
             return ("nack", exc.kind)
         if msg.module != MODULE:
             return ("nack", "wrong_identity")
         if msg.dive is not None and msg.dive != self.dive:
             return ("nack", "wrong_dive")
+        try:
+            wire.decode(parts, allowed=wire.MODULE_TYPES)
+        except wire.ProtocolError as exc:
+            return ("nack", exc.kind)
         if msg.type == "hello":
             return ("welcome", None)
         if msg.type in ("frame", "sensors"):

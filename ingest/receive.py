@@ -39,8 +39,8 @@ from ingest.links import CLOCK_MIN_BEATS, Link
 from ingest.messages import DataIn, Note, nack
 
 if TYPE_CHECKING:
-    from ingest.gatekeeper import Gatekeeper
     from ingest.config import IngestConfig
+    from ingest.gatekeeper import Gatekeeper
 
 log = logging.getLogger("camcal.ingest")
 

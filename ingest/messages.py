@@ -52,24 +52,12 @@ class DataIn:
 
 
 @dataclass
-class Checked:
-    """A data message whose payload passed its checks; or part ``part`` = (first row, rows, of rows) of a
+class Checked(DataIn):
+    """A data message whose payload passed its checks (``payload``: the image bytes of a frame, the
+    rows x SENSOR_COLUMNS array of a sensor batch); or part ``part`` = (first row, rows, of rows) of a
     sensor batch that the store commits over several turns (None: all of it at once)."""
 
-    msg: Any
-    payload: Any  # the image bytes of a frame; the sensor rows (rows x SENSOR_COLUMNS array) of a batch
-    received_unix_s: float
-    received_mono: float
-    nbytes: int
     part: tuple[int, int, int] | None = None
-
-    @property
-    def module(self) -> str:
-        return str(self.msg.module)
-
-    @property
-    def key(self) -> Key:
-        return (self.msg.module, self.msg.boot, self.msg.seq)
 
     @property
     def kind(self) -> str:

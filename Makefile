@@ -8,6 +8,8 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 DATA   ?= camcal-data
 PORT   ?= 8000
+INGEST_PORT ?= 5555
+EVENTS_PORT ?= 5556
 
 CORE   := .venv-core
 
@@ -19,8 +21,11 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[all,test]'
 	touch $(STAMP)
 
+# Every port camcal up listens on is a variable here; CAMCAL_PORT_VARIABLES tells it their names,
+# so that a port in use is answered with the variable to change (`make run INGEST_PORT=5565`).
 run: $(STAMP)
-	$(BIN)/camcal up --data $(DATA) --port $(PORT)
+	CAMCAL_PORT_VARIABLES="--port=PORT --ingest-port=INGEST_PORT --events-port=EVENTS_PORT" \
+	  $(BIN)/camcal up --data $(DATA) --port $(PORT) --ingest-port $(INGEST_PORT) --events-port $(EVENTS_PORT)
 
 demo: $(STAMP)
 	$(BIN)/camcal demo --out demo-output

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import json
 import shutil
-import socket
+import sys
+import time
+from collections import Counter
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -12,7 +14,7 @@ import typer
 from rich.table import Table
 from rich.text import Text
 
-from camcal.cli.common import console, fail
+from camcal.cli.common import DataOption, console, fail
 from camcal.cli.config import settings_or_fail
 from camcal.core.events import Event
 
@@ -36,10 +38,21 @@ def _port_of(endpoint: str) -> tuple[str, int] | None:
         return None
 
 
-def _listening(host: str, port: int) -> bool:
-    with socket.socket() as s:
-        s.settimeout(1.0)
-        return s.connect_ex((host, port)) == 0
+def check_ingest_port(s: Settings) -> list[tuple[str, str, str]]:
+    """Whether something listens on the ingest's port, read from /proc/net/tcp: never by connecting
+    (a connection without the link's handshake is what the ingest counts, and the deck sees, as a
+    refused connection)."""
+    from camcal.core import procinfo
+
+    port = _port_of(s.ingest_bind)
+    if port is None:
+        return []
+    if not procinfo.PROC.is_dir():
+        return [("ingest port", OK, f"{port[1]} not looked at (no /proc here): the heartbeat below tells")]
+    if not procinfo.port_uses(port[1]):
+        return [("ingest port", FAIL, f"nothing listens on {port[1]}: start `camcal ingest`")]
+    holder = procinfo.describe_holder(port[1])
+    return [("ingest port", OK, f"{port[1]} is listened on" + (f" by {holder}" if holder else ""))]
 
 
 def check_data(s: Settings) -> list[tuple[str, str, str]]:
@@ -97,12 +110,7 @@ def check_ingest(s: Settings, wait_s: float) -> tuple[list[tuple[str, str, str]]
 
     from camcal.core.settings import endpoint_list
 
-    out = []
-    port = _port_of(s.ingest_bind)
-    if port and _listening(*port):
-        out.append(("ingest port", OK, f"something listens on {port[0]}:{port[1]}"))
-    elif port:
-        out.append(("ingest port", FAIL, f"nothing listens on {port[1]}: start `camcal ingest`"))
+    out = check_ingest_port(s)
     health = None
     ctx: Any = zmq.Context.instance()
     sub = ctx.socket(zmq.SUB)
@@ -258,12 +266,17 @@ def check_http(s: Settings) -> list[tuple[str, str, str]]:
 
 
 def check_processes(s: Settings) -> list[tuple[str, str, str]]:
-    """camcal's processes on this machine and the ports they hold; those left behind are a warning."""
+    """camcal's processes on this machine and the ports they hold; those left behind by this
+    installation are a warning (with how to stop them). Those of another installation (another
+    venv: a colleague's checkout, another deployment) are listed as such and never to be killed
+    from here: only one holding a port this deployment uses is a warning."""
     from camcal.core import procinfo
 
     wanted = {p for p in (_port_of(s.ingest_bind), _port_of(s.events_connect.split(",")[0])) if p}
     configured = {port for _, port in wanted} | {s.http_port}
+    ours = Path(sys.prefix).resolve()
     rows = []
+    others: dict[Path, list[str]] = {}  # another installation's processes: counted, never to be killed here
     for c in procinfo.camcal_processes():
         p = c.process
         age = procinfo.age_s(p)
@@ -272,19 +285,93 @@ def check_processes(s: Settings) -> list[tuple[str, str, str]]:
         running = f", running {age / 60:.0f} min" if age is not None else ""
         command = f": {procinfo.short(c.args, 70)}" if c.args else ""
         detail = f"{c.kind} (parent {p.ppid}{running}){ports}{command}"
-        if c.leftover:
-            fix = f"; it holds the configured port {', '.join(map(str, clash))}" if clash else ""
+        held = ", ".join(map(str, clash))
+        if c.installation is not None and c.installation != ours:
+            if clash:
+                other = f"of another camcal installation ({c.installation})"
+                fix = f"; it holds port {held}, which this deployment uses: ask its owner, or use other ports"
+                rows.append((f"process {p.pid}", WARN, f"{other}{fix}. {detail}"))
+            else:
+                others.setdefault(c.installation, []).append(c.kind)
+        elif c.leftover:
+            fix = f"; it holds the configured port {held}" if clash else ""
             rows.append(
                 (f"process {p.pid}", WARN, f"left behind: {c.leftover}{fix}; stop it: kill {p.pid}. {detail}")
             )
         else:
             rows.append((f"process {p.pid}", OK, detail))
+    for where, kinds in sorted(others.items()):
+        count = ", ".join(f"{n} {k}" for k, n in sorted(Counter(kinds).items()))
+        rows.append(
+            ("other camcal", OK, f"{count} of another installation ({where}): not this one's to stop")
+        )
     if not rows:
         rows.append(("processes", OK, "no camcal process runs on this machine"))
     return rows
 
 
+def running_settings(s: Settings) -> tuple[Settings, list[tuple[str, str, str]]]:
+    """The settings of the system that runs on this data folder (its run files, `camcal.core.runfile`),
+    over ``s``: a `camcal up --port 8123 --ingest-port 5565` is checked on its own ports, whatever the
+    environment says. With the row that says which services run and what differs from ``s``."""
+    from camcal.core import runfile
+
+    services = runfile.running(s.data_dir)
+    if not services:
+        return s, [("running system", OK, f"no camcal service has announced itself in {s.data_dir}: "
+                    "checked with the settings above")]  # fmt: skip
+    update: dict[str, Any] = {}
+    ingests = [r for r in services if r.service == "ingest"]
+    for r in services:  # oldest first; `camcal up` says it all, its own ingest the same again
+        st = r.settings
+        if "http_port" in st:
+            update["http_host"], update["http_port"] = st["http_host"], int(st["http_port"])
+        if st.get("events_connect") and st["events_connect"] != "none":
+            update["events_connect"] = st["events_connect"]
+    up = [r for r in services if r.service == "up"]
+    if up:
+        update["ingest_bind"] = up[-1].settings["ingest_bind"]
+        update["events_connect"] = up[-1].settings["events_connect"]
+    elif ingests:
+        update["ingest_bind"] = ingests[-1].settings["ingest_bind"]
+        update.setdefault(
+            "events_connect",
+            ",".join(_local(r.settings["events_bind"]) for r in ingests if r.settings.get("events_bind")),
+        )
+    differs = [
+        f"{key} {update[key]} (your settings: {getattr(s, key)})"
+        for key in ("http_port", "ingest_bind", "events_connect")
+        if key in update and str(update[key]) != str(getattr(s, key))
+    ]
+    since = ", ".join(
+        f"camcal {r.service} (pid {r.pid}, since {_hms(r.started_unix_s)} UTC)" for r in services
+    )
+    note = f"; checked on its own settings: {'; '.join(differs)}" if differs else ""
+    return s.model_copy(update=update), [("running system", OK, f"{since} in {s.data_dir}{note}")]
+
+
+def running_operators(s: Settings) -> list[str]:
+    """The operators (names, never tokens) the running dashboard lets in, as its run file says."""
+    from camcal.core import runfile
+
+    names = [n for r in runfile.running(s.data_dir) for n in r.settings.get("operators") or []]
+    return sorted(set(names))
+
+
+def _hms(unix_s: float) -> str:
+    return time.strftime("%H:%M:%S", time.gmtime(unix_s))
+
+
+def _local(endpoint: str) -> str:
+    """Where to connect to a bound endpoint from this machine (``tcp://*:5556`` -> ``tcp://127.0.0.1:5556``)."""
+    for anywhere in ("tcp://*:", "tcp://0.0.0.0:"):
+        if endpoint.startswith(anywhere):
+            return "tcp://127.0.0.1:" + endpoint[len(anywhere) :]
+    return endpoint
+
+
 def doctor(
+    data: DataOption = None,
     config: Annotated[Path | None, typer.Option(help="A TOML configuration file [CAMCAL_CONFIG].")] = None,
     wait: Annotated[float, typer.Option(help="Seconds to wait for the ingest's heartbeat.")] = 3.0,
     check: Annotated[
@@ -295,14 +382,19 @@ def doctor(
     ] = None,
 ) -> None:
     """Check the configuration, data folder, disk, database, ingest, modules, dashboard, and list camcal's
-    processes (with the ports they hold; those left behind by a camcal that ended are a warning)."""
-    s = settings_or_fail(config)
+    processes (with the ports they hold; those left behind by a camcal that ended are a warning).
+
+    A camcal running on the data folder is checked on its own settings (the ports it was started
+    with, from its run file in DATA/run/), and only looked at: nothing connects to the modules' port
+    (the ingest would count a refused connection), nothing is stopped."""
+    s = settings_or_fail(config, data_dir=data)
     checks = ("data", "database", "ingest", "modules", "dashboard", "processes")
     wanted = set(check or checks)
     unknown = wanted - set(checks)
     if unknown:
         raise fail(f"unknown check(s): {', '.join(sorted(unknown))} (the checks: {', '.join(checks)})")
-    rows = [("configuration", OK, "loaded")]
+    s, running = running_settings(s)
+    rows = [("configuration", OK, "loaded"), *running]
     if "data" in wanted:
         rows += check_data(s)
     if "database" in wanted:
@@ -317,7 +409,10 @@ def doctor(
         rows += check_http(s)
     if "processes" in wanted:
         rows += check_processes(s)
-    if not s.operator_tokens and check is None:
+    operators = running_operators(s)
+    if operators:
+        rows.append(("operator tokens", OK, f"the running dashboard lets in: {', '.join(operators)}"))
+    elif not s.operator_tokens and check is None:
         rows.append(
             ("operator tokens", WARN, "none configured: nobody can send commands (CAMCAL_OPERATOR_TOKENS)")
         )

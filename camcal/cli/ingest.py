@@ -15,7 +15,7 @@ import typer
 
 from camcal.cli.common import DataOption, DbUrlOption, console, fail
 from camcal.cli.config import settings_or_fail
-from camcal.core import supervise
+from camcal.core import runfile, supervise
 from camcal.core.logs import configure_logging
 
 if TYPE_CHECKING:
@@ -188,9 +188,20 @@ def ingest(
         events=svc.events_endpoint,
         dive=svc.dive.name,
     )
+    run_file = runfile.write(
+        s.data_dir,
+        "ingest",
+        {
+            "ingest_bind": svc.endpoint,
+            "events_bind": svc.events_endpoint,
+            "modules": list(served),
+            "link_plaintext": s.link_plaintext,
+        },
+    )  # what `camcal doctor` checks
     while not done.wait(0.5):
         if svc.error is not None:
             break
+    runfile.remove(run_file)
     svc.stop(timeout=4.0)  # what did not finish by then is safe: modules resend what was not acknowledged
     if svc.error is not None:
         raise fail(f"ingest stopped after an error: {svc.error}", code=supervise.EXIT_FAILED)

@@ -15,7 +15,7 @@ import typer
 from camcal.cli.common import DataOption, DbUrlOption, console, fail
 from camcal.cli.config import settings_or_fail
 from camcal.cli.credentials import operator_tokens
-from camcal.core import supervise
+from camcal.core import runfile, supervise
 from camcal.core.logs import configure_logging
 
 if TYPE_CHECKING:
@@ -220,8 +220,19 @@ def serve(
         raise fail(str(exc), code=supervise.EXIT_NOT_STARTED) from None
     console.print(f"camcal server: {http.url}  (API docs at /docs; data {s.data_dir})")
     supervise.notify_ready(f"dashboard on {http.url}", url=http.url)
+    run_file = runfile.write(
+        s.data_dir,
+        "serve",
+        {
+            "http_host": s.http_host,
+            "http_port": s.http_port,
+            "events_connect": s.events_connect,
+            "operators": sorted(tokens),  # their names: a token is never written down
+        },
+    )  # what `camcal doctor` checks
     while not stop.wait(0.5) and http.alive():
         pass
+    runfile.remove(run_file)
     http.stop()
     if not stop.is_set():
         raise fail(f"the dashboard stopped by itself ({http.error!r}); see the log above", code=1)

@@ -26,7 +26,7 @@ from camcal.cli.common import console, err_console, fail, labelled
 from camcal.cli.config import settings_or_fail
 from camcal.cli.credentials import child_environment, ship_key, simulated_link, tokens_or_generated
 from camcal.cli.serve import HttpServer, bind_http, stop_signals
-from camcal.core import supervise
+from camcal.core import runfile, supervise
 from camcal.core.logs import configure_logging
 
 if TYPE_CHECKING:
@@ -99,13 +99,13 @@ def up(
     # Every port first: a taken one is one line naming who holds it, before anything starts.
     try:
         for endpoint, part, setting in (
-            (ingest_bind, "ingest", "--ingest-port"),
-            (events, "ingest's event publisher", "--events-port"),
+            (ingest_bind, "ingest", port_setting("--ingest-port")),
+            (events, "ingest's event publisher", port_setting("--events-port")),
         ):
             supervise.check_endpoint(endpoint, part=part, setting=setting)
     except supervise.PortInUse as exc:
         raise fail(str(exc), code=supervise.EXIT_NOT_STARTED) from None
-    http_sock = bind_http(s, "--port (CAMCAL_HTTP_PORT)")
+    http_sock = bind_http(s, port_setting("--port", "CAMCAL_HTTP_PORT"))
     data_dir = s.data_dir
     logs = data_dir / "logs"
     try:
@@ -130,6 +130,19 @@ def up(
     parts = "the ingest, the dashboard" + (f" and modules {' and '.join(MODULES)}" if profile else "")
     console.print(f"starting {parts} (data in {data_dir}) ...")
     console.print(dive_line)
+    run_file = runfile.write(
+        data_dir,
+        "up",
+        {
+            "http_host": s.http_host,
+            "http_port": s.http_port,
+            "ingest_bind": ingest_bind,
+            "modules_connect": connect,
+            "events_bind": events,
+            "events_connect": events,
+            "operators": sorted(tokens),  # their names: a token is never written down
+        },
+    )  # what `camcal doctor` checks: these options, not the defaults
     try:
         t_spawn = time.monotonic()
         ingest = sup.spawn(
@@ -180,8 +193,23 @@ def up(
         sup.stop([modules, [c for c in sup.children if c not in modules]], STOP_S)
         if http is not None:  # whatever is left of it ends with this process
             http.stop(max(0.1, STOP_S + 1.0 - (time.monotonic() - t_stop)))
+        runfile.remove(run_file)
         console.print("stopped: " + ", ".join(f"{c.name} ({c.proc.returncode})" for c in sup.children))
     raise typer.Exit(code)
+
+
+#: Set by `make run`: the make variable of each port option ("--port=PORT --ingest-port=INGEST_PORT ...").
+PORT_VARIABLES = "CAMCAL_PORT_VARIABLES"
+
+
+def port_setting(option: str, env: str | None = None) -> str:
+    """How to choose another port: the option, its environment variable, and under `make run` the
+    make variable that sets it (``--ingest-port (make run INGEST_PORT=...)``)."""
+    words = dict(w.partition("=")[::2] for w in os.environ.get(PORT_VARIABLES, "").split())
+    also = [env] if env else []
+    if words.get(option):
+        also.append(f"make run {words[option]}=...")
+    return f"{option} ({', '.join(also)})" if also else option
 
 
 def ingest_args(data_dir: Path, bind: str, events: str, dive: str) -> list[str]:

@@ -93,7 +93,7 @@ def _socket_inodes(pid: int) -> set[int]:
     return out
 
 
-def _boot_time_unix_s() -> float | None:
+def boot_time_unix_s() -> float | None:
     try:
         for line in (PROC / "stat").read_text().splitlines():
             if line.startswith("btime "):
@@ -123,7 +123,7 @@ def process(pid: int, boot_unix_s: float | None = None) -> Process | None:
 
 def processes() -> list[Process]:
     """Every process this user can see (zombies left out)."""
-    boot = _boot_time_unix_s()
+    boot = boot_time_unix_s()
     out = []
     for entry in PROC.iterdir() if PROC.is_dir() else []:
         if entry.name.isdigit():
@@ -205,6 +205,7 @@ class CamcalProcess:
     kind: str
     leftover: str = ""
     args: str = ""  # a camcal command's words after ``camcal``
+    installation: Path | None = None  # the venv it runs from, where that can be told (`installation`)
 
 
 def _environ(pid: int) -> dict[str, str]:
@@ -243,6 +244,26 @@ def _kind(p: Process) -> tuple[str, str] | None:
     return None
 
 
+def installation(p: Process) -> Path | None:
+    """The Python environment (venv) ``p`` runs from: the folder above the ``bin/`` of its interpreter
+    or script when a ``pyvenv.cfg`` marks it; None when that cannot be told (a system interpreter,
+    a process of another user)."""
+    try:
+        cwd = os.readlink(PROC / str(p.pid) / "cwd")
+    except OSError:
+        cwd = None
+    for word in p.argv[:2]:
+        if "/" not in word or (cwd is None and not word.startswith("/")):
+            continue
+        path = Path(
+            os.path.normpath(os.path.join(cwd or "/", word))
+        )  # never resolved: a venv's python is a link
+        root = path.parent.parent
+        if path.parent.name == "bin" and (root / "pyvenv.cfg").is_file():
+            return root.resolve()
+    return None
+
+
 def camcal_processes() -> list[CamcalProcess]:
     """camcal's processes on this machine, with the ports they hold and those that look left behind.
 
@@ -263,6 +284,7 @@ def camcal_processes() -> list[CamcalProcess]:
             del found[pid]
     for c in found.values():
         p = c.process
+        c.installation = installation(p)
         parent = found.get(p.ppid)
         if c.kind == "analysis fork server" and parent is not None and parent.kind == c.kind:
             c.kind = "analysis worker"

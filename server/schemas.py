@@ -337,6 +337,7 @@ class AuditEntryPublic(BaseModel):
     action: str
     target: str
     details: Stored
+    what: str = Field(description="what happened, in words (as the review page and the CSV exports say it)")
 
 
 class CalibrationPublic(BaseModel):

@@ -14,7 +14,9 @@ import pyarrow.parquet as pq
 from sqlalchemy import select, true
 
 from camcal.core.files import write_whole
+from camcal.core.utctime import iso_utc
 from storage import queries
+from storage.audit import describe
 from storage.base import now_unix_s
 from storage.models import (
     Alarm,
@@ -76,21 +78,48 @@ def dive_tables(store: Store, dive_id: int, run_id: int | None = None) -> dict[s
             cols = _columns(LinearityCheck)
             rows = s.execute(select(*cols).where(LinearityCheck.run_id == run_id)).all()
             out["linearity"] = _table([c.name for c in cols], rows)
-        logs: tuple[tuple[str, Any, Any], ...] = (
-            ("alarms", Alarm, Alarm.raised_unix_s.between(t0, t1)),
-            ("audit_log", AuditEntry, AuditEntry.t_unix_s.between(t0, t1)),
+        cols = _columns(Alarm)
+        when = Alarm.raised_unix_s.between(t0, t1)
+        out["alarms"] = _table(
+            [c.name for c in cols], s.execute(select(*cols).where(when).order_by(Alarm.id)).all()
         )
-        for name, model, when in logs:
-            cols = _columns(model)
-            out[name] = _table(
-                [c.name for c in cols], s.execute(select(*cols).where(when).order_by(model.id)).all()
-            )
+        out["audit_log"] = _audit_table(
+            s.scalars(select(AuditEntry).where(AuditEntry.t_unix_s.between(t0, t1)).order_by(AuditEntry.id))
+        )
     return out
+
+
+def _audit_table(entries: Any) -> pa.Table:
+    """The audit log as the review page shows it: each entry with what happened in words (``what``)
+    and its whole record (``details``, JSON)."""
+    names = ["id", "t_unix_s", "actor", "action", "target"]
+    rows = []
+    for a in entries:
+        entry = {n: getattr(a, n) for n in names} | {"details": a.details}
+        rows.append(
+            (*(entry[n] for n in names), describe(entry), json.dumps(a.details or {}, ensure_ascii=False))
+        )
+    return _table([*names, "what", "details"], rows)
 
 
 def _table(names: list[str], rows: Sequence[Any]) -> pa.Table:
     columns: list[Sequence[Any]] = list(zip(*rows, strict=True)) if rows else [[] for _ in names]
-    return pa.table({n: pa.array(list(col)) for n, col in zip(names, columns, strict=True)})
+    return with_utc_times(pa.table({n: pa.array(list(col)) for n, col in zip(names, columns, strict=True)}))
+
+
+def with_utc_times(table: pa.Table) -> pa.Table:
+    """``table`` with ``X_utc`` beside each ``X_unix_s`` column: the same time as ISO 8601 UTC text to
+    the millisecond (``2026-11-28T01:14:05.123Z``), for people and spreadsheets; the UNIX seconds
+    stay the exact value."""
+    for name in [n for n in table.column_names if n.endswith("_unix_s")]:
+        seconds = table.column(name)
+        if not (pa.types.is_floating(seconds.type) or pa.types.is_integer(seconds.type)):
+            continue  # an empty column of an empty table has no type to convert
+        text = pa.array([iso_utc(v) for v in seconds.to_pylist()], pa.string())
+        table = table.add_column(
+            table.column_names.index(name) + 1, name.removesuffix("_unix_s") + "_utc", text
+        )
+    return table
 
 
 def export_dive(
@@ -117,7 +146,7 @@ def export_dive(
     written = [] if run_id is None else _write_run(store, dive_id, run_id, out)
     tables = dive_tables(store, dive_id, run_id)
     for name, rows in (extra or {}).items():
-        tables[name] = pa.Table.from_pylist(rows) if rows else pa.table({})
+        tables[name] = with_utc_times(pa.Table.from_pylist(rows)) if rows else pa.table({})
     for name, table in tables.items():
         # Each table whole or not at all: a full disk leaves no half-written file, and an older
         # export's file is replaced only by a whole one.
@@ -136,17 +165,19 @@ def _write_run(store: Store, dive_id: int, run_id: int, out: Path) -> list[Path]
         dive = queries.dive_record(s, dive_id) or {}
         run = queries.chosen_run(s, dive_id, run_id)
         setup = queries.setup_in_force(s, dive_id, run)
+    keys = ("id", "kind", "label", "calibration_id", "software_version", "created_unix_s")
+    run_about = {k: run[k] for k in keys} | {"created_utc": iso_utc(run["created_unix_s"])}
+    exported = now_unix_s()
     about = {
         "dive": {"id": dive_id, "name": dive.get("name")},
-        "run": {
-            k: run[k] for k in ("id", "kind", "label", "calibration_id", "software_version", "created_unix_s")
-        },
+        "run": run_about,
         "setup_from": {
             "run": "the run's calibration",
             "dive": "the dive's own setup (imported)",
             "defaults": "the defaults (T-REX)",
         }[run["setup_from"]],
-        "exported_unix_s": now_unix_s(),
+        "exported_unix_s": exported,
+        "exported_utc": iso_utc(exported),
     }
     files = []
     for name, doc in (("setup.json", setup.to_json()), ("run.json", about)):

@@ -28,3 +28,12 @@ def parse_utc(text: str) -> datetime:
 def parse_utc_unix_s(text: str) -> float:
     """`parse_utc` as UNIX seconds."""
     return parse_utc(text).timestamp()
+
+
+def iso_utc(unix_s: float | None) -> str | None:
+    """UNIX seconds as ISO 8601 UTC to the millisecond, ``2021-09-05T03:12:44.500Z`` (None stays None):
+    what an export writes beside each ``*_unix_s`` time, for people and spreadsheets."""
+    if unix_s is None or unix_s != unix_s:  # None or NaN
+        return None
+    t = datetime.fromtimestamp(float(unix_s), UTC)
+    return t.isoformat(timespec="milliseconds").replace("+00:00", "Z")

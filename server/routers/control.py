@@ -11,14 +11,15 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Path, Query
 from fastapi.responses import Response
 from pydantic import BaseModel, ConfigDict, Field
-from sqlalchemy.orm import Session
 
 from camcal.core.passplan import plan_pass
 from camcal.core.schedule import Schedule, presets
+from camcal.core.utctime import iso_utc
 from ingest.derived import predict_settings, result_row
 from server.deps import ModuleId, OperatorDep, SettingsDep, StoreDep
 from server.errors import Conflict, Invalid, NotFound
 from server.openapi import CONFLICT
+from server.saturation import newest_results
 from server.schemas import CommandPublic, PresetPublic, Preview
 from storage import queries
 from storage.store import Store
@@ -91,13 +92,7 @@ def preview(body: PreviewRequest, store: StoreDep, settings: SettingsDep) -> dic
     ``saturated`` or ``unknown``).
     """
     sched = body.schedule
-
-    def newest_results(s: Session) -> list[dict[str, Any]]:
-        dives = queries.dives(s)
-        run = queries.live_run_id(s, dives[0]["id"]) if dives else None
-        return queries.result_rows(s, run, dives[0]["id"])[-3000:] if run is not None else []
-
-    rr = [result_row(r) for r in store.call(newest_results) if body.module in (None, r["module"])]
+    rr = [result_row(r) for r in store.call(newest_results, body.module)]
     setts = [(wl, e, g) for wl in sched.wavelengths_nm for e, g, _ in sched.settings()]
     pred = predict_settings(rr, setts, settings.linear_range) if rr else {}
     problems = _problems(settings, sched)
@@ -225,9 +220,12 @@ def audit_export(store: StoreDep) -> Response:
     rows = store.call(queries.audit, limit=1_000_000)
     buf = io.StringIO()
     w = csv.writer(buf)
-    w.writerow(["id", "t_unix_s", "actor", "action", "target", "details"])
+    w.writerow(["id", "t_unix_s", "t_utc", "actor", "action", "target", "what", "details"])
     for r in reversed(rows):
-        w.writerow([r["id"], r["t_unix_s"], r["actor"], r["action"], r["target"], json.dumps(r["details"])])
+        w.writerow(
+            [r["id"], r["t_unix_s"], iso_utc(r["t_unix_s"]), r["actor"], r["action"], r["target"], r["what"],
+             json.dumps(r["details"], ensure_ascii=False)]
+        )  # fmt: skip
     return Response(
         buf.getvalue(),
         media_type="text/csv",

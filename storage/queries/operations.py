@@ -10,6 +10,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from camcal.core.events import Event, EventKind
+from storage.audit import describe
 from storage.models import (
     Alarm,
     AuditEntry,
@@ -96,8 +97,10 @@ def last_event_id(s: Session) -> int:
 
 
 def audit(s: Session, limit: int = 500, offset: int = 0) -> list[dict[str, Any]]:
-    return [
-        {
+    """Audit entries, newest first, each with ``what``: what happened, in words (`storage.audit`)."""
+    out = []
+    for a in s.scalars(select(AuditEntry).order_by(AuditEntry.id.desc()).limit(limit).offset(offset)):
+        entry = {
             "id": a.id,
             "t_unix_s": a.t_unix_s,
             "actor": a.actor,
@@ -105,8 +108,8 @@ def audit(s: Session, limit: int = 500, offset: int = 0) -> list[dict[str, Any]]
             "target": a.target,
             "details": a.details,
         }
-        for a in s.scalars(select(AuditEntry).order_by(AuditEntry.id.desc()).limit(limit).offset(offset))
-    ]
+        out.append({**entry, "what": describe(entry)})
+    return out
 
 
 def command_dict(c: CommandRecord) -> dict[str, Any]:

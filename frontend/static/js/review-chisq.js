@@ -127,14 +127,16 @@ function budgetTable(f) {
 export async function showChisqFit(box, dive, runId) {
   let fit;
   try {
-    fit = await api(`/api/dives/${dive.id}/fits/latest${query({ run: runId })}`);
-  } catch (err) {
-    if (err.status === 404) {
+    // The list first (it answers 200, empty or not): a dive without a fit costs no 404 in the console.
+    const kept = await api(`/api/dives/${dive.id}/fits`);
+    if (!kept.some((f) => runId === null || runId === undefined || f.run_id === runId)) {
       box.replaceChildren(
         el("p", { class: "empty" }, `No χ² fit kept for this run yet: camcal fit --dive ${dive.name} --data DIR`),
       );
       return;
     }
+    fit = await api(`/api/dives/${dive.id}/fits/latest${query({ run: runId })}`);
+  } catch (err) {
     box.replaceChildren(el("p", { class: "error-msg" }, err.message));
     return;
   }

@@ -29,6 +29,7 @@ from server.routers import (
     pages,
     series,
 )
+from server.saturation import SaturationByDesign
 from server.settings import ServerSettings
 from storage.store import Store
 
@@ -46,7 +47,11 @@ def create_app(settings: ServerSettings | None = None, *, store: Store | None = 
         own = store is None
         st = store or Store.open(settings.data_dir, settings.db_url, run_migrations=settings.run_migrations)
         hub = LiveHub(
-            st, settings.events, client_queue=settings.client_queue, station_depth_m=settings.station_depth_m
+            st,
+            settings.events,
+            client_queue=settings.client_queue,
+            station_depth_m=settings.station_depth_m,
+            saturation=SaturationByDesign(st, settings.linear_range),
         )
         app.state.store, app.state.hub = st, hub
         app.state.reanalyses = ReanalysisQueue(st, settings.max_reanalyses_queued)

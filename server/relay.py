@@ -25,6 +25,7 @@ import zmq
 from camcal.core.events import Event, EventError, EventKind
 from camcal.core.settings import endpoint_list
 from ingest.derived import dive_phase
+from server.saturation import SaturationByDesign
 from storage import queries
 from storage.store import Store
 
@@ -76,8 +77,11 @@ class LiveHub:
         client_queue: int = 256,
         ctx: zmq.Context[Any] | None = None,
         station_depth_m: float | None = None,
+        saturation: SaturationByDesign | None = None,
     ) -> None:
         self.store = store
+        #: Labels each saturated frame's result ``by_design`` or not (`server.saturation`).
+        self.saturation = saturation
         # Several ingests (one per group of modules, sharing the database): their publishers,
         # comma-separated. One SUB socket connects to them all; heartbeats are kept per ingest.
         self.endpoints = endpoint_list(events_endpoint)
@@ -124,6 +128,7 @@ class LiveHub:
             sub.connect(endpoint)
         try:
             while not self._stop.is_set():
+                self._refresh_saturation()
                 if not sub.poll(200):
                     continue
                 while True:
@@ -140,6 +145,15 @@ class LiveHub:
                     self._incoming(event)
         finally:
             sub.close(0)
+
+    def _refresh_saturation(self) -> None:
+        """Renew the prediction of saturated settings now and then (a read: never on the event loop)."""
+        if self.saturation is None:
+            return
+        try:
+            self.saturation.refresh()
+        except Exception as exc:  # the database is down: the last prediction stays, said once a while
+            log.warning("cannot renew the prediction of saturated settings: %s", exc)
 
     def _incoming(self, event: Event) -> None:
         """In the hub thread: recover missed stored events, then hand over to the loop."""
@@ -190,6 +204,14 @@ class LiveHub:
                 self.deepest_m[module] = max(self.deepest_m.get(module, 0.0), float(payload["depth_m"]))
         elif kind == EventKind.ATTITUDE and module:
             self.attitude[module] = payload
+        elif (
+            kind == EventKind.RESULT and payload.get("reason") == "saturated" and self.saturation is not None
+        ):
+            s = self.saturation
+            expected = s.expected(
+                module, payload.get("wavelength_nm"), payload.get("exposure_s"), payload.get("gain_db")
+            )
+            payload = {**payload, "by_design": expected}
         message = {
             "type": "event",
             "kind": str(kind),

@@ -14,6 +14,7 @@ from sqlalchemy.orm import Session
 
 from server.deps import HubDep, SettingsDep, StoreDep
 from server.relay import LiveHub, encode_for
+from server.saturation import newest_results, quality_split, saturated_by_design, setting_key
 from server.schemas import LiveSnapshot
 from server.settings import ServerSettings
 from storage import queries
@@ -34,8 +35,9 @@ CLOSE_TOO_BIG, CLOSE_POLICY = 1009, 1008
 
 def build_snapshot(store: Store, hub: LiveHub, settings: ServerSettings) -> dict[str, Any]:
     """Everything the live view shows, as of now."""
-    r = store.call(_snapshot_reads)  # one session: the snapshot is consistent
+    r = store.call(_snapshot_reads, settings.linear_range)  # one session: the snapshot is consistent
     dive, run_id, latest, attenuation = r["dive"], r["run_id"], r["latest"], r["attenuation"]
+    by_design = r["by_design"]
     ingest = hub.ingest_state(settings.stale_after_s)
     live = (hub.live_health(settings.stale_after_s) or {}).get("modules", {})
     out_modules = {}
@@ -45,6 +47,9 @@ def build_snapshot(store: Store, hub: LiveHub, settings: ServerSettings) -> dict
         frame = latest.get(mid)
         if frame:
             frame = {**frame, "thumbnail_url": f"/api/frames/{frame['id']}/thumbnail"}
+            if frame.get("reason") == "saturated":
+                key = setting_key(frame["wavelength_nm"], frame["exposure_s"], frame["gain_db"])
+                frame["by_design"] = key in by_design.get(mid, frozenset())
         out_modules[mid] = {
             "id": mid,
             "distance_m": m["distance_m"],
@@ -60,7 +65,10 @@ def build_snapshot(store: Store, hub: LiveHub, settings: ServerSettings) -> dict
             "sensors": hub.sensors.get(mid) or r["sensors"].get(mid),
             "attitude": hub.attitude.get(mid) or r["attitude"].get(mid),
             "phase": hub.phase(mid),
-            "quality": r["quality"].get(mid, {}),
+            "quality": quality_split(
+                r["quality"].get(mid, {}), r["saturated"].get(mid, {}), by_design.get(mid, frozenset())
+            ),
+            "saturated_by_design": sorted(by_design.get(mid, frozenset())),
             "quality_recent": r["recent_quality"].get(mid, {}),
             "recent_outcomes": r["recent_outcomes"].get(mid, []),
         }
@@ -80,7 +88,7 @@ def build_snapshot(store: Store, hub: LiveHub, settings: ServerSettings) -> dict
     }
 
 
-def _snapshot_reads(s: Session) -> dict[str, Any]:
+def _snapshot_reads(s: Session, linear_range: tuple[float, float]) -> dict[str, Any]:
     """The snapshot's reads, in one session."""
     dives = queries.dives(s)
     dive = dives[0] if dives else None
@@ -92,7 +100,13 @@ def _snapshot_reads(s: Session) -> dict[str, Any]:
     quality = queries.quality_counts(s, run_id) if run_id else {}
     t_last = max((f["captured_unix_s"] for f in latest.values()), default=None)
     recent_quality = queries.quality_counts(s, run_id, since=t_last - 600) if run_id and t_last else {}
-    outcomes = queries.recent_outcomes(s, dive["id"], run_id) if dive and run_id else {}
+    by_design = saturated_by_design(newest_results(s), linear_range)
+
+    def expected(module: str, wl: int, exposure_s: float, gain_db: float) -> bool:
+        return setting_key(wl, exposure_s, gain_db) in by_design.get(module, frozenset())
+
+    outcomes = queries.recent_outcomes(s, dive["id"], run_id, by_design=expected) if dive and run_id else {}
+    saturated = queries.saturated_by_setting(s, run_id) if run_id else {}
     attenuation = queries.attenuation_series(s, run_id) if run_id else {}
     alarms = queries.alarms(s, active=True) + queries.alarms(s, active=False, limit=20)
     return {
@@ -105,6 +119,8 @@ def _snapshot_reads(s: Session) -> dict[str, Any]:
         "quality": quality,
         "recent_quality": recent_quality,
         "recent_outcomes": outcomes,
+        "by_design": by_design,
+        "saturated": saturated,
         "attenuation": attenuation,
         "alarms": alarms,
     }

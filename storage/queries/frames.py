@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -158,6 +158,21 @@ def quality_counts(
     return out
 
 
+def saturated_by_setting(s: Session, run_id: int) -> dict[str, dict[tuple[int, float, float], int]]:
+    """Per module, the frames of a run rejected as saturated, counted by setting (wavelength,
+    exposure, gain): the live cards tell those the schedule saturates by design from the others."""
+    q = (
+        select(Frame.module_id, Frame.wavelength_nm, Frame.exposure_s, Frame.gain_db, func.count())
+        .join(FrameResult, FrameResult.frame_id == Frame.id)
+        .where(FrameResult.run_id == run_id, FrameResult.status != "ok", FrameResult.reason == "saturated")
+        .group_by(Frame.module_id, Frame.wavelength_nm, Frame.exposure_s, Frame.gain_db)
+    )
+    out: dict[str, dict[tuple[int, float, float], int]] = {}
+    for mod, wl, exp, gain, n in s.execute(q):
+        out.setdefault(mod, {})[(int(wl), float(exp), float(gain))] = int(n)
+    return out
+
+
 def latest_frames(s: Session, dive_id: int, run_id: int | None) -> dict[str, dict[str, Any]]:
     """Per module, the newest frame of a dive that has a result (else the newest frame)."""
     out: dict[str, dict[str, Any]] = {}
@@ -179,20 +194,39 @@ def latest_frames(s: Session, dive_id: int, run_id: int | None) -> dict[str, dic
     return out
 
 
-def recent_outcomes(s: Session, dive_id: int, run_id: int, n: int = 40) -> dict[str, list[str]]:
+#: Whether a module's frame at a setting (wavelength, exposure, gain) is saturated by design.
+ByDesign = Callable[[str, int, float, float], bool]
+
+
+def recent_outcomes(
+    s: Session, dive_id: int, run_id: int, n: int = 40, by_design: ByDesign | None = None
+) -> dict[str, list[str]]:
     """Per module, the outcomes in a run of its ``n`` latest analysed frames, oldest first: ``ok`` or
-    the reason the frame was rejected (the live cards' strip of latest frames)."""
+    the reason the frame was rejected (the live cards' strip of latest frames); ``saturated_by_design``
+    for a saturated frame at a setting ``by_design`` names."""
     out: dict[str, list[str]] = {}
     mods = [m for (m,) in s.execute(select(Frame.module_id).where(Frame.dive_id == dive_id).distinct())]
     for m in mods:
         rows = s.execute(
-            select(FrameResult.status, FrameResult.reason)
+            select(
+                FrameResult.status, FrameResult.reason, Frame.wavelength_nm, Frame.exposure_s, Frame.gain_db
+            )
             .join(Frame, FrameResult.frame_id == Frame.id)
             .where(Frame.dive_id == dive_id, Frame.module_id == m, FrameResult.run_id == run_id)
             .order_by(Frame.captured_unix_s.desc(), Frame.id.desc())
             .limit(n)
         ).all()
-        out[m] = [("ok" if st == "ok" else (reason or "rejected")) for st, reason in reversed(rows)]
+        keys = []
+        for st, reason, wl, exp, gain in reversed(rows):
+            key = "ok" if st == "ok" else (reason or "rejected")
+            if (
+                key == "saturated"
+                and by_design is not None
+                and by_design(m, int(wl), float(exp), float(gain))
+            ):
+                key = "saturated_by_design"
+            keys.append(key)
+        out[m] = keys
     return out
 
 

@@ -340,7 +340,34 @@ def frame_outcomes(s: Session, dive_id: int, run_id: int | None) -> list[dict[st
 
 def result_rows(s: Session, run_id: int, dive_id: int) -> list[dict[str, Any]]:
     """Frames of a dive joined with their result in a run, in capture order."""
-    rows = s.execute(
+    rows = s.execute(_result_rows_query(run_id, dive_id).order_by(Frame.captured_unix_s, Frame.id)).all()
+    return [dict(zip(_RESULT_KEYS, r, strict=True)) for r in rows]
+
+
+def newest_result_rows(s: Session, run_id: int, dive_id: int, n: int) -> list[dict[str, Any]]:
+    """`result_rows` of the ``n`` newest frames (by capture time), in capture order."""
+    q = _result_rows_query(run_id, dive_id).order_by(Frame.captured_unix_s.desc(), Frame.id.desc()).limit(n)
+    return [dict(zip(_RESULT_KEYS, r, strict=True)) for r in reversed(s.execute(q).all())]
+
+
+_RESULT_KEYS = (
+    "frame_id",
+    "module",
+    "wavelength_nm",
+    "exposure_s",
+    "gain_db",
+    "captured_unix_s",
+    "depth_m",
+    "path",
+    "status",
+    "center_gray",
+    "i_center_gray",
+    "i_center_err_gray",
+)
+
+
+def _result_rows_query(run_id: int, dive_id: int) -> Any:
+    return (
         select(
             Frame.id,
             Frame.module_id,
@@ -357,23 +384,7 @@ def result_rows(s: Session, run_id: int, dive_id: int) -> list[dict[str, Any]]:
         )
         .join(FrameResult, (FrameResult.frame_id == Frame.id) & (FrameResult.run_id == run_id))
         .where(Frame.dive_id == dive_id)
-        .order_by(Frame.captured_unix_s, Frame.id)
-    ).all()
-    keys = (
-        "frame_id",
-        "module",
-        "wavelength_nm",
-        "exposure_s",
-        "gain_db",
-        "captured_unix_s",
-        "depth_m",
-        "path",
-        "status",
-        "center_gray",
-        "i_center_gray",
-        "i_center_err_gray",
     )
-    return [dict(zip(keys, r, strict=True)) for r in rows]
 
 
 def frames_without_result(

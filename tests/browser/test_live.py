@@ -163,3 +163,39 @@ def test_live_view_on_a_tablet_with_operator_login(page: Any, system: System, ar
     assert page.evaluate("document.documentElement.dataset.theme") == "day"
     page.screenshot(path=artifacts / "live-day-theme.png", full_page=True)
     page.click("#theme")
+
+
+def test_frames_saturated_by_the_schedules_design_are_not_shown_as_a_fault(page: Any, system: System) -> None:
+    """`camcal up`'s modules run trex-subsampled, whose 0.5 s and 1 s exposures saturate the LEM on
+    purpose: the preview predicts it. Those frames are counted apart, hatched and muted, and the
+    "last frame" line says "saturated by design" in plain text; only a saturation the prediction did
+    not expect keeps the fault's red."""
+    page.goto(system.url("/"))
+    page.wait_for_selector('#conn[data-state="live"]')
+    legend = "#module-{m} [data-field='qlegend'] [data-quality='saturated_by_design']"
+    page.wait_for_function(
+        """() => ['A', 'B'].some(m => document.querySelector(
+                 `#module-${m} [data-field='qlegend'] [data-quality='saturated_by_design']`))""",
+        timeout=90_000,
+    )
+    m = next(m for m in ("A", "B") if page.locator(legend.format(m=m)).count())
+    assert "saturated by design" in page.inner_text(legend.format(m=m))
+    bg, pattern, fault = page.evaluate(
+        """(m) => { const bar = document.querySelector(`#module-${m} .qbar .q-saturated_by_design`);
+                    const s = getComputedStyle(bar); const probe = document.createElement('i');
+                    probe.className = 'q-saturated';
+                    document.body.append(probe); const red = getComputedStyle(probe).backgroundColor;
+                    probe.remove(); return [s.backgroundColor, s.backgroundImage, red]; }""",
+        m,
+    )
+    assert bg != fault and "gradient" in pattern, (bg, pattern, fault)  # hatched and muted, not the red
+    # The card's last frame, when it is one of those: said, in the muted colour of a plain fact.
+    status = f"#module-{m} [data-field='frame-status']"
+    page.wait_for_function(
+        f"() => document.querySelector(\"{status}\").textContent === 'saturated by design'", timeout=90_000
+    )
+    assert page.get_attribute(status, "class") == "status-expected"
+    # The server counts them apart as well, for every page that asks.
+    snap = page.evaluate("() => fetch('/api/live/snapshot').then(r => r.json())")
+    quality = snap["modules"][m]["quality"]
+    assert quality.get("saturated_by_design", 0) > quality.get("saturated", 0), quality

@@ -71,9 +71,28 @@ export function fromLocalInput(v) {
 
 export const REASONS = ["saturated", "too_dark", "no_source", "off_edge", "unreadable", "bad_format", "bad_metadata"];
 
+/**
+ * The quality key of an analysed frame: "ok", the reason it was rejected, or "saturated_by_design" for a
+ * saturated frame at a setting the schedule's preview predicts saturated (server/saturation.py): only
+ * the unexpected ones are a problem.
+ */
+export function qualityKey(frame) {
+  if (frame.status === "ok") return "ok";
+  if (frame.reason === "saturated" && frame.by_design) return "saturated_by_design";
+  return frame.reason || frame.status;
+}
+
+const QUALITY_LABELS = { saturated: "saturated, unexpected", saturated_by_design: "saturated by design" };
+
+/** A quality key in words ("too dark", "saturated by design"). */
+export function qualityLabel(key, { bare = false } = {}) {
+  if (bare && key === "saturated") return "saturated";
+  return QUALITY_LABELS[key] || key.replaceAll("_", " ");
+}
+
 /** Colour class of a quality key (ok or a rejection reason). */
 export function qualityClass(key) {
-  return ["ok", "saturated", "too_dark", "no_source", "off_edge"].includes(key) ? `q-${key}` : "q-other";
+  return ["ok", "saturated", "saturated_by_design", "too_dark", "no_source", "off_edge"].includes(key) ? `q-${key}` : "q-other";
 }
 
 export function plural(n, word) {

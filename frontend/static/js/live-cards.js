@@ -1,7 +1,7 @@
 // The live view's module card: link and age, the latest thumbnail with the detected LEM drawn on it,
 // the camera's current setting, depth and phase, attitude and housing, frame quality.
 
-import { fmt, fmtAge, fmtExposure, qualityClass, utc } from "./format.js";
+import { fmt, fmtAge, fmtExposure, qualityClass, qualityKey, qualityLabel, utc } from "./format.js";
 import { el, lrm, setText } from "./ui.js";
 
 const SVG = "http://www.w3.org/2000/svg";
@@ -142,7 +142,7 @@ export function showThumbnail(card, img, frame) {
   drawOverlay(card.svg, frame);
   const label = f(card, "frame-label");
   label.hidden = false;
-  const st = frame.status === "rejected" && frame.reason ? frame.reason.replace("_", " ") : frame.status;
+  const st = frame.status === "rejected" && frame.reason ? qualityLabel(qualityKey(frame), { bare: true }) : frame.status;
   setText(label, `#${frame.id} · ${utc(frame.captured_unix_s, { date: false })} · ${st}`);
 }
 
@@ -175,8 +175,11 @@ export function updateCard(card, m, { now, staleAfter, severity }) {
   const fr = m.shown;
   const fs = f(card, "frame-status");
   if (fr) {
-    fs.className = `status-${fr.status}`;
-    setText(fs, fr.status === "ok" ? "ok" : `${fr.status}${fr.reason ? ` (${fr.reason})` : ""}`);
+    // A frame the schedule saturates by design is expected: said, not coloured as a problem.
+    const expected = qualityKey(fr) === "saturated_by_design";
+    fs.className = expected ? "status-expected" : `status-${fr.status}`;
+    fs.title = expected ? "the schedule's preview predicts this setting saturated: expected, not a fault" : "";
+    setText(fs, fr.status === "ok" ? "ok" : expected ? "saturated by design" : `${fr.status}${fr.reason ? ` (${fr.reason.replaceAll("_", " ")})` : ""}`);
     setText(f(card, "icenter"), fr.i_center_gray === null ? "–" : `${fmt(fr.i_center_gray, 1)} gray`);
   }
   // Rates name their window: between test stops a 10 s rate reads 0 long before the minute does.
@@ -197,19 +200,21 @@ export function updateCard(card, m, { now, staleAfter, severity }) {
 
 /** The quality bar: frames by status/reason, and the latest frames as a strip of coloured ticks. */
 export function updateQuality(card, quality, recent) {
-  const entries = Object.entries(quality || {}).sort((a, b) => (a[0] === "ok" ? -1 : b[0] === "ok" ? 1 : b[1] - a[1]));
+  // ok first, then what the schedule saturates by design (expected), then the problems, largest first
+  const order = (k) => (k === "ok" ? 0 : k === "saturated_by_design" ? 1 : 2);
+  const entries = Object.entries(quality || {}).sort((a, b) => order(a[0]) - order(b[0]) || b[1] - a[1]);
   const total = entries.reduce((n, [, v]) => n + v, 0);
   const bar = f(card, "qbar");
   const legend = f(card, "qlegend");
   bar.replaceChildren(
-    ...entries.map(([k, v]) => el("span", { class: qualityClass(k), style: { width: `${(100 * v) / total}%` }, title: `${k}: ${v}` })),
+    ...entries.map(([k, v]) => el("span", { class: qualityClass(k), style: { width: `${(100 * v) / total}%` }, title: `${qualityLabel(k)}: ${v}` })),
   );
   legend.replaceChildren(
     ...(total
       ? entries.map(([k, v]) =>
-          el("span", { "data-quality": k }, el("i", { class: qualityClass(k) }), `${k.replace("_", " ")} ${v} (${Math.round((100 * v) / total)} %)`),
+          el("span", { "data-quality": k }, el("i", { class: qualityClass(k) }), `${qualityLabel(k, { bare: !quality.saturated_by_design })} ${v} (${Math.round((100 * v) / total)} %)`),
         )
       : [el("span", { class: "muted" }, "no analysed frames yet")]),
   );
-  f(card, "recent").replaceChildren(...recent.map((k) => el("span", { class: qualityClass(k), title: k })));
+  f(card, "recent").replaceChildren(...recent.map((k) => el("span", { class: qualityClass(k), title: qualityLabel(k) })));
 }

@@ -4,12 +4,12 @@
 // ship's timestamps with ours), so a skewed tablet clock cannot make stale data look fresh.
 
 import { api, operator } from "./api.js";
-import { SEVERITY_RANK as RANK, fmtAge } from "./format.js";
+import { SEVERITY_RANK as RANK, fmtAge, qualityKey } from "./format.js";
 import { createCard, showThumbnail, updateCard, updateQuality } from "./live-cards.js";
 import { LiveSocket } from "./livesocket.js";
 import { upsertVisit } from "./lambda-profile.js";
 import { drawLambda, renderAlarms, renderLambdaNow, renderRefused } from "./live-panels.js";
-import { $, initTheme, mountOperator, setText, showSimulation, toast } from "./ui.js";
+import { $, initTheme, lrm, mountOperator, setText, showSimulation, toast } from "./ui.js";
 
 const RECENT = 40; // ticks in a card's strip of latest frames
 const PHASE_WINDOW_S = 30;
@@ -220,7 +220,7 @@ function onEvent(msg) {
     case "result": {
       const frame = { ...p, id: p.frame_id };
       queueThumbnail(m, frame, now);
-      const key = p.status === "ok" ? "ok" : p.reason || p.status;
+      const key = qualityKey(p);
       if (p.status !== "pending") {
         m.quality[key] = (m.quality[key] || 0) + 1;
         m.recent.push(key);
@@ -320,16 +320,66 @@ function requestRender() {
   });
 }
 
+/** A module's state and why: [severity, reason in words or null]. */
 function moduleSeverity(m, now) {
   let sev = "OK";
+  let why = null;
   for (const a of state.alarms.values()) {
     if (!a.active || a.module !== m.id) continue;
-    if (a.kind === "signed_off") return "INFO"; // said bye: switched off on purpose, not stale
-    if (RANK[a.severity] > RANK[sev]) sev = a.severity;
+    if (a.kind === "signed_off") return ["INFO", `${lrm(m.id)} signed off`]; // switched off on purpose, not stale
+    if (RANK[a.severity] > RANK[sev]) [sev, why] = [a.severity, `${lrm(m.id)}: ${String(a.kind || "alarm").replaceAll("_", " ")}`];
   }
   const age = m.lastPacketAt === null ? Infinity : (now - m.lastPacketAt) / 1000;
-  if (age > state.staleAfter && RANK.INVALID > RANK[sev]) sev = "INVALID";
-  return sev;
+  if (age > state.staleAfter && RANK.INVALID > RANK[sev]) {
+    [sev, why] = ["INVALID", `${lrm(m.id)}: no data for ${fmtAge(age)}`];
+  }
+  return [sev, why];
+}
+
+// The top bar's state is the worst of its parts: INFO (modules switched off on purpose) is no fault
+// but no "OK" either, so it ranks above OK here (unlike a module card's alarms).
+const OVERALL_RANK = { OK: 0, INFO: 1, MINOR: 2, INVALID: 3, MAJOR: 4 };
+
+/** The overall state and the reasons for it: the worst of the connection, the ingest, each module, the alarms. */
+function overallState(parts) {
+  let worst = "OK";
+  for (const [sev] of parts) if (OVERALL_RANK[sev] > OVERALL_RANK[worst]) worst = sev;
+  const why = joinModules([...new Set(parts.filter(([sev, w]) => sev === worst && w).map(([, w]) => w))]);
+  const others = Object.keys(OVERALL_RANK)
+    .filter((sev) => sev !== worst && sev !== "OK")
+    .flatMap((sev) => joinModules([...new Set(parts.filter(([s, w]) => s === sev && w).map(([, w]) => w))]).map((w) => `${w} (${sev})`));
+  return { worst, why, others };
+}
+
+/** "LRM-A signed off", "LRM-B signed off" -> "LRM-A, LRM-B signed off": the top bar has little room. */
+function joinModules(reasons) {
+  const out = [];
+  const byTail = new Map();
+  for (const r of reasons) {
+    const m = /^(LRM-\S+?)(:? .*)$/.exec(r);
+    if (!m) {
+      out.push(r);
+      continue;
+    }
+    if (!byTail.has(m[2])) {
+      byTail.set(m[2], []);
+      out.push(m[2]);
+    }
+    byTail.get(m[2]).push(m[1]);
+  }
+  return out.map((r) => (byTail.has(r) ? `${byTail.get(r).join(", ")}${r}` : r));
+}
+
+function systemParts(now) {
+  const parts = [];
+  if (state.conn !== "live") parts.push(["INVALID", "no connection to the ship"]);
+  else if (state.serverError) parts.push(["MAJOR", "database down"]);
+  const ingestAge = state.healthAt === null ? null : (now - state.healthAt) / 1000;
+  if (stats.snapshotAt !== null && !(ingestAge !== null && ingestAge <= state.staleAfter)) {
+    parts.push(["INVALID", "ingest down"]); // no data arrives from the modules (the banner says more)
+  }
+  if (stats.snapshotAt !== null && !state.modules.size) parts.push(["INVALID", "no module has reported"]);
+  return parts;
 }
 
 function render() {
@@ -338,7 +388,7 @@ function render() {
   const box = $("#modules");
   const ids = [...state.modules.keys()].sort();
   $("#no-modules")?.toggleAttribute("hidden", ids.length > 0);
-  let worst = ids.length ? "OK" : "INVALID";
+  const parts = systemParts(now);
   for (const mid of ids) {
     const m = state.modules.get(mid);
     let card = cards.get(mid);
@@ -352,8 +402,8 @@ function render() {
         loadThumbnail(m);
       }
     }
-    const severity = moduleSeverity(m, now);
-    if (RANK[severity] > RANK[worst]) worst = severity;
+    const [severity, why] = moduleSeverity(m, now);
+    parts.push([severity, why]);
     updateCard(card, m, { now, staleAfter: state.staleAfter, severity });
     updateQuality(card, m.quality, m.recent);
   }
@@ -363,11 +413,21 @@ function render() {
       cards.delete(mid);
     }
   }
-  for (const a of state.alarms.values()) if (a.active && RANK[a.severity] > RANK[worst]) worst = a.severity;
+  for (const a of state.alarms.values()) {
+    if (a.active && a.kind !== "signed_off" && !(a.module && state.modules.has(a.module))) {
+      parts.push([a.severity, a.module ? `${lrm(a.module)}: ${String(a.kind || "alarm").replaceAll("_", " ")}` : String(a.message || a.kind)]);
+    }
+  }
+  const { worst, why, others } = overallState(parts);
   const overall = $("#overall");
   overall.className = `pill big sev-${worst}`;
   overall.classList.toggle("unacked", [...state.alarms.values()].some((a) => a.active && a.severity === "MAJOR" && !a.acked_by));
   setText(overall, worst);
+  const text = worst === "OK" ? "" : why.join(" · ");
+  const reason = $("#overall-why");
+  setText(reason, text);
+  reason.hidden = !text;
+  overall.title = reason.title = [`${worst}: the worst state of the connection, the ingest, the modules and the alarms`, ...why, ...others].join("\n");
   renderAlarms($("#alarms"), state.alarms, { operator: operator(), onAck: ack });
   renderAttenuation(now);
 }

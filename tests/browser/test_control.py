@@ -169,8 +169,26 @@ def test_an_invalid_schedule_shows_the_servers_reason_at_the_field_and_sends_not
     assert commands(control_system) == []
 
 
-def send_schedule(page: Any, preset: str, apply: str, expect: str, artifacts: Path, shot: str) -> str:
-    """Load a preset, send it, check the confirm step says ``expect``, confirm; the command's id."""
+#: What the module panel and its tab say at the moment the tracker shows a command done.
+WATCH_DONE = """() => {
+  window.atDone = [];
+  const t = document.querySelector('#tracker');
+  window.doneObserver?.disconnect();
+  window.doneObserver = new MutationObserver(() => {
+    if (t.dataset.state !== 'done' || window.atDone.some(([id]) => id === t.dataset.commandId)) return;
+    const tab = document.querySelector("#module-tabs [data-module='A'] small");
+    window.atDone.push([t.dataset.commandId, document.querySelector('#current-schedule').textContent,
+                        tab ? tab.textContent.trim() : '']);
+  });
+  window.doneObserver.observe(t, { attributes: true, attributeFilter: ['data-state', 'data-command-id'] });
+}"""
+
+
+def send_schedule(
+    page: Any, preset: str, apply: str, expect: str, artifacts: Path, shot: str, warning: str | None = None
+) -> str:
+    """Load a preset, send it, check the confirm step says ``expect`` (and warns with ``warning``, or
+    not at all when it is None), confirm; the command's id."""
     page.select_option("#start-from", f"preset:{preset}")
     page.wait_for_function("n => document.querySelector('[name=name]').value === n", arg=preset)
     page.wait_for_function(
@@ -182,8 +200,14 @@ def send_schedule(page: Any, preset: str, apply: str, expect: str, artifacts: Pa
     dialog = page.locator("#confirm-dialog")
     dialog.wait_for()
     assert dialog.locator("#confirm-message").inner_text() == expect
+    details = dialog.locator(".confirm-details").inner_text()
+    if warning is None:
+        assert "Warning" not in details, details
+    else:
+        assert f"Warning: then {warning}" in details, details
     page.screenshot(path=artifacts / shot)
     page.evaluate(WATCH_TRACKER)
+    page.evaluate(WATCH_DONE)
     page.click("#confirm-ok")
     page.wait_for_selector("#send-note:has-text('Sent as command')")
     # the editor now holds what was sent, and says so (it kept naming where the edit had started)
@@ -232,12 +256,32 @@ def test_move_module_a_to_the_linearity_scan_and_back(
             "at the end of the current setting.",
             artifacts,
             "control-confirm-schedule.png",
+            warning=f"LRM-A runs linearity-scan v{v0 + 1}, LRM-B runs trex-subsampled v1: ",
         )
+        # Sent: Send stays off while the form holds what was sent; a change brings it back, and the
+        # change undone is what was sent again.
+        send = page.locator("#send-schedule")
+        assert send.is_disabled() and send.inner_text() == "Sent to LRM-A ✓", send.inner_text()
+        assert "change the schedule" in send.get_attribute("title")
+        repeats = page.input_value("[name='repeats']")
+        page.fill("[name='repeats']", str(int(repeats) + 1))
+        page.wait_for_function("() => !document.querySelector('#send-schedule').disabled")
+        assert page.inner_text("#send-schedule") == "Send to LRM-A…"
+        page.fill("[name='repeats']", repeats)
+        page.wait_for_function("() => document.querySelector('#send-schedule').disabled")
         page.screenshot(path=artifacts / "control-command-in-flight.png", full_page=True)
         seen = wait_done(page, scan_id)
         assert "in_progress" in seen or "accepted" in seen, seen
-        page.wait_for_selector(f"#current-schedule:has-text('linearity-scan v{v0 + 1}')")
+        # The moment the module says done, its panel and tab name the new schedule (no heartbeat waited for).
+        at_done = {cid: (panel, tab) for cid, panel, tab in page.evaluate("window.atDone")}
+        assert at_done[scan_id] == (f"linearity-scan v{v0 + 1}", f"linearity-scan v{v0 + 1}"), at_done
         assert "Done: LRM-A runs linearity-scan" in page.inner_text("#tracker-text")
+        # A and B now run schedules of different settings: the panel says what λ_att loses.
+        mismatch = page.locator("#schedule-mismatch")
+        mismatch.wait_for()
+        text = mismatch.inner_text()
+        assert f"LRM-A runs linearity-scan v{v0 + 1}, LRM-B runs trex-subsampled v1" in text, text
+        assert "λ_att" in text and "setting" in text, text
         # The frames change settings: the scan's exposures and gains, with the new version.
         frames = wait_until(
             lambda: len(newest_frames(system, v0 + 1)) >= 4 and newest_frames(system, v0 + 1),
@@ -266,7 +310,10 @@ def test_move_module_a_to_the_linearity_scan_and_back(
             "control-confirm-back.png",
         )
         wait_done(page, back_id)
+        at_done = {cid: (panel, tab) for cid, panel, tab in page.evaluate("window.atDone")}
+        assert at_done[back_id][0] == f"trex-subsampled v{v0 + 2}", at_done
         page.wait_for_selector(f"#current-schedule:has-text('trex-subsampled v{v0 + 2}')")
+        page.wait_for_selector("#schedule-mismatch", state="detached")  # the same settings again
         frames = wait_until(
             lambda: len(newest_frames(system, v0 + 2)) >= 2 and newest_frames(system, v0 + 2), 40, "frames"
         )

@@ -76,3 +76,41 @@ export function scheduleSources(m, commands, presets) {
   });
   return { groups, byValue };
 }
+
+/** The settings (wavelength, exposure, gain) a schedule takes frames at, as "460|0.05|6" strings. */
+function settingsOf(spec) {
+  const grids = [[spec.exposures_s, spec.gains_db], ...(spec.blocks || []).map((b) => [b.exposures_s, b.gains_db])];
+  const out = new Set();
+  for (const [exposures, gains] of grids) {
+    for (const wl of spec.wavelengths_nm) for (const e of exposures) for (const g of gains) out.add(`${wl}|${Number(e)}|${Number(g)}`);
+  }
+  return out;
+}
+
+/**
+ * Whether the modules run schedules that λ_att cannot pair: λ_att divides a near and a far frame of
+ * equal wavelength, exposure and gain, so every setting one module takes and the other does not is
+ * lost to it. `specs`: [{id, schedule (as reported), spec (null if unknown)}]. Returns a sentence, or
+ * null when they match (or too little is known to tell).
+ */
+export function mismatchText(specs) {
+  const known = specs.filter((s) => s.schedule);
+  if (known.length < 2) return null;
+  const names = known.map((s) => `${lrm(s.id)} runs ${s.schedule.name} v${s.schedule.version}`).join(", ");
+  if (known.every((s) => s.spec)) {
+    const sets = known.map((s) => settingsOf(s.spec));
+    const shared = [...sets[0]].filter((k) => sets.every((set) => set.has(k))).length;
+    if (sets.every((set) => set.size === shared)) return null;
+    const counts = known.map((s, i) => `${lrm(s.id)} ${sets[i].size}`).join(", ");
+    return shared
+      ? `${names}: λ_att pairs frames of equal settings, so only the ${shared} settings both take give λ_att (settings: ${counts}).`
+      : `${names}: no setting in common, so no λ_att until they run matching schedules.`;
+  }
+  const same = known.every((s) => s.schedule.name === known[0].schedule.name && s.schedule.version === known[0].schedule.version);
+  return same ? null : `${names}: λ_att needs frames of equal settings from both; their settings are not known here — check that they match.`;
+}
+
+/** The schedule module `m` runs, as a spec, where the ship can tell (else null). */
+export function currentSpec(m, commands, presets) {
+  return current(m, commands, presets)?.spec ?? null;
+}

@@ -25,7 +25,7 @@ export function renderTabs(tabs, modules, selected, onSelect) {
   );
 }
 
-export function renderStatus(box, list, m) {
+export function renderStatus(box, list, m, mismatch = null) {
   if (!m) {
     box.replaceChildren(el("p", { class: "empty" }, "Waiting for the modules to report…"));
     return;
@@ -59,6 +59,7 @@ export function renderStatus(box, list, m) {
           "so each λ_att visit holds part of the settings",
         )
       : "",
+    mismatch ? el("p", { class: "warn-note", id: "schedule-mismatch", role: "status" }, `⚠ ${mismatch}`) : "",
   );
   list.replaceChildren(
     ...(m.recent.length
@@ -88,13 +89,17 @@ function allowedActions(st) {
 }
 
 /** Read-only pages say what the login is for; an operator gets the buttons the module's state allows. */
-export function renderPermissions(m, op) {
+export function renderPermissions(m, op, sent = null) {
   $("#readonly-note").hidden = Boolean(op);
   const send = $("#send-schedule");
   if (send) {
-    send.disabled = !op || !m;
-    send.title = op ? "check the schedule, then confirm before it is sent" : "log in as operator to send a schedule";
-    setText(send, m ? `Send to ${lrm(m.id)}…` : "Send…");
+    send.disabled = !op || !m || Boolean(sent);
+    send.title = !op
+      ? "log in as operator to send a schedule"
+      : sent
+        ? `sent as command #${sent.command.slice(0, 8)}: change the schedule (or when to apply it) to send again`
+        : "check the schedule, then confirm before it is sent";
+    setText(send, !m ? "Send…" : sent ? `Sent to ${lrm(m.id)} ✓` : `Send to ${lrm(m.id)}…`);
   }
   const st = m?.schedule?.state;
   const allowed = allowedActions(st);

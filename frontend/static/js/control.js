@@ -8,7 +8,7 @@ import { ApiError, api, operator } from "./api.js";
 import { FINAL, applyText, renderCommands, renderTracker } from "./control-commands.js";
 import { ScheduleEditor } from "./control-editor.js";
 import { VERDICTS, fmtDuration, renderPreview } from "./control-preview.js";
-import { scheduleSources } from "./control-sources.js";
+import { currentSpec, mismatchText, scheduleSources } from "./control-sources.js";
 import { renderPermissions, renderStatus, renderTabs } from "./control-status.js";
 import { plural } from "./format.js";
 import { LiveSocket } from "./livesocket.js";
@@ -31,6 +31,7 @@ const state = {
   dirty: false,
   preview: null,
   previewError: null,
+  sent: null, // {module, key, command}: the schedule just sent; Send stays off until the form changes
 };
 window.camcalControl = state;
 
@@ -64,7 +65,8 @@ function onSnapshot(d) {
     pushFrame(m, sm.latest_frame);
   }
   if (!state.selected || !state.modules.has(state.selected)) pickModule();
-  else loadCommands(state.selected); // events may have been missed while the socket was down
+  // events may have been missed while the socket was down; every module's commands tell what it runs
+  for (const id of state.modules.keys()) loadCommands(id);
   render();
 }
 
@@ -81,7 +83,7 @@ function onEvent(msg) {
     for (const [id, h] of Object.entries(p.modules || {})) {
       const m = moduleState(id);
       const before = JSON.stringify(m.schedule);
-      Object.assign(m, { link: h.link, schedule: h.schedule, deferred_shots: h.deferred_shots });
+      Object.assign(m, { link: h.link, schedule: reported(m, h.schedule), deferred_shots: h.deferred_shots });
       if (id === state.selected && before !== JSON.stringify(h.schedule)) startOptions();
     }
     if (!state.selected) pickModule();
@@ -101,6 +103,56 @@ function onEvent(msg) {
     return;
   }
   render();
+}
+
+// ------------------------------------------------------------------ what a module runs
+const ACTION_STATE = { start: "running", pause: "paused", resume: "running", stop: "stopped" };
+const DONE_HOLD_MS = 20000;
+
+/**
+ * A command the module reported done changes what the page shows at once: the new schedule's name and
+ * version, the state an action leads to. The module's heartbeat says the same a few seconds later;
+ * until it does (or DONE_HOLD_MS pass), an older heartbeat does not take it back.
+ */
+function applyDone(c) {
+  const m = state.modules.get(c.module);
+  if (!m || c.state !== "done") return;
+  if (c.action === "set_schedule" && c.payload?.schedule) {
+    if ((m.schedule?.version ?? 0) >= c.target_version && m.schedule?.name === c.payload.schedule.name) return;
+    m.schedule = { ...(m.schedule || { state: "running" }), name: c.payload.schedule.name, version: c.target_version };
+  } else if (ACTION_STATE[c.action] && m.schedule) {
+    if (m.doneAt?.id === c.id) return;
+    m.schedule = { ...m.schedule, state: ACTION_STATE[c.action] };
+  } else {
+    return;
+  }
+  m.doneAt = { id: c.id, at: Date.now(), schedule: m.schedule };
+  if (c.module === state.selected) startOptions();
+}
+
+/** The schedule a heartbeat reports, unless it is older than a command the module said is done. */
+function reported(m, sch) {
+  const held = m.doneAt;
+  if (!held || !sch || Date.now() - held.at > DONE_HOLD_MS) return sch;
+  const mine = held.schedule;
+  if (sch.version > mine.version || (sch.version === mine.version && sch.state === mine.state)) {
+    m.doneAt = null; // the heartbeat caught up
+    return sch;
+  }
+  return { ...sch, name: mine.name, version: mine.version, state: mine.state };
+}
+
+/** Whether the modules' schedules differ in their settings (`mismatchText`); `instead` puts a schedule
+ * about to be sent in place of one module's. */
+function mismatch(instead = null) {
+  const specs = [...state.modules.values()]
+    .sort((a, b) => a.id.localeCompare(b.id))
+    .map((m) =>
+      instead?.module === m.id
+        ? { id: m.id, schedule: { name: instead.spec.name, version: instead.version }, spec: instead.spec }
+        : { id: m.id, schedule: m.schedule, spec: currentSpec(m, state.commands.get(m.id) || [], state.presets) },
+    );
+  return mismatchText(specs);
 }
 
 function select(id) {
@@ -152,6 +204,7 @@ function upsert(c) {
   if (i < 0) list.unshift(c);
   else if (RANK[c.state] >= RANK[list[i].state]) list[i] = { ...list[i], ...c };
   state.commands.set(c.module, list);
+  applyDone(list[i < 0 ? 0 : i]);
 }
 
 function followedCommand() {
@@ -288,6 +341,7 @@ async function sendSchedule(ev) {
       `Settings predicted for ${lrm(m.id)}: ${judged}.`,
       `Its frames will carry schedule version ${version}.`,
       offlineNote(m),
+      ((w) => (w ? `Warning: then ${w}` : null))(mismatch({ module: m.id, spec, version })),
     ].filter(Boolean),
     okLabel: `Send ${spec.name} v${version} to ${m.id}`,
   });
@@ -301,8 +355,9 @@ async function sendSchedule(ev) {
       method: "POST",
       body: { schedule: spec, apply, version },
     });
+    state.sent = { module: m.id, key: formKey(), command: cmd.id };
     follow(cmd);
-    setText(note, `Sent as command #${cmd.id.slice(0, 8)}.`);
+    setText(note, `Sent as command #${cmd.id.slice(0, 8)}: change the schedule to send another.`);
     // what the editor holds is now what was sent, whatever it was started from
     state.startNote = `${spec.name} v${version}, as sent to ${lrm(m.id)} (command #${cmd.id.slice(0, 8)}).`;
     setText($("#start-note"), `Sent: ${state.startNote}`);
@@ -348,6 +403,19 @@ async function sendAction(action) {
   }
 }
 
+/** What the Send button would send now (the schedule and when to apply it). */
+function formKey() {
+  return editor ? JSON.stringify([editor.read(), editor.apply()]) : "";
+}
+
+/** The command just sent, while the form still holds what it sent (and the module did not reject it). */
+function justSent(m) {
+  const s = state.sent;
+  if (!m || !s || s.module !== m.id || s.key !== formKey()) return null;
+  const c = (state.commands.get(m.id) || []).find((x) => x.id === s.command);
+  return c && c.state === "rejected" ? null : s;
+}
+
 function follow(cmd) {
   upsert(cmd);
   state.followed = cmd.id;
@@ -377,8 +445,8 @@ function render() {
   setText(banner, banner.hidden ? "" : "Connection to the ship server lost — reconnecting. Module states and commands below may be out of date.");
   renderTabs($("#module-tabs"), state.modules, state.selected, select);
   const m = state.modules.get(state.selected);
-  renderStatus($("#module-status"), $("#recent-frames"), m);
-  renderPermissions(m, operator());
+  renderStatus($("#module-status"), $("#recent-frames"), m, mismatch());
+  renderPermissions(m, operator(), justSent(m));
   const c = followedCommand();
   renderTracker($("#tracker"), c, c ? state.modules.get(c.module) : null);
   renderCommands($("#commands-table"), state.commands.get(state.selected) || [], state.followed);
@@ -395,9 +463,13 @@ async function init() {
       if (state.startNote) setText($("#start-note"), `Edited. Started from: ${state.startNote}`);
       setText($("#send-note"), "");
       schedulePreview();
+      render(); // the Send button comes back once the form differs from what was sent
     },
   });
-  $("#start-from").addEventListener("change", (ev) => loadFrom(ev.target.value));
+  $("#start-from").addEventListener("change", (ev) => {
+    loadFrom(ev.target.value);
+    render();
+  });
   $("#schedule-form").addEventListener("submit", sendSchedule);
   for (const b of document.querySelectorAll("#actions [data-action]")) {
     b.dataset.title = b.title;

@@ -4,7 +4,7 @@
 // Smoothing (a mean over several visits) is a display option only, its span in the legend.
 
 import { fmt, plotDate, utc, wlColor } from "./format.js";
-import { draw, emptyPlot } from "./plots.js";
+import { draw, emptyPlot, timeAxis } from "./plots.js";
 
 const hasValue = (p) => p.lambda_att_m !== null && p.lambda_att_m !== undefined;
 
@@ -156,8 +156,25 @@ export function profileLayout(series, extra = {}) {
     const hi = Math.max(...ds);
     const pad = Math.max(20 - (hi - lo) / 2, (hi - lo) * 0.06);
     Object.assign(depth, { autorange: false, range: [hi + pad, lo - pad] });
+    const stops = depthStops(ds);
+    // A few stops (the test stops, the station): a label at each, where the points are, rather than
+    // round depths between them (at phone width 1500 m, 2000 m... labelled none of them).
+    const text = (d) => String(d).replace(/\B(?=(\d{3})+(?!\d))/g, ","); // 3,420 as the axis writes it
+    if (stops.length <= 6) Object.assign(depth, { tickvals: stops, ticktext: stops.map(text) });
   }
   return { xaxis: { title: { text: "λ_att (m)" } }, yaxis: depth, ...extra };
+}
+
+/** The depths the points gather at (points within `gapM` of each other are one stop), at their median. */
+export function depthStops(depths, gapM = 50) {
+  const ds = [...depths].sort((a, b) => a - b);
+  const groups = [];
+  for (const d of ds) {
+    const g = groups[groups.length - 1];
+    if (g && d - g[g.length - 1] <= gapM) g.push(d);
+    else groups.push([d]);
+  }
+  return groups.map((g) => Math.round(g[Math.floor(g.length / 2)]));
 }
 
 /**
@@ -168,8 +185,9 @@ export function drawVisitSeries(timeDiv, depthDiv, series, opts = {}) {
   const { smoothVisits = 0, uirevision, filename = "camcal-lambda-att", emptyText = "no λ_att point yet" } = opts;
   const has = Object.values(series || {}).some((pts) => pts.some(hasValue));
   const empty = has ? {} : emptyPlot(emptyText);
+  const times = Object.values(series || {}).flatMap((pts) => pts.filter(hasValue).map((p) => p.t_unix_s));
   const timeLay = {
-    xaxis: { title: { text: "time (UTC)" }, type: "date" },
+    xaxis: timeAxis(times),
     yaxis: { title: { text: "λ_att (m)" } },
     title: { text: "per visit, against time" },
     uirevision,

@@ -78,6 +78,44 @@ function narrowed(div, lay) {
   };
 }
 
+/** Whether a figure's div is phone-narrow: its legend, ticks and height adapt. */
+export function isNarrow(div) {
+  return Boolean(div?.clientWidth) && div.clientWidth < 560;
+}
+
+const HOUR_MS = 3600e3;
+
+/**
+ * A UTC time axis whose ticks say the time of day only and whose title says the date: plotly's own
+ * date line under the first tick ran over the tick labels on a phone. Over several days the ticks
+ * carry the day too.
+ */
+export function timeAxis(times, extra = {}) {
+  let lo = Infinity;
+  let hi = -Infinity;
+  for (const t of times || []) {
+    if (Number.isFinite(t)) {
+      lo = Math.min(lo, t);
+      hi = Math.max(hi, t);
+    }
+  }
+  const day = (t) => new Date(t * 1000).toISOString().slice(0, 10);
+  const days = lo <= hi ? [day(lo), day(hi)] : [];
+  const when = !days.length ? "" : days[0] === days[1] ? `, ${days[0]}` : `, ${days[0]} to ${days[1]}`;
+  const clock = days.length && days[0] !== days[1] ? "%d %b %H:%M" : "%H:%M";
+  return {
+    type: "date",
+    title: { text: `time (UTC${when})` },
+    tickformatstops: [
+      { dtickrange: [null, 1000], value: "%H:%M:%S.%L" },
+      { dtickrange: [1000, 60e3], value: "%H:%M:%S" },
+      { dtickrange: [60e3, 12 * HOUR_MS], value: clock },
+      { dtickrange: [12 * HOUR_MS, null], value: "%d %b" },
+    ],
+    ...extra,
+  };
+}
+
 /** Draw (or redraw in place) a figure; resolves once plotly has drawn it. */
 export async function draw(div, traces, lay, filename, config = {}) {
   const Plotly = await loadPlotly();
@@ -101,7 +139,7 @@ export function purge(div) {
 
 // ------------------------------------------------------------------ radial profile
 /** The radial band profile (log y) with its exponential + constant fit and the background. */
-export function profileFigure(frame) {
+export function profileFigure(frame, { narrow = false } = {}) {
   const p = frame.profile;
   const f = frame.fit;
   const traces = [];
@@ -147,7 +185,12 @@ export function profileFigure(frame) {
     layout: {
       xaxis: { title: { text: "radius (px)" } },
       yaxis: { title: { text: "mean gray" }, type: "log" },
-      legend: { x: 0.99, xanchor: "right", y: 0.99, yanchor: "top", bgcolor: cssVar("--panel-2"), bordercolor: cssVar("--line"), borderwidth: 1 },
+      // In the corner where the profile has fallen to its background; on a phone that corner is the
+      // data's, and the legend goes under the figure.
+      legend: narrow
+        ? { orientation: "v", x: 0, xanchor: "left", y: -0.3, yanchor: "top" }
+        : { x: 0.99, xanchor: "right", y: 0.99, yanchor: "top", bgcolor: cssVar("--panel-2"), bordercolor: cssVar("--line"), borderwidth: 1 },
+      ...(narrow ? { margin: { l: 60, r: 16, t: 84, b: 150 } } : {}),
       shapes,
       annotations: frame.radius_px
         ? [{ x: frame.radius_px, y: 1, yref: "paper", text: "LEM disk", showarrow: false, yanchor: "bottom" }]
@@ -165,7 +208,27 @@ function vline(x, color, dash) {
  * One module's linearity checks for one sweep (exposure or gain), on log-log axes: the points
  * (open: outside the linear range, left out of the fit), the straight-line fit, the knee.
  */
-export function linearityFigure(checks, sweep) {
+/**
+ * Of the ticks of a log axis, those whose labels have room: each at least `labelPx` from the last one
+ * kept, on an axis `widthPx` wide (the smallest and the largest are kept first).
+ */
+export function spacedTicks(values, widthPx, labelPx = 44) {
+  const vals = [...values].filter((v) => v > 0).sort((a, b) => a - b);
+  if (vals.length < 3 || !widthPx) return vals;
+  const span = Math.log10(vals[vals.length - 1] / vals[0]) || 1;
+  const perDecade = (widthPx * 0.9) / span; // plotly pads a log axis a little on each side
+  const kept = [vals[0]];
+  const last = vals[vals.length - 1];
+  for (const v of vals.slice(1, -1)) {
+    const room = (a, b) => Math.log10(b / a) * perDecade >= labelPx;
+    if (room(kept[kept.length - 1], v) && room(v, last)) kept.push(v);
+  }
+  kept.push(last);
+  return kept;
+}
+
+/** The linearity figure of one sweep; `plotWidthPx` (the div's width) thins its ticks to what fits. */
+export function linearityFigure(checks, sweep, plotWidthPx = 0) {
   const traces = [];
   const shapes = [];
   const ticks = new Set();
@@ -220,18 +283,20 @@ export function linearityFigure(checks, sweep) {
     }
     if (c.knee_x) shapes.push({ ...vline(c.knee_x, color, "dash"), line: { color, width: 2, dash: "dash" } });
   }
-  const tickvals = [...ticks].sort((a, b) => a - b);
+  const tickvals = spacedTicks(ticks, plotWidthPx ? plotWidthPx - 76 : 0);
   const ticktext = tickvals.map((v) => (sweep === "exposure" ? `${v}` : `${Math.round(20 * Math.log10(v))} dB`));
   return {
     traces,
     layout: {
       xaxis: {
-        title: { text: sweep === "exposure" ? "exposure (s)" : "gain (linear factor 10^(dB/20), log scale)" },
+        title: { text: sweep === "exposure" ? "exposure (s)" : "gain (its linear factor on a log scale)" },
         type: "log",
         tickvals,
         ticktext,
+        tickangle: 0,
       },
-      yaxis: { title: { text: "centre gray" }, type: "log", tickvals: [5, 10, 20, 50, 100, 200, 255] },
+      // 255 is the clipping line's own label: a tick beside 200 would run into it
+      yaxis: { title: { text: "centre gray" }, type: "log", tickvals: [5, 10, 20, 50, 100, 200] },
       shapes: [
         ...shapes,
         { type: "line", x0: 0, x1: 1, xref: "paper", y0: 255, y1: 255, line: { color: cssVar("--major"), width: 1 } },
@@ -263,13 +328,13 @@ export function stackedFigure(panels) {
         name: s.name,
         legendgroup: s.name,
         showlegend: i === 0,
-        line: { color: s.color, width: 1.5, dash: s.dash || "solid" },
+        line: { color: s.color, width: s.width || 1.5, dash: s.dash || "solid" },
         xaxis: "x",
         yaxis: `y${ax}`,
       });
     }
   });
-  lay.xaxis = { type: "date", title: { text: "time (UTC)" } };
+  lay.xaxis = timeAxis(panels.flatMap((p) => p.series.flatMap((s) => [s.t[0], s.t[s.t.length - 1]])));
   return { traces, layout: lay };
 }
 

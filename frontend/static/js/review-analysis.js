@@ -224,17 +224,17 @@ export async function showLinearity(ctx) {
     const panel = el("div", { class: "panel", "data-module": m }, el("h2", {}, `${lrm(m)}: linearity of the centre gray`));
     const plots = el("div", { class: "grid-2" });
     panel.append(plots);
+    box.append(panel); // in the page first: the figures size their ticks to their width
     for (const sweep of ["exposure", "gain"]) {
       const cs = checks.filter((c) => c.sweep === sweep);
       if (!cs.length) continue;
       const div = el("div", { class: "plot", id: `lin-${m}-${sweep}` });
       const fixed = cs.map((c) => (sweep === "exposure" ? `${fmt(c.fixed_value, 0)} dB` : fmtExposure(c.fixed_value)));
       plots.append(el("div", {}, el("h3", {}, sweep === "exposure" ? `against exposure (at gain ${[...new Set(fixed)].join(", ")})` : `against gain (at exposure ${[...new Set(fixed)].join(", ")})`), div));
-      const fig = linearityFigure(cs, sweep);
+      const fig = linearityFigure(cs, sweep, div.clientWidth);
       jobs.push(draw(div, fig.traces, fig.layout, `camcal-${ctx.dive.name}-${m}-linearity-${sweep}`));
     }
     panel.append(fitsTable(checks));
-    box.append(panel);
   }
   await Promise.all(jobs);
 }
@@ -288,7 +288,10 @@ export async function showAttitude(ctx) {
     return;
   }
   const color = (i) => MODULE_COLORS[i % MODULE_COLORS.length];
-  const series = (data, key) => data.map((d, i) => ({ name: `${lrm(modules[i])}`, t: d.t_unix_s, y: d[key], color: color(i) }));
+  // The first module solid and wide, the others dotted and thin over it: where they agree (housing,
+  // depth), both stay in sight.
+  const series = (data, key) =>
+    data.map((d, i) => ({ name: `${lrm(modules[i])}`, t: d.t_unix_s, y: d[key], color: color(i), dash: i ? "dot" : "solid", width: i ? 1.5 : 2.5 }));
   const a = stackedFigure([
     { title: "tilt (°)", series: series(att, "tilt_deg") },
     { title: "rotation (°/s)", series: series(att, "rotation_rate_dps") },

@@ -4,7 +4,7 @@
 import { api, query } from "./api.js";
 import { REASONS, fmt, fmtExposure, fromLocalInput, fromPlotDate, plotDate, utc } from "./format.js";
 import { drawOverlay } from "./live-cards.js";
-import { draw, emptyPlot, profileFigure } from "./plots.js";
+import { draw, emptyPlot, isNarrow, profileFigure, timeAxis } from "./plots.js";
 import { $, el, lrm, setText, toast } from "./ui.js";
 
 const MODULE_COLORS = ["#5cc8ff", "#ff9f43", "#c46bff", "#52e07a"];
@@ -203,19 +203,25 @@ async function drawTimeline() {
       hovertemplate: `${lrm(m)} %{x}<br>%{y:.0f} m<extra></extra>`,
     });
   });
-  modules.forEach((m, i) => {
+  // The later modules' frames first, under the first module's: LRM-A's dots lie on LRM-B's hollow
+  // diamonds (they take frames at the same moments), each visible (legendrank keeps A first).
+  const frameTraces = modules.map((m, i) => {
     const fs = tl.frames.filter((f) => f.module === m);
-    traces.push({
+    return {
       x: fs.map((f) => plotDate(f.t_unix_s)),
       y: fs.map((f) => f.depth_m),
       customdata: fs.map((f) => f.id),
       type: "scatter",
       mode: "markers",
       name: `frames ${lrm(m)}`,
-      marker: { size: 6, color: MODULE_COLORS[i % MODULE_COLORS.length], symbol: i ? "diamond" : "circle" },
+      legendrank: 1001 + i,
+      marker: i
+        ? { size: 9, color: MODULE_COLORS[i % MODULE_COLORS.length], symbol: "diamond-open", line: { width: 1.5 } }
+        : { size: 5, color: MODULE_COLORS[0], symbol: "circle" },
       hovertemplate: `${lrm(m)} frame #%{customdata}<br>%{x}<br>%{y:.0f} m<extra></extra>`,
-    });
+    };
   });
+  traces.push(...frameTraces.reverse());
   if (tl.alarms.length) {
     traces.push({
       x: tl.alarms.map((a) => plotDate(a.raised_unix_s)),
@@ -224,15 +230,16 @@ async function drawTimeline() {
       type: "scatter",
       mode: "markers",
       name: "alarms",
+      legendrank: 1100,
       marker: { size: 13, symbol: "triangle-down", color: tl.alarms.map((a) => SEV_COLORS[a.severity] || "#999") },
       hovertemplate: "%{text}<br>%{x}<extra></extra>",
     });
   }
   const lay = {
-    xaxis: { type: "date", title: { text: "time (UTC)" } },
+    xaxis: timeAxis([...tl.frames.map((f) => f.t_unix_s), ...Object.values(tl.depth_by_module || {}).flatMap((d) => d.t_unix_s)]),
     yaxis: { title: { text: "depth (m)" }, autorange: "reversed" },
     margin: { l: 60, r: 16, t: 30, b: 44 },
-    height: 280,
+    height: isNarrow(div) ? 400 : 280, // on a phone its legend takes four lines above the plot
     shapes: [],
     uirevision: view.ctx.dive.id,
   };
@@ -324,7 +331,7 @@ export async function openFrame(id) {
   drawOverlay(svg, fr);
   box.scrollIntoView({ block: "start", behavior: "smooth" });
   if (fr.profile) {
-    const fig = profileFigure(fr);
+    const fig = profileFigure(fr, { narrow: isNarrow(profileDiv) });
     await draw(profileDiv, fig.traces, { ...fig.layout, title: { text: `frame #${fr.id}: radial profile and background fit` } }, `camcal-frame-${fr.id}-profile`);
   } else {
     profileDiv.replaceChildren(el("p", { class: "empty" }, fr.status === "pending" ? "not analysed yet" : `no profile: ${fr.reason || "rejected"}${fr.detail ? ` — ${fr.detail}` : ""}`));

@@ -14,6 +14,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -29,7 +30,9 @@ from camcal.core.framewriter import FrameSetWriter
 from camcal.core.images import encode_png
 from camcal.core.parallel import process_pool
 from camcal.core.schedule import Schedule, trex_subsampled
+from lrm.sim.blur import PsfJitter
 from lrm.sim.camera import CameraModel
+from lrm.sim.halotable import HaloTable, tables_by_wavelength
 from lrm.sim.render import FrameRenderer, TransportHalo
 from lrm.sim.scene import TREX_PLACEMENTS, LEMModel, Placement, Water, water_preset
 
@@ -40,7 +43,11 @@ LAB_RATIO_ERR = {405: 0.03, 460: 0.04, 525: 0.04}
 
 @dataclass(frozen=True)
 class SimulationSpec:
-    """Everything that determines a simulated frame set."""
+    """Everything that determines a simulated frame set.
+
+    ``psf_jitter``: a blur drawn per frame (PSF σ, a motion streak on some
+    frames) instead of the camera's one PSF; each frame's is in truth.json.
+    """
 
     water: Water = field(default_factory=lambda: water_preset("trex"))
     placements: tuple[Placement, ...] = TREX_PLACEMENTS
@@ -58,6 +65,7 @@ class SimulationSpec:
     lem_on: bool = True
     halo_model: str = "single"
     transport: TransportHalo | None = None
+    psf_jitter: PsfJitter | None = None
 
     def setup(self) -> Setup:
         """The setup.json a lab would write: true distances, lab-calibrated ratios."""
@@ -120,6 +128,10 @@ def render_job(spec: SimulationSpec, job: _Job) -> tuple[np.ndarray, dict[str, o
     placement = renderer.placement
     length = speed * job.exposure_s / placement.distance_m * spec.camera.focal_px
     blur = (length * math.cos(angle), length * math.sin(angle))
+    psf = None
+    if spec.psf_jitter is not None:  # drawn after the sway: sets without it are unchanged
+        psf, streak = spec.psf_jitter.draw(rng)
+        blur = (blur[0] + streak[0], blur[1] + streak[1])
     frame, truth = renderer.render(
         job.wavelength_nm,
         job.exposure_s,
@@ -129,6 +141,7 @@ def render_job(spec: SimulationSpec, job: _Job) -> tuple[np.ndarray, dict[str, o
         blur_px=blur,
         lem_on=spec.lem_on,
         flashes_per_frame=spec.flashes_per_frame,
+        psf_sigma_px=psf,
     )
     return frame, {"file": job.file, **truth.to_dict()}
 
@@ -223,11 +236,52 @@ def _write_manifest(out: Path, spec: SimulationSpec, jobs: Sequence[_Job]) -> No
                 clock += timedelta(seconds=job.exposure_s + 0.25)
 
 
+def table_spec(tables: list[HaloTable], schedule: Schedule | None = None, **kw: Any) -> SimulationSpec:
+    """A frame set whose halo at each wavelength is another engine's table (Mitsuba 3's).
+
+    The water is the tables' (one per wavelength, which each records), the
+    LEM uniform (the tables' emitter: I0'/I0 = 1), the halo model
+    ``transport`` with the tables. ``schedule`` (default: the subsampled
+    T-REX one) is taken at the tables' wavelengths, or refused if it names
+    one without a table; ``kw`` sets the rest of the spec.
+    """
+    by_wl = tables_by_wavelength(tables)
+    if schedule is None:
+        schedule = trex_subsampled().model_copy(update={"wavelengths_nm": tuple(sorted(by_wl))})
+        schedule = Schedule.model_validate(schedule.model_dump())
+    missing = sorted(set(schedule.wavelengths_nm) - set(by_wl))
+    if missing:
+        have = ", ".join(str(w) for w in sorted(by_wl))
+        raise ValueError(f"no halo table at {', '.join(map(str, missing))} nm (the tables are at {have} nm)")
+    used = [by_wl[wl] for wl in sorted(schedule.wavelengths_nm)]
+    return SimulationSpec(
+        water=Water(
+            {t.wavelength_nm: t.water for t in used if t.wavelength_nm}, name="+".join(t.name for t in used)
+        ),
+        lem=LEMModel(emission_ratio={wl: 1.0 for wl in schedule.wavelengths_nm}),
+        schedule=schedule,
+        halo_model="transport",
+        transport=TransportHalo(tables=tuple(used)),
+        **kw,
+    )
+
+
 def truth_document(spec: SimulationSpec, frames: list[dict[str, object]]) -> dict[str, object]:
-    """Ground truth: the water, the geometry, the true emission ratios and every frame."""
-    return {
+    """Ground truth: the water, the geometry, the true emission ratios, the blur and every frame.
+
+    Per wavelength the water's ``mean_cos_theta`` is (1 − rayleigh_fraction)
+    · mie_g (Rayleigh's mean cosine is 0); with halo tables, ``phase`` holds
+    each table's phase function (its family: a non-HG one's mie_g is its
+    particles' mean cosine) and where it came from.
+    """
+    tables = spec.transport.tables if spec.transport is not None else ()
+    doc: dict[str, object] = {
         "water": {
-            str(wl): {**asdict(o), "lambda_att_m": o.lambda_att_m}
+            str(wl): {
+                **asdict(o),
+                "lambda_att_m": o.lambda_att_m,
+                "mean_cos_theta": (1.0 - o.rayleigh_fraction) * o.mie_g,
+            }
             for wl, o in sorted(spec.water.optics.items())
         },
         "water_name": spec.water.name,
@@ -239,5 +293,17 @@ def truth_document(spec: SimulationSpec, frames: list[dict[str, object]]) -> dic
         "camera_model": {**asdict(spec.camera), "focal_px": spec.camera.focal_px},
         "seed": spec.seed,
         "schedule": spec.schedule.model_dump(mode="json"),
-        "frames": frames,
+        "psf_jitter": asdict(spec.psf_jitter) if spec.psf_jitter is not None else None,
     }
+    if tables:
+        doc["phase"] = {
+            str(t.wavelength_nm): {
+                **(t.phase.to_dict() if t.phase is not None else {}),
+                "halo_table": t.name,
+                "engine": "Mitsuba 3 volpath (bench/mitsuba_halo.py)",
+                "spp": t.spp,
+            }
+            for t in tables
+        }
+    doc["frames"] = frames
+    return doc

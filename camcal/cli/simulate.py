@@ -107,16 +107,59 @@ def simulate_set(
     halo_photons: Annotated[
         int, typer.Option(help="With --halo transport: Monte Carlo photons per camera and wavelength.")
     ] = 1_000_000,
+    halo_table: Annotated[
+        list[Path] | None,
+        typer.Option(
+            help="A halo another engine rendered (Mitsuba 3, bench/mitsuba_halo.py; repeat, one per "
+            "wavelength, e.g. tests/data/mitsuba/ff-460.npz): its water and phase function replace --water/"
+            "--abs/--sca/--mie-g/--rayleigh-fraction, the LEM is uniform (I0'/I0 = 1), the wavelengths are "
+            "the tables'."
+        ),
+    ] = None,
+    psf_jitter: Annotated[
+        str | None,
+        typer.Option(
+            help="A blur drawn per frame: the Gaussian PSF σ uniform in LOW,HIGH px (e.g. 0.8,2.0), recorded "
+            "per frame in truth.json; default: the camera's one PSF."
+        ),
+    ] = None,
+    streaks: Annotated[
+        float,
+        typer.Option(help="With --psf-jitter: share of frames with a motion streak in a random direction."),
+    ] = 1.0 / 3.0,
+    streak_px: Annotated[str, typer.Option(help="With --psf-jitter: streak length LOW,HIGH [px].")] = "2,6",
     workers: Annotated[int, typer.Option(help="Worker processes (default: all cores).")] = 0,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
 ) -> None:
     """Simulate a dive's frame set (manifest, setup.json, PNGs) and its ground truth (truth.json)."""
     from camcal.core.schedule import Schedule, trex_schedule, trex_subsampled
+    from lrm.sim.blur import PsfJitter
     from lrm.sim.camera import CameraModel
+    from lrm.sim.halotable import HaloTable, tables_by_wavelength
     from lrm.sim.render import TransportHalo
     from lrm.sim.scene import TREX_PLACEMENTS, Placement
-    from lrm.simset import SimulationSpec, simulate_frame_set
+    from lrm.simset import SimulationSpec, simulate_frame_set, table_spec
 
+    jitter = None
+    if psf_jitter is not None:
+        try:
+            sig, lengths = parse_floats(psf_jitter, "--psf-jitter"), parse_floats(streak_px, "--streak-px")
+            if len(sig) != 2 or len(lengths) != 2:
+                raise ValueError("--psf-jitter and --streak-px take two numbers, LOW,HIGH")
+            jitter = PsfJitter((sig[0], sig[1]), streaks, (lengths[0], lengths[1]))
+        except ValueError as exc:
+            raise fail(str(exc)) from None
+    tables: list[HaloTable] = []
+    if halo_table:
+        if absorption or scattering:
+            raise fail("--halo-table gives the water: leave out --abs and --sca")
+        try:
+            tables = [HaloTable.load(p) for p in halo_table]
+            by_wl = tables_by_wavelength(tables)
+        except (OSError, KeyError, ValueError) as exc:
+            raise fail(f"--halo-table: {exc}") from None
+        if not wavelengths:
+            wavelengths = ",".join(str(w) for w in sorted(by_wl))
     if halo not in ("single", "transport"):
         raise fail(f"--halo: unknown halo model {halo!r} (single, transport)")
     if not 2 <= halo_orders <= 30 or halo_photons < 10_000:
@@ -161,21 +204,32 @@ def simulate_set(
                 camera.check_setting(e, g)
     except ValueError as exc:
         raise fail(str(exc).splitlines()[0] if "validation error" not in str(exc) else _pyd(exc)) from None
-    spec = SimulationSpec(
-        water=w,
-        placements=tuple(placements),
-        camera=camera,
-        schedule=sched,
-        seed=seed,
-        jitter_px=jitter_px,
-        offset_px=(offset_x, offset_y),
-        sway_m_per_s=sway,
-        flashes_per_frame=flashes,
-        halo_model=halo,
-        transport=TransportHalo(n_photons=halo_photons, max_order=halo_orders)
-        if halo == "transport"
-        else None,
-    )
+    common = {
+        "placements": tuple(placements),
+        "camera": camera,
+        "seed": seed,
+        "jitter_px": jitter_px,
+        "offset_px": (offset_x, offset_y),
+        "sway_m_per_s": sway,
+        "flashes_per_frame": flashes,
+        "psf_jitter": jitter,
+    }
+    if tables:
+        try:
+            spec = table_spec(tables, sched, **common)
+        except ValueError as exc:
+            raise fail(f"--halo-table: {exc}") from None
+        w = spec.water
+    else:
+        spec = SimulationSpec(
+            water=w,
+            schedule=sched,
+            halo_model=halo,
+            transport=TransportHalo(n_photons=halo_photons, max_order=halo_orders)
+            if halo == "transport"
+            else None,
+            **common,  # type: ignore[arg-type]
+        )
     n = sched.n_frames * len(placements)
     console.print(
         f"simulating {n} frames ({sched.n_frames} shots x {len(placements)} cameras) "

@@ -11,6 +11,11 @@ in radial bins, inside the disk in a few wide bins, none across the limb.
 * across the limb (±2 px) linear from that line to the first outer bin;
 * outside, linear between the bins, and beyond the last one a power law
   fitted to the outer third of the bins (the frame's corners).
+
+A table also says what made it (`PhaseTruth`: the phase function's family
+and parameters, the particles' and the whole's mean cosine, b_b/b) and, from
+issue 35's tables on, its wavelength; the two older tables (HG 0.93 + 17 %
+Rayleigh) carry neither and read as HG at 460 nm.
 """
 
 from __future__ import annotations
@@ -26,6 +31,42 @@ from analysis.transport.scene import LEM_RADIUS_M
 
 
 @dataclass(frozen=True)
+class PhaseTruth:
+    """The phase function a table was rendered with: the truth a fit of its frames is judged by.
+
+    ``family`` "hg" (Henyey-Greenstein g + Rayleigh 1 + cos²θ, the fit's own
+    family), "fournier-forand" or "petzold-like" (particles mixed with
+    seawater's depolarised Rayleigh 1 + 0.835 cos²θ); ``particle_mean_cos``
+    the particles' ⟨cos θ⟩ (HG: g); ``mean_cos_theta`` the whole's,
+    (1 − rayleigh_share)·particle_mean_cos (Rayleigh's mean cosine is 0);
+    ``backscatter_fraction`` b_b/b of the whole (None where not recorded).
+    """
+
+    family: str
+    params: tuple[tuple[str, float], ...]
+    particle_mean_cos: float
+    rayleigh_share: float
+    backscatter_fraction: float | None = None
+    fraction_within_1deg: float | None = None
+
+    @property
+    def mean_cos_theta(self) -> float:
+        return (1.0 - self.rayleigh_share) * self.particle_mean_cos
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "family": self.family,
+            "params": dict(self.params),
+            "g_mie": self.particle_mean_cos,
+            "rayleigh_share": self.rayleigh_share,
+            "mean_cos_theta": self.mean_cos_theta,
+            "mean_cos_theta_definition": "(1 - rayleigh_share) * g_mie; Rayleigh's mean cosine is 0",
+            "backscatter_fraction": self.backscatter_fraction,
+            "fraction_within_1deg": self.fraction_within_1deg,
+        }
+
+
+@dataclass(frozen=True)
 class HaloTable:
     """h(ρ) per camera distance from another engine, and the water and geometry it was made for."""
 
@@ -35,17 +76,32 @@ class HaloTable:
     rho_px: tuple[np.ndarray, ...]
     halo: tuple[np.ndarray, ...]
     halo_err: tuple[np.ndarray, ...]
+    wavelength_nm: int | None = None
+    phase: PhaseTruth | None = None
+    name: str = ""
+    spp: int | None = None
+    seconds: tuple[float, ...] = ()
 
     @classmethod
     def load(cls, path: str | Path) -> HaloTable:
         with np.load(path) as z:
             n = len(z["distances_m"])
+            g, f = float(z["mie_g"]), float(z["rayleigh_fraction"])
             water = WaterOptics(
-                float(z["lambda_abs_m"]),
-                float(z["lambda_sca_m"]),
-                mie_g=float(z["mie_g"]),
-                rayleigh_fraction=float(z["rayleigh_fraction"]),
+                float(z["lambda_abs_m"]), float(z["lambda_sca_m"]), mie_g=g, rayleigh_fraction=f
             )
+            if "phase_family" in z.files:
+                names = [str(x) for x in z["phase_param_names"]]
+                phase = PhaseTruth(
+                    str(z["phase_family"]),
+                    tuple(zip(names, (float(v) for v in z["phase_param_values"]), strict=True)),
+                    g,
+                    f,
+                    float(z["backscatter_fraction"]),
+                    float(z["fraction_within_1deg"]),
+                )
+            else:  # the first two tables: HG + Rayleigh by blendphase
+                phase = PhaseTruth("hg", (("g", g),), g, f)
             return cls(
                 water,
                 float(z["focal_px"]),
@@ -53,6 +109,11 @@ class HaloTable:
                 tuple(np.asarray(z[f"rho_px_{k}"], float) for k in range(n)),
                 tuple(np.asarray(z[f"halo_{k}"], float) for k in range(n)),
                 tuple(np.asarray(z[f"halo_err_{k}"], float) for k in range(n)),
+                int(z["wavelength_nm"]) if "wavelength_nm" in z.files else None,
+                phase,
+                Path(path).stem,
+                int(z["spp"]) if "spp" in z.files else None,
+                tuple(float(x) for x in z["seconds"]) if "seconds" in z.files else (),
             )
 
     def camera(self, distance_m: float) -> int:
@@ -86,8 +147,28 @@ class HaloTable:
 
     def describe(self) -> str:
         w = self.water
+        family = f"{self.phase.family} " if self.phase is not None and self.phase.family != "hg" else ""
+        at = f"{self.wavelength_nm} nm: " if self.wavelength_nm is not None else ""
         return (
-            f"λ_abs {w.lambda_abs_m:g} m, λ_sca {w.lambda_sca_m:g} m, ⟨cos θ⟩ {w.mie_g:g}, Rayleigh "
-            f"{w.rayleigh_fraction:g}, cameras at {', '.join(f'{d:g}' for d in self.distances_m)} m, "
+            f"{at}λ_abs {w.lambda_abs_m:g} m, λ_sca {w.lambda_sca_m:g} m, {family}⟨cos θ⟩ {w.mie_g:g}, "
+            f"Rayleigh {w.rayleigh_fraction:g}, cameras at {', '.join(f'{d:g}' for d in self.distances_m)} "
+            "m, "
             f"focal length {self.focal_px:.0f} px"
         )
+
+
+def tables_by_wavelength(tables: list[HaloTable] | tuple[HaloTable, ...]) -> dict[int, HaloTable]:
+    """The tables keyed by their wavelength; refuses a table without one, or two at one wavelength."""
+    out: dict[int, HaloTable] = {}
+    for t in tables:
+        if t.wavelength_nm is None:
+            raise ValueError(
+                f"the halo table {t.name or t.describe()} records no wavelength (one of the first two "
+                "tables, made for 460 nm): give it alone, or re-render it with bench/mitsuba_halo.py"
+            )
+        if t.wavelength_nm in out:
+            raise ValueError(
+                f"two halo tables at {t.wavelength_nm} nm: {out[t.wavelength_nm].name}, {t.name}"
+            )
+        out[t.wavelength_nm] = t
+    return out

@@ -33,6 +33,7 @@ from analysis.scattering import WaterOptics, single_scatter_halo
 from analysis.transport.cache import TemplateCache
 from analysis.transport.disk import surface_path_m
 from analysis.transport.templates import EmissionProfile, TemplateGrid, camera_halo
+from lrm.sim.blur import blur_image
 from lrm.sim.camera import CameraModel
 from lrm.sim.halotable import HaloTable
 from lrm.sim.scene import LEMModel, Placement, Water
@@ -61,7 +62,8 @@ class TransportHalo:
     ``table`` renders a halo another engine made (`lrm.sim.halotable`,
     Mitsuba 3): frames whose scattered light camcal's transport never
     touched. It holds one water and a uniform LEM; the renderer refuses
-    another water or an uneven LEM.
+    another water or an uneven LEM. ``tables`` does the same for several
+    wavelengths, each table at the wavelength it records.
     """
 
     cache_dir: str | None = None
@@ -70,6 +72,19 @@ class TransportHalo:
     seed: int = 7
     grid: TemplateGrid | None = field(default=None, repr=False, compare=False)
     table: HaloTable | None = field(default=None, repr=False, compare=False)
+    tables: tuple[HaloTable, ...] = field(default=(), repr=False, compare=False)
+
+    def table_for(self, wavelength_nm: int) -> HaloTable | None:
+        """The other engine's table for ``wavelength_nm`` (None: the transport makes the halo)."""
+        if self.table is not None:
+            return self.table
+        if not self.tables:
+            return None
+        for t in self.tables:
+            if t.wavelength_nm == wavelength_nm:
+                return t
+        have = ", ".join(str(t.wavelength_nm) for t in self.tables)
+        raise ValueError(f"no halo table at {wavelength_nm} nm (the tables are at {have} nm)")
 
 
 @dataclass(frozen=True)
@@ -100,6 +115,8 @@ class FrameTruth:
     lem_on: bool
     lem_in_view: bool
     n_flashes: int
+    psf_sigma_px: float = 0.0
+    blur_xy_px: tuple[float, float] = (0.0, 0.0)
 
     def to_dict(self) -> dict[str, object]:
         return asdict(self)
@@ -181,13 +198,14 @@ class FrameRenderer:
         opts = self.transport
         emission = EmissionProfile(float(self.lem.emission_ratio.get(wavelength_nm, 1.0)))
         side = -1 if self.placement.faces_far_side else 1
-        if opts.table is not None:
-            t = opts.table.water
+        table = opts.table_for(wavelength_nm)
+        if table is not None:
+            t = table.water
             if max(abs(t.lambda_abs_m - water.lambda_abs_m), abs(t.lambda_sca_m - water.lambda_sca_m)) > 1e-6:
-                raise ValueError(f"the halo table is of another water ({opts.table.describe()})")
+                raise ValueError(f"the halo table is of another water ({table.describe()})")
             if abs(self.emission_factor(wavelength_nm) - 1.0) > 1e-9 or emission.far_near_ratio != 1.0:
                 raise ValueError("a halo table is of a uniform LEM: give the LEM an emission ratio of 1")
-            return opts.table.at(self.placement.distance_m, self._psi_grid)
+            return table.at(self.placement.distance_m, self._psi_grid)
         if opts.grid is not None:
             grid = opts.grid
             if abs(grid.settings.focal_px - self.camera.focal_px) > 1e-6 * self.camera.focal_px:
@@ -287,14 +305,19 @@ class FrameRenderer:
         blur_px: tuple[float, float] = (0.0, 0.0),
         lem_on: bool = True,
         flashes_per_frame: float = 0.0,
+        psf_sigma_px: float | None = None,
     ) -> tuple[np.ndarray, FrameTruth]:
         """One 8-bit frame and what the simulator knows about it.
 
         ``offset_px`` moves the LEM from the optical axis (pointing, tilt,
         jitter); ``blur_px`` is the LEM's motion on the sensor during the
-        exposure (x, y). ``lem_on=False`` renders a dark frame.
+        exposure (x, y); ``psf_sigma_px`` this frame's Gaussian PSF (None:
+        the camera's). ``lem_on=False`` renders a dark frame.
         """
         cam = self.camera
+        psf = cam.psf_sigma_px if psf_sigma_px is None else float(psf_sigma_px)
+        if not 0 <= psf <= 50:
+            raise ValueError(f"psf_sigma_px must lie in [0, 50], got {psf}")
         cam.check_setting(exposure_s, gain_db)
         height, width = cam.height_px, cam.width_px
         water = self.water.at(wavelength_nm)
@@ -325,7 +348,7 @@ class FrameRenderer:
             to_centre = np.array(cam.center_xy) - np.array([cx, cy])
             norm = float(np.hypot(*to_centre)) or 1.0
             ghost_dx, ghost_dy = (to_centre / norm * self.double_image_offset_px).tolist()
-        reach = r_disk * 3 + 4 * cam.psf_sigma_px + blur_len + abs(ghost_dx) + abs(ghost_dy) + 12
+        reach = r_disk * 3 + 4 * psf + blur_len + abs(ghost_dx) + abs(ghost_dy) + 12
         x0, x1 = max(int(cx - reach), 0), min(int(cx + reach) + 1, width)
         y0, y1 = max(int(cy - reach), 0), min(int(cy + reach) + 1, height)
         in_view = lem_on and x1 > x0 and y1 > y0
@@ -340,7 +363,7 @@ class FrameRenderer:
                 f = self.double_image_fraction
                 disk = (1 - f) * disk + f * disk2
             disk = disk.astype(np.float32)
-            disk = _blur(disk, blur_px, cam.psf_sigma_px)
+            disk = blur_image(disk, blur_px, psf)
             rate[y0:y1, x0:x1] = disk + self._halo_e_per_s(wavelength_nm, rho)
 
         # Electrons collected in the exposure, hot pixels, bioluminescence.
@@ -397,6 +420,8 @@ class FrameRenderer:
                 lem_on and r_disk <= cx <= width - 1 - r_disk and r_disk <= cy <= height - 1 - r_disk
             ),
             n_flashes=n_flashes,
+            psf_sigma_px=psf,
+            blur_xy_px=(float(blur_px[0]), float(blur_px[1])),
         )
         return frame, truth
 
@@ -405,35 +430,6 @@ class FrameRenderer:
         w, h = self.camera.width_px, self.camera.height_px
         edge = min(cx, cy, w - 1 - cx, h - 1 - cy) - self.disk_radius_px
         return edge < self.double_image_edge_fraction * min(w, h)
-
-
-def _blur(image: np.ndarray, blur_px: tuple[float, float], psf_sigma_px: float) -> np.ndarray:
-    """Motion blur along ``blur_px`` (a line kernel), then the Gaussian PSF."""
-    length = math.hypot(*blur_px)
-    if length >= 0.5:
-        size = math.ceil(length) | 1
-        size += 2
-        kernel = np.zeros((size, size), dtype=np.float32)
-        c = size // 2
-        dx, dy = blur_px[0] / 2.0, blur_px[1] / 2.0
-        n = max(math.ceil(length * 4), 2)
-        for t in np.linspace(-1.0, 1.0, n):
-            px, py = c + t * dx, c + t * dy
-            ix, iy = math.floor(px), math.floor(py)
-            fx, fy = px - ix, py - iy
-            for ox, oy, w in (
-                (0, 0, (1 - fx) * (1 - fy)),
-                (1, 0, fx * (1 - fy)),
-                (0, 1, (1 - fx) * fy),
-                (1, 1, fx * fy),
-            ):
-                if 0 <= iy + oy < size and 0 <= ix + ox < size:
-                    kernel[iy + oy, ix + ox] += w
-        kernel /= kernel.sum()
-        image = cv2.filter2D(image, -1, kernel, borderType=cv2.BORDER_CONSTANT)
-    if psf_sigma_px > 0:
-        image = cv2.GaussianBlur(image, (0, 0), psf_sigma_px, borderType=cv2.BORDER_CONSTANT)
-    return image
 
 
 def _add_flash(electrons: np.ndarray, rng: np.random.Generator, exposure_s: float) -> None:

@@ -15,6 +15,7 @@ from typing import Any
 import pytest
 
 from tests.browser.conftest import camcal_page
+from tests.utils.pace import Pace
 from tests.utils.system import camcal_up
 
 pytestmark = pytest.mark.browser
@@ -29,17 +30,25 @@ LAMBDA_SHOWN = """() => [...document.querySelectorAll('#att-now [data-wl] .huge'
 def test_make_run_shows_frames_and_a_lambda_att_within_30_s(
     browser: Any, tmp_path: Path, artifacts: Path
 ) -> None:
+    # 30 s on an idle machine's two cores; a busy one (other jobs beside it) is given as many times
+    # longer as processes wait for each core (`Pace`): the same start, at the machine's pace.
+    pace = Pace()
     t0 = time.monotonic()
-    with camcal_up(tmp_path / "data", dive={}) as system, camcal_page(browser, system) as page:
+    with (
+        camcal_up(tmp_path / "data", dive={}) as system,
+        camcal_page(browser, system) as page,
+    ):
         page.goto(system.url("/"))
-        left_ms = (FIRST_LOOK_S - (time.monotonic() - t0)) * 1000
+        first_look_s = pace.bound(FIRST_LOOK_S)
+        left_ms = (first_look_s - (time.monotonic() - t0)) * 1000
         page.wait_for_function(A_THUMB, timeout=max(left_ms, 1))
         t_thumb = time.monotonic() - t0
-        page.wait_for_function(LAMBDA_SHOWN, timeout=max((FIRST_LOOK_S + 30) * 1000 - t_thumb * 1000, 1))
+        first_look_s = pace.bound(FIRST_LOOK_S)
+        page.wait_for_function(LAMBDA_SHOWN, timeout=max((first_look_s + 30) * 1000 - t_thumb * 1000, 1))
         t_lambda = time.monotonic() - t0
-        print(f"make run's configuration: first thumbnail {t_thumb:.1f} s, first λ_att {t_lambda:.1f} s")
-        assert t_thumb <= FIRST_LOOK_S
-        assert t_lambda <= FIRST_LOOK_S
+        print(f"make run's configuration: first thumbnail {t_thumb:.1f} s, λ_att {t_lambda:.1f} s ({pace})")
+        assert t_thumb <= pace.bound(FIRST_LOOK_S)
+        assert t_lambda <= pace.bound(FIRST_LOOK_S)
 
         # Rates say their window, and the last frame its age.
         page.wait_for_function(

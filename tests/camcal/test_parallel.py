@@ -9,6 +9,7 @@ import cv2
 import pytest
 
 from camcal.core.parallel import map_in_threads
+from tests.utils.pace import Pace
 
 
 def _square_and_thread(x: int) -> tuple[int, str, int]:
@@ -31,10 +32,13 @@ def test_results_come_in_order_each_reported_once_on_worker_threads() -> None:
 
 def test_an_error_stops_the_map_and_what_had_not_started_never_runs() -> None:
     ran: list[int] = []
+    # The items after the bad one take long enough that the caller, told of the error, cancels the
+    # rest before the two threads could work through them, however busy the machine keeps it.
+    slow_s = 0.2 * Pace().factor
 
     def fail_on_three(x: int) -> int:
         ran.append(x)
-        time.sleep(0.01)
+        time.sleep(0.01 if x <= 3 else slow_s)
         if x == 3:
             raise ValueError("frame 3 is bad")
         return x

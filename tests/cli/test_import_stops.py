@@ -20,6 +20,7 @@ from pathlib import Path
 
 from tests.utils.indepset import START, Station
 from tests.utils.live import camcal_cli, cli_env
+from tests.utils.pace import Pace
 
 
 def count(db: Path, table: str) -> int:
@@ -67,9 +68,10 @@ def test_an_import_stopped_or_killed_while_it_analyses_is_finished_by_the_same_i
 
     # SIGTERM (`kill`, systemd) as Ctrl-C: it stops at once, keeps what it analysed, says what to do
     proc = start_import(folder, data)
+    pace = Pace()  # "at once": seconds of an idle machine, stretched by how busy this one is
     said, took_s = stop_when_results_pass(proc, db, 0, signal.SIGTERM)
     first = count(db, "frame_results")
-    assert proc.returncode == 130 and took_s < 5, (proc.returncode, took_s, said)
+    assert proc.returncode == 130 and took_s < pace.bound(5), (proc.returncode, took_s, str(pace), said)
     assert "stopped:" in said and "the same import again takes the rest" in said, said
     assert count(db, "frames") == n and 0 < first < n, (first, n)
 

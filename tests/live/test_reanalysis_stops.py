@@ -33,6 +33,7 @@ from storage import queries
 from storage.queries.runs import RUN_STALE_S
 from storage.store import Store
 from tests.utils.dive_store import copy_data
+from tests.utils.pace import Pace
 from tests.utils.runs import OPERATOR_ENV as ENV
 from tests.utils.runs import runs_in_file, start_three
 from tests.utils.system import REPO, camcal_serve, wait_until
@@ -64,15 +65,16 @@ def test_a_killed_server_leaves_runs_that_the_next_one_marks_interrupted(data: P
 def test_a_stopped_server_ends_every_run_it_held(data: Path) -> None:
     with camcal_serve(data, env=ENV) as (url, proc):
         _, ids = start_three(url)
+        pace = Pace()
         t0 = time.monotonic()
         proc.send_signal(signal.SIGTERM)
-        assert proc.wait(30) == 0
+        assert proc.wait(pace.bound(30)) == 0
         stop_s = time.monotonic() - t0
     statuses = {i: s for i, (_, s) in runs_in_file(data).items() if i in ids}
     # Read from the file before any other server could mend it: the stopping server ended them all.
     assert set(statuses.values()) <= {"done", "interrupted", "cancelled"}, statuses
     assert statuses[ids[-1]] == "cancelled"
-    assert stop_s < ReanalysisQueue.STOP_WAIT_S + 5
+    assert stop_s < ReanalysisQueue.STOP_WAIT_S + pace.bound(5), (stop_s, str(pace))
 
 
 class SlowRunner(LocalRunner):

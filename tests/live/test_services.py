@@ -21,6 +21,7 @@ from pathlib import Path
 import httpx
 import zmq
 
+from tests.utils.pace import Pace
 from tests.utils.system import (
     assert_ports_free,
     free_ports,
@@ -38,6 +39,7 @@ def test_a_port_in_use_stops_camcal_ingest_and_camcal_serve_at_once(tmp_path: Pa
     port, events, http = free_ports(3)
     mark = uuid.uuid4().hex
     data = str(tmp_path / "data")
+    pace = Pace()  # "at once": seconds of an idle machine, stretched by how busy this one is
     with holding(port):
         code, out, took_s = run_camcal(
             ["ingest", "--data", data, "--bind", f"tcp://*:{port}", "--events", f"tcp://127.0.0.1:{events}"],
@@ -46,7 +48,7 @@ def test_a_port_in_use_stops_camcal_ingest_and_camcal_serve_at_once(tmp_path: Pa
         )
     print(f"camcal ingest with its port taken: exit {code} after {took_s:.1f} s")
     line = " ".join(out.split())
-    assert code == 3 and took_s < 10, out
+    assert code == 3 and took_s < pace.bound(10), (took_s, str(pace), out)
     assert f"the ingest cannot listen on 0.0.0.0:{port}: the port is in use by pid {os.getpid()}" in line
     assert "--bind (CAMCAL_INGEST_BIND)" in line and "Traceback" not in out
     assert not tree(mark)
@@ -55,7 +57,7 @@ def test_a_port_in_use_stops_camcal_ingest_and_camcal_serve_at_once(tmp_path: Pa
         code, out, took_s = run_camcal(["serve", "--data", data, "--port", str(http)], mark, tmp_path)
     print(f"camcal serve with its port taken: exit {code} after {took_s:.1f} s")
     line = " ".join(out.split())
-    assert code == 3 and took_s < 10, out
+    assert code == 3 and took_s < pace.bound(10), (took_s, str(pace), out)
     assert f"the dashboard cannot listen on 127.0.0.1:{http}: the port is in use by pid {os.getpid()}" in line
     assert "--port (CAMCAL_HTTP_PORT)" in line
     assert not tree(mark)
@@ -103,7 +105,8 @@ def health_report(events_port: int, timeout_s: float) -> dict:
 
 def test_nothing_of_camcal_ingest_and_its_worker_pool_outlives_it(tmp_path: Path) -> None:
     """SIGKILL, SIGTERM, SIGINT in turn, on the same ports: each time the ingest, its fork server,
-    workers and resource tracker are gone within 5 s, and the next ingest starts there at once."""
+    workers and resource tracker are gone within 5 s (of an idle machine; `Pace`), and the next
+    ingest starts there at once."""
     port, events = free_ports(2)
     for ending in (signal.SIGKILL, signal.SIGTERM, signal.SIGINT):
         mark = uuid.uuid4().hex
@@ -119,13 +122,15 @@ def test_nothing_of_camcal_ingest_and_its_worker_pool_outlives_it(tmp_path: Path
             health_report(events, 30)
             # the ingest, its resource tracker, fork server and two workers
             wait_until(lambda m=mark: len(tree(m)) >= 5, 30, "the worker pool")
+            pace = Pace()
             t0 = time.monotonic()
             proc.send_signal(ending)
             if ending != signal.SIGKILL:
-                assert proc.wait(10) == 0, log.read_text()[-2000:]
+                assert proc.wait(pace.bound(10)) == 0, log.read_text()[-2000:]
                 assert "ingest stopped cleanly" in log.read_text()
-            gone_within(mark, 5.0 - (time.monotonic() - t0))
-            print(f"{ending.name}: the ingest and its pool gone {time.monotonic() - t0:.2f} s after it")
+            gone_within(mark, pace.bound(5.0) - (time.monotonic() - t0))
+            gone_s = time.monotonic() - t0
+            print(f"{ending.name}: the ingest and its pool gone {gone_s:.2f} s after it ({pace})")
             assert_ports_free(port, events)
         finally:
             kill_tree(mark)
@@ -182,9 +187,10 @@ def test_camcal_up_tells_systemd_when_it_is_ready_and_doctor_finds_what_it_left(
         row = doctor_rows(tmp_path)[ingest_pid]
         assert row.startswith("warn") and f"left behind: its camcal up (pid {proc.pid}) is gone" in row, row
         assert zmq_ports in row and f"kill {ingest_pid}" in row
+        pace = Pace()
         t0 = time.monotonic()
         os.kill(ingest_pid, signal.SIGCONT)
-        gone_within(mark, 5.0)
+        gone_within(mark, pace.bound(5.0))
         print(f"a frozen ingest whose camcal up was killed: gone {time.monotonic() - t0:.2f} s after SIGCONT")
         assert_ports_free(http, ingest, events)
     finally:

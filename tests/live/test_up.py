@@ -17,6 +17,7 @@ from pathlib import Path
 import httpx
 import pytest
 
+from tests.utils.pace import Pace
 from tests.utils.system import (
     System,
     assert_ports_free,
@@ -34,6 +35,7 @@ from tests.utils.system import (
 def test_a_port_in_use_stops_camcal_up_at_once_naming_the_holder_and_the_option(tmp_path: Path) -> None:
     http, ingest, events = free_ports(3)
     mark = uuid.uuid4().hex
+    pace = Pace()
     with holding(ingest):
         code, out, took_s = run_camcal(
             ["up", "--data", str(tmp_path / "data"), "--port", str(http), "--ingest-port", str(ingest),
@@ -44,7 +46,7 @@ def test_a_port_in_use_stops_camcal_up_at_once_naming_the_holder_and_the_option(
         other_pid = os.getpid()
     print(f"camcal up with its ingest port taken: exit {code} after {took_s:.1f} s")
     assert code == 3, out
-    assert took_s < 10
+    assert took_s < pace.bound(10), (took_s, str(pace))  # at once: no part started first
     line = " ".join(out.split())
     assert f"ingest cannot listen on 127.0.0.1:{ingest}" in line, out
     assert f"by pid {other_pid}" in line and "--ingest-port" in line, out
@@ -56,6 +58,7 @@ def test_a_part_that_fails_to_start_stops_every_part_started(tmp_path: Path) -> 
     """The modules cannot start (an unknown schedule): the ingest and dashboard already run, and stop."""
     http, ingest, events = free_ports(3)
     mark = uuid.uuid4().hex
+    pace = Pace()
     code, out, took_s = run_camcal(
         ["up", "--data", str(tmp_path / "data"), "--port", str(http), "--ingest-port", str(ingest),
          "--events-port", str(events), "--schedule", "no-such-schedule"],
@@ -71,7 +74,7 @@ def test_a_part_that_fails_to_start_stops_every_part_started(tmp_path: Path) -> 
     # it ended within 10 s of the module's failure (the module's last word in its log)
     failed_at = (tmp_path / "data" / "logs" / f"module-{failed.group(1)}.log").stat().st_mtime
     print(f"... {ended - failed_at:.1f} s after module {failed.group(1)} failed")
-    assert ended - failed_at < 10
+    assert ended - failed_at < pace.bound(10), (ended - failed_at, str(pace))
     assert "'no-such-schedule' is neither a preset" in line, out  # its log's last lines
     # the other module failed too, or was stopped while it started
     assert re.search(r"stopped: ingest \(0\), module A \((2|-15)\), module B \((2|-15)\)", line), out
@@ -98,7 +101,8 @@ def streaming(system: System) -> bool:
 def test_nothing_of_camcal_up_outlives_it_and_its_ports_are_free_at_once(
     ending: str, tmp_path: Path, up_ports: tuple[int, int, int]
 ) -> None:
-    """However `camcal up` ends, while its modules stream, its whole tree is gone within 5 s.
+    """However `camcal up` ends, while its modules stream, its whole tree is gone within 5 s (of an
+    idle machine: `tests.utils.pace.Pace` stretches it by how busy the machine is).
 
     All four endings run on the same ports one after the other: each `camcal up`
     starts at once where the last one ended.
@@ -113,26 +117,30 @@ def test_nothing_of_camcal_up_outlives_it_and_its_ports_are_free_at_once(
             modules = httpx.get(system.url("/api/health"), timeout=5).json()["modules"]
             return [modules[m]["clock_offset_s"] for m in ("A", "B")]
 
-        wait_until(lambda: None not in offsets(), 15, "the modules' clock offsets on /api/health")
+        wait_until(
+            lambda: None not in offsets(), Pace().bound(15), "the modules' clock offsets on /api/health"
+        )
         assert all(abs(o) < 2.0 for o in offsets() if o is not None)  # one host: one clock
         members = tree(system.mark)
         # camcal up, the ingest, its fork server, resource tracker and worker(s), two modules
         assert len(members) >= 7, members
         proc = system.process
+        pace = Pace()  # a daemon ends within seconds of its signal: seconds of an idle machine
         t0 = time.monotonic()
         if ending == "the ingest killed":
             ingest = next(c for c in members if b"\0ingest\0" in Path(f"/proc/{c}/cmdline").read_bytes())
             os.kill(ingest, signal.SIGKILL)
-            assert proc.wait(10) == 1
+            assert proc.wait(pace.bound(10)) == 1
             assert "the ingest killed by SIGKILL; stopping camcal" in " ".join(system.log.read_text().split())
         else:
             module_pid(system, "A")  # the modules are there to stop
             proc.send_signal(getattr(signal, ending))
             if ending != "SIGKILL":
-                assert proc.wait(10) == 0
+                assert proc.wait(pace.bound(10)) == 0
                 assert "stopped: ingest (0), module A (0), module B (0)" in system.log.read_text()
-        gone_within(system.mark, 5.0 - (time.monotonic() - t0))
-        print(f"{ending}: every process of camcal up's tree gone {time.monotonic() - t0:.2f} s after it")
+        gone_within(system.mark, pace.bound(5.0) - (time.monotonic() - t0))
+        gone_s = time.monotonic() - t0
+        print(f"{ending}: every process of camcal up's tree gone {gone_s:.2f} s after it ({pace})")
         assert_ports_free(*up_ports)
 
 

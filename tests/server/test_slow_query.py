@@ -30,6 +30,7 @@ from server.app import create_app
 from server.settings import ServerSettings
 from storage import queries
 from storage.store import Store
+from tests.utils.pace import Pace
 
 HEARTBEAT_S = 0.1
 
@@ -133,8 +134,12 @@ def test_a_websocket_keeps_its_heartbeat_while_a_query_hangs(tmp_path: Path, blo
             requester.start()
             assert entered.wait(10), "the timeline query never started"
 
+            # 20 heartbeats are sent in 2 s of an idle machine; a busy one sends them slower (its
+            # sender is a thread like any other), so the window and the gap allowed stretch alike.
+            pace = Pace()
+            window_s = min(pace.bound(2.0), 15.0)  # the query is held 30 s at most
             t0 = time.monotonic()
-            during = beats(2.0)
+            during = beats(window_s)
             with httpx.Client(timeout=5) as c:  # other routes answer meanwhile
                 t_other = time.monotonic()
                 assert c.get(f"http://{host}/api/dives").status_code == 200
@@ -142,11 +147,12 @@ def test_a_websocket_keeps_its_heartbeat_while_a_query_hangs(tmp_path: Path, blo
             assert not answer, "the blocked request answered before it was let go"
             gaps = [b - a for a, b in zip([t0, *during], during, strict=False)]
             print(
-                f"while a query hung: {len(during)} heartbeats in 2 s (every {HEARTBEAT_S} s), "
+                f"while a query hung: {len(during)} heartbeats in {window_s:.1f} s (every {HEARTBEAT_S} s), "
                 f"longest gap {max(gaps, default=float('nan')):.3f} s; /api/dives in {other_s * 1000:.0f} ms"
+                f" ({pace})"
             )
-            assert len(during) >= 10, f"{len(during)} heartbeats in 2 s while a query hung"
-            assert max(gaps) < 1.0
+            assert len(during) >= 10, f"{len(during)} heartbeats in {window_s:.1f} s while a query hung"
+            assert max(gaps) < window_s / 2, (max(gaps), str(pace))
 
             release.set()
             requester.join(15)

@@ -28,6 +28,7 @@ from camcal.core import wire
 from camcal.core.schedule import CameraLimits, Schedule
 from lrm.agent import Agent, AgentConfig
 from lrm.runner import ScheduleRunner
+from tests.utils.pace import Pace
 from tests.utils.sim import SMALL_CAMERA, renderer
 
 TREX_DISTANCES = {"A": (21.56, False), "B": (41.62, True)}
@@ -385,9 +386,11 @@ def start_ingest(
 
 
 def wait_for(predicate: Callable[[], Any], timeout: float, interval: float = 0.05) -> bool:
-    """Poll ``predicate`` until it is true or ``timeout`` seconds pass; whether it became true."""
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
+    """Poll ``predicate`` until it is true or ``timeout`` seconds pass (of an idle machine: stretched by
+    how busy this one was meanwhile, `tests.utils.pace.Pace`); whether it became true."""
+    pace = Pace()
+    t0 = time.monotonic()
+    while (waited := time.monotonic() - t0) < timeout or waited < pace.bound(timeout):
         if predicate():
             return True
         time.sleep(interval)

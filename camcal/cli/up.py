@@ -26,7 +26,7 @@ from camcal.cli.common import console, err_console, fail, labelled
 from camcal.cli.config import settings_or_fail
 from camcal.cli.credentials import child_environment, ship_key, simulated_link, tokens_or_generated
 from camcal.cli.serve import HttpServer, bind_http, stop_signals
-from camcal.core import runfile, supervise
+from camcal.core import procinfo, runfile, supervise
 from camcal.core.logs import configure_logging
 
 if TYPE_CHECKING:
@@ -39,6 +39,9 @@ INGEST_READY_S = 20.0
 HTTP_READY_S = 15.0
 MODULES_LINKED_S = 20.0
 STOP_S = 3.5  # modules, then the ingest: what is left after this is killed (their data is safe on disk)
+#: On a busy machine the parts get STOP_S stretched by how busy it is (`stop_budget_s`), at most this:
+#: under systemd's TimeoutStopSec (20 s, deploy/camcal.service).
+STOP_MAX_S = 15.0
 
 
 def register(app: typer.Typer) -> None:
@@ -189,10 +192,10 @@ def up(
             http.server.should_exit = True  # the dashboard winds down while the children stop
         else:
             http_sock.close()
-        t_stop = time.monotonic()
-        sup.stop([modules, [c for c in sup.children if c not in modules]], STOP_S)
+        t_stop, budget_s = time.monotonic(), stop_budget_s()
+        sup.stop([modules, [c for c in sup.children if c not in modules]], budget_s)
         if http is not None:  # whatever is left of it ends with this process
-            http.stop(max(0.1, STOP_S + 1.0 - (time.monotonic() - t_stop)))
+            http.stop(max(0.1, budget_s + 1.0 - (time.monotonic() - t_stop)))
         runfile.remove(run_file)
         console.print("stopped: " + ", ".join(f"{c.name} ({c.proc.returncode})" for c in sup.children))
     raise typer.Exit(code)
@@ -210,6 +213,13 @@ def port_setting(option: str, env: str | None = None) -> str:
     if words.get(option):
         also.append(f"make run {words[option]}=...")
     return f"{option} ({', '.join(also)})" if also else option
+
+
+def stop_budget_s() -> float:
+    """How long the parts get to stop in order before what is left is killed: `STOP_S` on an idle
+    machine; on a busy one as many times longer as processes wait for each core (an ingest that
+    flushes in 3 s alone was killed mid-flush beside two CPU-bound jobs), at most `STOP_MAX_S`."""
+    return min(STOP_MAX_S, STOP_S * procinfo.busy_factor())
 
 
 def ingest_args(data_dir: Path, bind: str, events: str, dive: str) -> list[str]:

@@ -10,21 +10,7 @@ that factor: the same promise on a busy machine, never a looser one on an idle m
 
 from __future__ import annotations
 
-import os
-
-
-def busy_factor() -> float:
-    """How many processes want each core now (at least 1): the 1-minute load average and the
-    processes runnable at this instant (this one left out), per core."""
-    cores = os.cpu_count() or 1
-    load1 = os.getloadavg()[0]
-    running = 1
-    try:
-        with open("/proc/loadavg") as fh:
-            running = int(fh.read().split()[3].split("/")[0])
-    except (OSError, ValueError, IndexError):
-        pass
-    return max(1.0, load1 / cores, (running - 1) / cores)
+from camcal.core.procinfo import busy_factor
 
 
 class Pace:

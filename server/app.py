@@ -14,7 +14,7 @@ from camcal.core import __version__
 from frontend import STATIC_DIR
 from server import errors, openapi
 from server.guard import Guard, TokenThrottle
-from server.jobs import ExportSlots, ReanalysisQueue
+from server.jobs import ExportSlots, PreviewSlots, ReanalysisQueue
 from server.relay import LiveHub
 from server.routers import (
     alarms,
@@ -75,6 +75,7 @@ def create_app(settings: ServerSettings | None = None, *, store: Store | None = 
     app.state.settings = settings
     app.state.throttle = TokenThrottle(settings.token_failures, settings.token_window_s)
     app.state.exports = ExportSlots(settings.exports_at_once)
+    app.state.previews = PreviewSlots(settings.previews_at_once, settings.operator_previews_at_once)
     errors.install(app)
     openapi.install(app)
     app.add_middleware(GZipMiddleware, minimum_size=2048)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hmac
+from collections.abc import Iterator
 from typing import Annotated, Any
 
 from fastapi import Depends, Path, Query, Request
@@ -101,6 +102,25 @@ def operator(
 
 
 OperatorDep = Annotated[str, Depends(operator)]
+
+
+def preview_slot(request: Request, settings: SettingsDep) -> Iterator[None]:
+    """A slot to compute a schedule's preview in (`server.jobs.PreviewSlots`; 503 when none is
+    free): an operator's own when the request carries a valid token. A wrong token is counted as
+    on any route (`check_token`) and gets an anonymous slot."""
+    client = request.client.host if request.client else "unknown"
+    is_operator = False
+    if request.headers.get("authorization"):
+        try:
+            check_token(settings, request.app.state.throttle, client, request.headers["authorization"])
+            is_operator = True
+        except TokenRefused:
+            pass
+    with request.app.state.previews.slot(is_operator):
+        yield
+
+
+PreviewSlotDep = Annotated[None, Depends(preview_slot)]
 
 
 def needs_operator(route: Any) -> bool:

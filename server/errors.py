@@ -87,6 +87,20 @@ def _reason(error: Any) -> str:
     return msg
 
 
+def body_error(exc: StarletteHTTPException) -> tuple[str, str] | None:
+    """(code, message) for FastAPI's 400 "There was an error parsing the body", by its cause: a
+    body that is not UTF-8 (``not_utf8``; JSON is UTF-8, RFC 8259) or not readable (``bad_body``)."""
+    if exc.status_code != 400:
+        return None
+    cause = exc.__cause__
+    if isinstance(cause, UnicodeDecodeError):
+        bad = cause.object[cause.start : cause.start + 1]
+        return "not_utf8", f"the request body is not UTF-8 (byte {cause.start}: {bad!r}): send JSON in UTF-8"
+    if cause is not None:
+        return "bad_body", f"the request body cannot be read as JSON ({type(cause).__name__}): send JSON"
+    return None
+
+
 def install(app: FastAPI) -> None:
     """Register the handlers that give every error the one shape."""
 
@@ -115,6 +129,9 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(StarletteHTTPException)
     async def http_error(_: Request, exc: StarletteHTTPException) -> JSONResponse:
+        unreadable = body_error(exc)
+        if unreadable is not None:
+            return JSONResponse(error_body(*unreadable), status_code=400)
         codes = {404: "not_found", 405: "method_not_allowed", 413: "too_large"}
         code = codes.get(exc.status_code, "http_error")
         return JSONResponse(

@@ -14,18 +14,28 @@ Before a route sees a request, `Guard`:
   without a token (401) or with a wrong one (403) is answered before its
   body is read, and an address that sent too many wrong tokens is held off
   (429, `TokenThrottle`);
-* **caps the requests of one client** in flight at once (429).
+* **caps the requests of one client** in flight at once (429);
+* **knows the client**: the peer's address, or, when the peer is one of the
+  configured reverse proxies (``trusted_proxies``), the address the proxies
+  put in ``X-Forwarded-For`` (`TrustedProxies`). Every limit per address
+  (wrong tokens, requests and WebSockets at once) counts that address, and
+  an ``X-Forwarded-For`` from anyone else is ignored: a client that rotates
+  it is still one client;
+* **keeps answers out of caches**: an API answer (``/api/...``) or any JSON
+  without a ``Cache-Control`` of its own gets ``Cache-Control: no-store``
+  (no browser, proxy or shared tablet keeps an operator's data).
 
 Everything it refuses has the API's one error shape (`server.errors`).
 """
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import re
 import time
 from collections import OrderedDict, deque
-from collections.abc import Awaitable, Callable, MutableMapping
+from collections.abc import Awaitable, Callable, Iterable, MutableMapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -93,6 +103,33 @@ class TokenThrottle:
             self._failures.popitem(last=False)
 
 
+class TrustedProxies:
+    """The reverse proxies whose ``X-Forwarded-For`` (and ``X-Forwarded-Proto``) the server believes:
+    IP addresses or networks (``10.0.0.5``, ``10.0.0.0/24``, ``::1``). None by default: the client is
+    the peer of the TCP connection, whatever its headers say."""
+
+    def __init__(self, entries: Iterable[str] = ()) -> None:
+        self.networks = tuple(ipaddress.ip_network(e.strip(), strict=False) for e in entries)
+
+    def trusts(self, host: str) -> bool:
+        try:
+            address = ipaddress.ip_address(host)
+        except ValueError:
+            return False
+        return any(address in n for n in self.networks)
+
+    def client(self, peer: str, forwarded_for: bytes | None) -> str:
+        """The client of a request from ``peer``: the last address of ``X-Forwarded-For`` that no
+        trusted proxy added (the one the first proxy saw), when ``peer`` is a trusted proxy."""
+        if not forwarded_for or not self.networks or not self.trusts(peer):
+            return peer
+        hops = [h.strip() for h in forwarded_for.decode("latin-1").split(",") if h.strip()]
+        for hop in reversed(hops):
+            if not self.trusts(hop):
+                return hop[:64]
+        return hops[0][:64] if hops else peer
+
+
 @dataclass(frozen=True)
 class RouteRule:
     methods: frozenset[str]
@@ -130,6 +167,7 @@ class Guard:
         self.fastapi_app = fastapi_app
         self._rules: list[RouteRule] | None = None
         self._in_flight: dict[str, int] = {}
+        self._proxies: TrustedProxies | None = None
 
     # -- route rules, read once from the app's routes --------------------
     def rules(self) -> list[RouteRule]:
@@ -165,20 +203,24 @@ class Guard:
             await self.app(scope, receive, send)
             return
 
+        settings = self.fastapi_app.state.settings
+        client = self._client(scope, settings)
+        api = scope["path"].startswith("/api/")
+
         async def send_with_headers(message: Message) -> None:
             if message["type"] == "http.response.start":
-                names = {k.lower() for k, _ in message.get("headers", [])}
-                message["headers"] = [
-                    *message.get("headers", []),
-                    *((k, v) for k, v in SECURITY_HEADERS if k not in names),
-                ]
+                headers = message.get("headers", [])
+                names = {k.lower(): v for k, v in headers}
+                extra = [(k, v) for k, v in SECURITY_HEADERS if k not in names]
+                json_body = names.get(b"content-type", b"").startswith(b"application/json")
+                if (api or json_body) and b"cache-control" not in names:
+                    extra.append((b"cache-control", b"no-store"))
+                message["headers"] = [*headers, *extra]
             await send(message)
 
         if scope["type"] == "websocket":
             await self.app(scope, receive, send)
             return
-        settings = self.fastapi_app.state.settings
-        client = (scope.get("client") or ("unknown", 0))[0]
         refusal = self._refuse(scope, client, settings)
         if refusal is not None:
             await refusal(send_with_headers)
@@ -201,6 +243,23 @@ class Guard:
                 self._in_flight[client] = left
             else:
                 self._in_flight.pop(client, None)
+
+    def _client(self, scope: Scope, settings: Any) -> str:
+        """The request's client address (`TrustedProxies`), written into the scope for the routes."""
+        peer = scope.get("client") or ("unknown", 0)
+        if self._proxies is None:
+            self._proxies = TrustedProxies(settings.trusted_proxies)
+        if not self._proxies.networks or not self._proxies.trusts(peer[0]):
+            return str(peer[0])
+        headers = scope.get("headers") or []
+        hops = b",".join(v for k, v in headers if k == b"x-forwarded-for")  # several lines: one list
+        client = self._proxies.client(peer[0], hops)
+        scope["client"] = (client, 0 if client != peer[0] else peer[1])
+        proto = dict(headers).get(b"x-forwarded-proto", b"").decode("latin-1").strip().lower()
+        if proto in ("http", "https"):
+            secure = proto == "https"
+            scope["scheme"] = ("wss" if secure else "ws") if scope["type"] == "websocket" else proto
+        return client
 
     @staticmethod
     def _limit(rule: RouteRule | None, settings: Any) -> int:

@@ -6,7 +6,10 @@ someone can click (or script) the button: `ReanalysisQueue` runs
 re-analyses one at a time, in the order they were asked for, and refuses
 more than a few waiting (503); `ExportSlots` lets ``n`` exports run at once
 and refuses the next (503, try again later). Both are made by the app's
-lifespan and stopped with it.
+lifespan and stopped with it. A schedule's preview is open to every browser
+(no token) and costs up to a few tenths of a second of CPU and megabytes of
+answer: `PreviewSlots` lets a few be computed at once and keeps some for
+operators.
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ import contextlib
 import logging
 import queue
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 from ingest.reanalysis import RunBeats
 from server.errors import Unavailable
@@ -127,3 +130,36 @@ class ExportSlots:
 
     def give(self) -> None:
         self._slots.release()
+
+
+class PreviewSlots:
+    """Schedule previews computed at once: ``anonymous`` slots for requests without a valid
+    operator token, and ``operators`` more that only requests with one may take (they take an
+    anonymous slot when theirs are full). A request finding no free slot is refused with `Busy`
+    (503, ``Retry-After: 1``) at once, never queued: a flood from the ship's network holds at most
+    ``anonymous`` threads and never turns an operator's preview away."""
+
+    def __init__(self, anonymous: int, operators: int) -> None:
+        self.anonymous, self.operators = max(1, anonymous), max(0, operators)
+        self._lanes = {
+            False: threading.BoundedSemaphore(self.anonymous),
+            True: threading.BoundedSemaphore(max(1, self.operators)),
+        }
+
+    @contextlib.contextmanager
+    def slot(self, operator: bool) -> Iterator[None]:
+        lanes = ([True] if operator and self.operators else []) + [False]
+        for lane in lanes:
+            if self._lanes[lane].acquire(blocking=False):
+                try:
+                    yield
+                finally:
+                    self._lanes[lane].release()
+                return
+        raise Busy(
+            f"{self.anonymous} schedule preview(s) are being computed for browsers without an operator "
+            "token: try again in a second (operators signed in have previews of their own)"
+            if not operator
+            else "every preview slot is taken: try again in a second",
+            1,
+        )

@@ -3,7 +3,8 @@
 Routes declare what is special to them (`NOT_FOUND`, `CONFLICT`, `GONE`,
 `BUSY`, ...); `install` adds what follows from a route's shape, so that no
 route can forget it: an operator route may answer 401, 403 and 429 and
-carries the bearer security requirement; a route with a body may answer 413;
+carries the bearer security requirement; a route with a body may answer 400 (a
+body that is not UTF-8 JSON) and 413;
 a route with a path parameter may answer 404; every route may answer
 429 (too many requests of one address at once, `server.guard`) and, but
 the health checks, 503 (the database cannot be used now, `server.errors`). Every error
@@ -41,9 +42,12 @@ NOT_FOUND = _error(404, "No such thing (the message names it)")
 CONFLICT = _error(409, "In conflict with the current state (e.g. a schedule version not newer)")
 GONE = _error(410, "The frame's file is no longer in the data folder (removed by retention)")
 UNREADABLE = _error(422, "The request is invalid, or the stored file is not the image it claims to be")
-BUSY = _error(503, "At the bound for this kind of work (exports, queued re-analyses): see Retry-After")
+BUSY = _error(
+    503, "At the bound for this kind of work (exports, queued re-analyses, previews): see Retry-After"
+)
 
 _GENERIC = {
+    "400": "The request body is not UTF-8 (code not_utf8) or cannot be read as JSON (code bad_body)",
     "401": "No operator token: send 'Authorization: Bearer <token>'",
     "403": "The operator token is not valid",
     "413": "The request body is over the route's limit (1 MiB unless the route says otherwise)",
@@ -114,6 +118,7 @@ def install(app: FastAPI) -> None:
                 }:
                     _add(op, "404")
                 if route.dependant.body_params:
+                    _add(op, "400")
                     _add(op, "413")
                 if needs_operator(route):
                     for status in ("401", "403"):

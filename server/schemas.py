@@ -8,6 +8,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from camcal.core.events import EventKind
 from camcal.core.frameset import CLOCK_OFFSET_MAX_S
+from camcal.core.numbers import Integer, Number
 
 
 class DivePublic(BaseModel):
@@ -113,9 +114,9 @@ class RunPublic(BaseModel):
 
 
 class CameraDistance(BaseModel):
-    distance_m: float = Field(gt=0, le=10000)
-    distance_err_m: float = Field(0.0, ge=0, le=100)
-    clock_offset_s: float | None = Field(
+    distance_m: Number = Field(gt=0, le=10000)
+    distance_err_m: Number = Field(0.0, ge=0, le=100)
+    clock_offset_s: Number | None = Field(
         None,
         ge=-CLOCK_OFFSET_MAX_S,
         le=CLOCK_OFFSET_MAX_S,
@@ -124,8 +125,8 @@ class CameraDistance(BaseModel):
 
 
 class Ratio(BaseModel):
-    value: float = Field(gt=0, le=100)
-    err: float = Field(0.0, ge=0, le=100)
+    value: Number = Field(gt=0, le=100)
+    err: Number = Field(0.0, ge=0, le=100)
 
 
 class ReanalysisCreate(BaseModel):
@@ -135,8 +136,8 @@ class ReanalysisCreate(BaseModel):
     label: str = Field("", max_length=200)
     cameras: dict[str, CameraDistance] | None = None
     emission_ratio: dict[int, Ratio] | None = None
-    linear_range: tuple[float, float] | None = None
-    calibration_id: int | None = None
+    linear_range: tuple[Number, Number] | None = None
+    calibration_id: Integer | None = None
 
     @field_validator("linear_range")
     @classmethod

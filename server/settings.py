@@ -26,7 +26,11 @@ class ServerSettings:
     ``max_requests_per_client`` requests and ``max_websockets_per_client``
     live connections of one address at once, ``exports_at_once`` exports
     and one re-analysis at a time (``max_reanalyses_queued`` waiting),
+    ``previews_at_once`` schedule previews for browsers without a token and
+    ``operator_previews_at_once`` more for operators,
     ``token_failures`` wrong tokens of one address within ``token_window_s``.
+    ``trusted_proxies``: addresses or networks of reverse proxies whose
+    ``X-Forwarded-For`` names the client (`server.guard.TrustedProxies`); none by default.
     """
 
     data_dir: Path = Path("camcal-data")
@@ -47,7 +51,10 @@ class ServerSettings:
     max_websockets_per_client: int = 16
     max_ws_message_bytes: int = 4096
     exports_at_once: int = 1
+    previews_at_once: int = 2
+    operator_previews_at_once: int = 2
     max_reanalyses_queued: int = 4
     token_failures: int = 10
     token_window_s: float = 60.0
     simulation_speed: float | None = None
+    trusted_proxies: tuple[str, ...] = ()

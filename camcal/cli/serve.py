@@ -60,6 +60,7 @@ class HttpServer:
             max_websockets_per_client=settings.http_max_connections_per_client,
             max_requests_per_client=2 * settings.http_max_connections_per_client,
             simulation_speed=simulation_speed,
+            trusted_proxies=tuple(settings.http_trusted_proxies),
         )
         # Opened here, not in the app's start-up: a database that cannot be opened is one line
         # (`storage.store.StoreUnavailable`) before anything runs, not uvicorn's traceback.
@@ -81,6 +82,9 @@ class HttpServer:
             ws_max_size=64 * 1024,  # a browser sends a few small requests; nothing needs more
             ssl_certfile=str(tls[0]) if tls else None,
             ssl_keyfile=str(tls[1]) if tls else None,
+            # uvicorn would believe X-Forwarded-For from 127.0.0.1 (anyone on the ship's computer could
+            # then pose as any address): the app's guard reads it from the configured proxies only.
+            proxy_headers=False,
         )
         self.server = uvicorn.Server(config)
         host = {"0.0.0.0": "127.0.0.1", "::": "::1"}.get(settings.http_host, settings.http_host)

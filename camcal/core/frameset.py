@@ -21,6 +21,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from camcal.core.images import FrameReadError, read_frame
+from camcal.core.numbers import Number
 
 MANIFEST = "manifest.csv"
 SETUP = "setup.json"
@@ -65,12 +66,12 @@ TREX_REPEATABILITY: dict[int, float] = {405: 0.0014, 460: 0.0013, 525: 0.0007}
 
 class CameraSetup(BaseModel):
     model_config = ConfigDict(extra="allow")
-    distance_m: float = Field(gt=0, description="LEM-to-camera distance in metres")
-    distance_err_m: float = Field(0.0, ge=0, description="its one-sigma error in metres")
-    focal_px: float | None = Field(
+    distance_m: Number = Field(gt=0, description="LEM-to-camera distance in metres")
+    distance_err_m: Number = Field(0.0, ge=0, description="its one-sigma error in metres")
+    focal_px: Number | None = Field(
         None, gt=0, description="focal length in pixels (default: the setup's focal_px)"
     )
-    clock_offset_s: float = Field(
+    clock_offset_s: Number = Field(
         0.0,
         ge=-CLOCK_OFFSET_MAX_S,
         le=CLOCK_OFFSET_MAX_S,
@@ -99,20 +100,20 @@ class SeriesSetup(BaseModel):
     """
 
     model_config = ConfigDict(extra="forbid")
-    visit_gap_s: float = Field(30.0, gt=0, le=86400, description="a gap that ends a visit [s]")
-    visit_max_s: float = Field(600.0, gt=0, le=86400, description="longest visit [s]")
-    visit_depth_jump_m: float = Field(
+    visit_gap_s: Number = Field(30.0, gt=0, le=86400, description="a gap that ends a visit [s]")
+    visit_max_s: Number = Field(600.0, gt=0, le=86400, description="longest visit [s]")
+    visit_depth_jump_m: Number = Field(
         50.0, gt=0, le=10000, description="a jump of the LEM's depth between frames that ends a visit [m]"
     )
-    repeatability: dict[int, float] = Field(
+    repeatability: dict[int, Number] = Field(
         default_factory=lambda: dict(TREX_REPEATABILITY),
         description="relative I_center repeatability per wavelength",
     )
-    repeatability_default: float = Field(
+    repeatability_default: Number = Field(
         0.0015, ge=0, le=0.5, description="relative I_center repeatability of other wavelengths"
     )
-    trend_prior_per_s: float = Field(0.001, gt=0, le=1.0, description="prior width on d ln I / dt [1/s]")
-    trend_visits_max_s: float = Field(
+    trend_prior_per_s: Number = Field(0.001, gt=0, le=1.0, description="prior width on d ln I / dt [1/s]")
+    trend_visits_max_s: Number = Field(
         900.0,
         ge=0,
         le=86400,
@@ -134,8 +135,8 @@ class SeriesSetup(BaseModel):
 
 class RatioSetup(BaseModel):
     model_config = ConfigDict(extra="allow")
-    value: float = Field(gt=0, description="I0'/I0, far side over near side")
-    err: float = Field(0.0, ge=0, description="its one-sigma error")
+    value: Number = Field(gt=0, description="I0'/I0, far side over near side")
+    err: Number = Field(0.0, ge=0, description="its one-sigma error")
 
 
 def _trex_cameras() -> dict[str, CameraSetup]:
@@ -165,9 +166,9 @@ class Setup(BaseModel):
     model_config = ConfigDict(extra="allow")
     cameras: dict[str, CameraSetup] = Field(default_factory=_trex_cameras)
     emission_ratio: dict[int, RatioSetup] = Field(default_factory=_trex_ratios)
-    linear_range: tuple[float, float] = (5.0, 240.0)
-    focal_px: float = Field(TREX_FOCAL_PX, gt=0, description="focal length of the cameras in pixels")
-    lem_diameter_m: float = Field(0.43, gt=0, description="diameter of the LEM sphere in metres")
+    linear_range: tuple[Number, Number] = (5.0, 240.0)
+    focal_px: Number = Field(TREX_FOCAL_PX, gt=0, description="focal length of the cameras in pixels")
+    lem_diameter_m: Number = Field(0.43, gt=0, description="diameter of the LEM sphere in metres")
     series: SeriesSetup = Field(default_factory=SeriesSetup)
 
     def disk_radius_px(self, camera: str) -> float | None:

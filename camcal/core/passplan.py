@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from camcal.core.schedule import KNOWN_WAVELENGTHS_NM, Schedule, Shot, defer_rest_of_run
+from camcal.core.schedule import KNOWN_WAVELENGTHS_NM, Schedule, Shot, defer_rest_of_run, run_bounds
 
 #: Passes walked per phase of the LEM (the first is dropped: it starts wherever the LEM stood).
 _PASSES = 3
@@ -157,6 +157,7 @@ class _Walk:
         self, shots: list[Shot], readout_s: float, dwell_s: float, order: tuple[int, ...], pause_s: float
     ) -> None:
         self.shots, self.readout_s, self.dwell_s, self.order = list(shots), readout_s, dwell_s, order
+        self.runs = run_bounds(self.shots)  # a deferral turns shots within their run only
         self.pause_s = pause_s
         self.t = 0.0
         self.index = 0
@@ -203,7 +204,9 @@ class _Walk:
         return exposure_s >= self.dwell_s or round(self.t + exposure_s, 6) <= change
 
     def _defer(self) -> bool:
-        j = defer_rest_of_run(self.shots, self.index) if self.last_taken == self.index - 1 else None
+        if self.last_taken != self.index - 1 or self.index >= len(self.shots):
+            return False
+        j = defer_rest_of_run(self.shots, self.index, self.runs[self.index])
         if j is None:
             return False
         self.index, self.last_taken = j, None

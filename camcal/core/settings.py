@@ -10,6 +10,7 @@ effective configuration with secrets masked. Every field is documented in
 
 from __future__ import annotations
 
+import ipaddress
 import os
 from pathlib import Path
 from typing import Any
@@ -114,6 +115,11 @@ class Settings(BaseSettings):
     http_max_connections_per_client: int = Field(
         16, ge=1, le=10000, description="WebSocket connections one client address may hold at once"
     )
+    http_trusted_proxies: list[str] = Field(
+        default_factory=list,
+        description="reverse proxies (IP addresses or networks) whose X-Forwarded-For names the client; "
+        "none: the client is the connection's peer, whatever its headers say",
+    )
     operator_tokens_file: Path | None = Field(
         None, description="a file of operator tokens (JSON name -> token, or NAME=TOKEN lines)"
     )
@@ -163,6 +169,18 @@ class Settings(BaseSettings):
     def _range(cls, v: tuple[float, float]) -> tuple[float, float]:
         if not 0 <= v[0] < v[1] <= 255:
             raise ValueError("must satisfy 0 <= low < high <= 255")
+        return v
+
+    @field_validator("http_trusted_proxies")
+    @classmethod
+    def _proxies(cls, v: list[str]) -> list[str]:
+        for entry in v:
+            try:
+                ipaddress.ip_network(entry.strip(), strict=False)
+            except ValueError:
+                raise ValueError(
+                    f"{entry!r} is not an IP address or network (e.g. 10.0.0.5, 10.0.0.0/24)"
+                ) from None
         return v
 
     @classmethod

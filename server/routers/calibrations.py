@@ -9,6 +9,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from camcal.core.calibrations import record_values
 from camcal.core.frameset import FrameSetError, parse_setup
+from camcal.core.numbers import Number
 from server.deps import MAX_ID, OperatorDep, StoreDep
 from server.errors import Invalid, NotFound
 from server.schemas import CalibrationPublic
@@ -24,8 +25,8 @@ class CalibrationCreate(BaseModel):
     name: str = Field(min_length=1, max_length=120, pattern=r"^[A-Za-z0-9_.-]+$")
     setup: dict[str, Any]
     source: str = Field("", max_length=2000)
-    valid_from_unix_s: float | None = Field(None, ge=0, le=1e11)
-    valid_to_unix_s: float | None = Field(None, ge=0, le=1e11)
+    valid_from_unix_s: Number | None = Field(None, ge=0, le=1e11)
+    valid_to_unix_s: Number | None = Field(None, ge=0, le=1e11)
 
 
 @router.get("/api/calibrations", response_model=list[CalibrationPublic])

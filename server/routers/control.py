@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import functools
 import io
 import json
 import uuid
@@ -12,13 +13,14 @@ from fastapi import APIRouter, Path, Query
 from fastapi.responses import Response
 from pydantic import BaseModel, ConfigDict, Field
 
+from camcal.core.numbers import Integer
 from camcal.core.passplan import plan_pass
 from camcal.core.schedule import Schedule, presets
 from camcal.core.utctime import iso_utc
 from ingest.derived import predict_settings, result_row
-from server.deps import ModuleId, OperatorDep, SettingsDep, StoreDep
+from server.deps import ModuleId, OperatorDep, PreviewSlotDep, SettingsDep, StoreDep
 from server.errors import Conflict, Invalid, NotFound
-from server.openapi import CONFLICT
+from server.openapi import BUSY, CONFLICT
 from server.saturation import newest_results
 from server.schemas import CommandPublic, PresetPublic, Preview
 from storage import queries
@@ -33,7 +35,7 @@ class ScheduleCommand(BaseModel):
     model_config = ConfigDict(extra="forbid")
     schedule: Schedule
     apply: Literal["now", "end_of_setting"] = "now"
-    version: int | None = Field(None, ge=1, le=2**31 - 1)
+    version: Integer | None = Field(None, ge=1, le=2**31 - 1)
 
 
 class ActionCommand(BaseModel):
@@ -51,9 +53,14 @@ def _problems(settings: Any, schedule: Schedule) -> list[dict[str, str]]:
     return [{"field": f"schedule.{f}", "reason": r} for f, r in settings.camera_limits.problems(schedule)]
 
 
+#: The pass estimate of a schedule, by its content: the same schedule previewed again (every edit
+#: of the form asks; every browser asks for the presets) is walked once.
+_planned = functools.lru_cache(maxsize=128)(plan_pass)
+
+
 def _pass_estimate(settings: Any, schedule: Schedule) -> dict[str, Any]:
     """One pass against the LEM's colour cycle (`camcal.core.passplan`): duration, busy share, warnings."""
-    plan = plan_pass(schedule, settings.readout_s, settings.lem_dwell_s)
+    plan = _planned(schedule, settings.readout_s, settings.lem_dwell_s)
     return {
         "pass_duration_s": round(plan.duration_s, 1),
         "busy_share": round(plan.busy_share, 3),
@@ -79,8 +86,10 @@ def list_presets(settings: SettingsDep) -> dict[str, Any]:
     }
 
 
-@router.post("/api/schedules/preview", response_model=Preview)
-def preview(body: PreviewRequest, store: StoreDep, settings: SettingsDep) -> dict[str, Any]:
+@router.post("/api/schedules/preview", response_model=Preview, responses=BUSY)
+def preview(
+    body: PreviewRequest, store: StoreDep, settings: SettingsDep, _slot: PreviewSlotDep
+) -> dict[str, Any]:
     """Check a schedule and estimate one pass before sending it.
 
     Returns the problems (field and reason) the camera limits find, the
@@ -90,6 +99,10 @@ def preview(body: PreviewRequest, store: StoreDep, settings: SettingsDep) -> dic
     spread over several turns), and per module and setting the
     centre gray expected from the frames seen so far (``ok``, ``too_dark``,
     ``saturated`` or ``unknown``).
+
+    It needs no token (a watcher may plan a schedule too), so a few previews are computed at once
+    (503 with ``Retry-After`` for the next), with slots of their own for operators
+    (`server.jobs.PreviewSlots`); the pass estimate of a schedule previewed before is reused.
     """
     sched = body.schedule
     rr = [result_row(r) for r in store.call(newest_results, body.module)]

@@ -284,6 +284,8 @@ async function runPreview() {
     }
     state.previewError = err.message;
     renderPreviewBox();
+    // The server computes a few previews at once and refuses the next (503, a second later): ask again.
+    if (err instanceof ApiError && err.status === 503) schedulePreview(1500);
     throw err;
   }
 }

@@ -18,6 +18,7 @@ from urllib.parse import urlsplit
 import httpx
 import pytest
 
+from tests.utils.pace import Pace
 from tests.utils.system import REPO, SHORT_DIVE, System, camcal_up, wait_until
 
 #: The browser tests' shared dive: `SHORT_DIVE` with an hour on station.
@@ -45,7 +46,7 @@ def artifacts() -> Path:
 def camcal_page(browser: Any, system: System) -> Iterator[Any]:
     """A fresh page that can reach only the camcal server; page errors fail the test."""
     context = browser.new_context(viewport={"width": 1280, "height": 900}, accept_downloads=True)
-    context.set_default_timeout(20_000)
+    context.set_default_timeout(Pace().bound(20) * 1000)  # 20 s of an idle machine (`tests.utils.pace`)
     host = urlsplit(system.base_url).netloc
     foreign: list[str] = []
     errors: list[str] = []

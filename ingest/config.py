@@ -18,6 +18,7 @@ class IngestConfig:
     data_dir: Path
     bind: str = "tcp://*:5555"
     events_bind: str | None = "tcp://127.0.0.1:5556"
+    events_curve: bool | None = None  # CURVE on the events port: None beyond loopback (`eventport`)
     db_url: str | None = None
     window: int = 8
     heartbeat_s: float = 1.0

@@ -18,7 +18,8 @@
   hands it to the receiving thread;
 * **analyse** (`ingest.analysis_pool`): one process per core decodes and
   analyses frames; a process that dies is replaced and its frames analysed again;
-* **publish** (`ingest.events`): the event log and the events socket.
+* **publish** (`ingest.events`): the event log and the events socket (plaintext on
+  loopback, CURVE beyond it: `camcal.core.eventport`).
 
 Between the stages every module has its own line (`ingest.fairness`), served
 in turns: a module that floods the ship waits behind itself, never in front
@@ -57,6 +58,7 @@ import zmq
 from analysis import FrameConfig
 from camcal.core import __version__, wire
 from camcal.core.calibrations import setup_of
+from camcal.core.eventport import port_keys, use_curve
 from ingest.acknowledge import Acknowledge
 from ingest.alarms import AlarmEvaluator
 from ingest.analysis_pool import AnalysisPool, Job
@@ -65,7 +67,7 @@ from ingest.commit import frame_meta_from_row
 from ingest.config import IngestConfig
 from ingest.context import StoreContext
 from ingest.counters import Counters
-from ingest.events import EventBus
+from ingest.events import EventBus, EventPublisher
 from ingest.fairness import Credit, FairQueue, sized
 from ingest.gatekeeper import Gatekeeper
 from ingest.links import Link
@@ -112,6 +114,7 @@ class IngestService:
         self.store_ctx: StoreContext | None = None
         self.endpoint = ""
         self.events_endpoint = ""
+        self.publisher: EventPublisher | None = None
         self.pub: Any = None
         self.events = EventBus(self.store, None)  # publishes once `start` has bound its socket
         self._threads: list[threading.Thread] = []
@@ -141,6 +144,8 @@ class IngestService:
                 )
             self.config = dataclasses.replace(self.config, setup=setup_of(calibration))
         ship_keys = self._link_keys()
+        if self.config.events_bind and use_curve(self.config.events_bind, self.config.events_curve):
+            port_keys(self.config.events_bind, self.config.keys_dir)  # no keys: say so, bind nothing
         self.store.files.remove_temporaries(self.config.modules)
         self.store.remove_incomplete_sensor_batches(self.config.modules)
         self.link_ctx = zmq.Context()
@@ -165,13 +170,15 @@ class IngestService:
         answers = self.ctx.socket(zmq.PULL)
         answers.bind(self.answers_endpoint)
         self._sockets = [router, answers]
-        if self.config.events_bind:
-            self.pub = self.ctx.socket(zmq.PUB)
-            self.pub.setsockopt(zmq.SNDHWM, 10000)
-            self.pub.setsockopt(zmq.LINGER, 0)
-            self.pub.bind(self.config.events_bind)
-            self.events_endpoint = self.pub.getsockopt(zmq.LAST_ENDPOINT).decode()
-            self._sockets.append(self.pub)
+        if self.config.events_bind:  # plaintext on loopback, CURVE beyond it (`camcal.core.eventport`)
+            self.publisher = EventPublisher(
+                self.config.events_bind,
+                ctx=self.ctx,
+                keys_dir=self.config.keys_dir,
+                curve=self.config.events_curve,
+            )
+            self.pub = self.publisher.socket
+            self.events_endpoint = self.publisher.endpoint
         self.counters.restore(self.store.call(queries.load_counters, self.ingest_id))
         setup = self.config.setup
         dive = self.store.current_dive(create=True, name=self.config.dive_name, setup=setup.to_json())
@@ -290,6 +297,8 @@ class IngestService:
             self.gatekeeper.close()
         for sock in getattr(self, "_sockets", []):
             sock.close(0)
+        if self.publisher is not None:
+            self.publisher.close()
         if self.link_ctx is not None:
             self.link_ctx.term()
         self.store.close()

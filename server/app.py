@@ -52,6 +52,8 @@ def create_app(settings: ServerSettings | None = None, *, store: Store | None = 
             client_queue=settings.client_queue,
             station_depth_m=settings.station_depth_m,
             saturation=SaturationByDesign(st, settings.linear_range),
+            keys_dir=settings.keys_dir,
+            events_curve=settings.events_curve,
         )
         app.state.store, app.state.hub = st, hub
         app.state.reanalyses = ReanalysisQueue(st, settings.max_reanalyses_queued)

@@ -1,6 +1,7 @@
 """The live hub: events from the ingest, fanned out to every browser.
 
-A thread subscribes to the ingest's event publisher. Stored events carry
+A thread subscribes to the ingest's event publisher (one socket per ingest: each is plaintext on
+loopback and CURVE, with the ship's key pair, beyond it; `camcal.core.eventport`). Stored events carry
 their id in the event log; when ids jump (the ZeroMQ subscriber lost some),
 the hub reads the missing ones from the database, so nothing persistent is
 lost. Each browser has a bounded queue: when a browser is slow, thumbnails
@@ -18,10 +19,12 @@ import threading
 import time
 from collections import Counter, deque
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import zmq
 
+from camcal.core.eventport import port_keys, subscriber, use_curve
 from camcal.core.events import Event, EventError, EventKind
 from camcal.core.settings import endpoint_list
 from ingest.derived import dive_phase
@@ -78,13 +81,19 @@ class LiveHub:
         ctx: zmq.Context[Any] | None = None,
         station_depth_m: float | None = None,
         saturation: SaturationByDesign | None = None,
+        keys_dir: Path | None = None,
+        events_curve: bool | None = None,
     ) -> None:
         self.store = store
+        self.keys_dir, self.events_curve = keys_dir, events_curve
         #: Labels each saturated frame's result ``by_design`` or not (`server.saturation`).
         self.saturation = saturation
         # Several ingests (one per group of modules, sharing the database): their publishers,
-        # comma-separated. One SUB socket connects to them all; heartbeats are kept per ingest.
+        # comma-separated. A SUB socket connects to each; heartbeats are kept per ingest.
         self.endpoints = endpoint_list(events_endpoint)
+        for endpoint in self.endpoints:  # beyond loopback without the ship's keys: say so at start
+            if use_curve(endpoint, events_curve):
+                port_keys(endpoint, keys_dir)
         self.client_queue = client_queue
         self.ctx = ctx or zmq.Context.instance()
         self.clients: set[Client] = set()
@@ -120,31 +129,35 @@ class LiveHub:
             self._thread.join(5)
 
     def _run(self) -> None:
-        sub = self.ctx.socket(zmq.SUB)
-        sub.setsockopt(zmq.SUBSCRIBE, b"")
-        sub.setsockopt(zmq.RCVHWM, 100000)
-        sub.setsockopt(zmq.LINGER, 0)
-        for endpoint in self.endpoints:
-            sub.connect(endpoint)
+        subs = [
+            subscriber(self.ctx, e, keys_dir=self.keys_dir, curve=self.events_curve, rcvhwm=100000)
+            for e in self.endpoints
+        ]
+        poller = zmq.Poller()
+        for sub in subs:
+            poller.register(sub, zmq.POLLIN)
         try:
             while not self._stop.is_set():
                 self._refresh_saturation()
-                if not sub.poll(200):
-                    continue
-                while True:
-                    try:
-                        _kind, body = sub.recv_multipart(zmq.NOBLOCK)
-                    except zmq.Again:
-                        break
-                    except ValueError:
-                        continue
-                    try:
-                        event = Event.from_json(body)
-                    except EventError:
-                        continue
-                    self._incoming(event)
+                for sub, _ in poller.poll(200):
+                    self._drain(sub)
         finally:
-            sub.close(0)
+            for sub in subs:
+                sub.close(0)
+
+    def _drain(self, sub: Any) -> None:
+        while True:
+            try:
+                _kind, body = sub.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            except ValueError:
+                continue
+            try:
+                event = Event.from_json(body)
+            except EventError:
+                continue
+            self._incoming(event)
 
     def _refresh_saturation(self) -> None:
         """Renew the prediction of saturated settings now and then (a read: never on the event loop)."""

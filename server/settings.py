@@ -13,7 +13,9 @@ class ServerSettings:
     """Settings of one server process.
 
     ``events`` is the ingest's event publisher (``camcal ingest --events``);
-    None runs the server on the database alone (review of past dives).
+    None runs the server on the database alone (review of past dives). An
+    events port beyond loopback speaks CURVE (``events_curve``: see
+    `camcal.core.eventport`), with the ship's key pair from ``keys_dir``.
     ``operator_tokens`` maps operator names to tokens; without any, nobody
     can change anything (watching needs no token). ``station_depth_m``, the
     dive plan's station depth, tells the live view's station from test stops.
@@ -36,6 +38,8 @@ class ServerSettings:
     data_dir: Path = Path("camcal-data")
     db_url: str | None = None
     events: str | None = "tcp://127.0.0.1:5556"
+    keys_dir: Path | None = None
+    events_curve: bool | None = None
     operator_tokens: dict[str, str] = field(default_factory=dict)
     stale_after_s: float = 5.0
     client_queue: int = 256

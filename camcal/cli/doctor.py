@@ -108,29 +108,40 @@ def check_database(s: Settings) -> list[tuple[str, str, str]]:
 def check_ingest(s: Settings, wait_s: float) -> tuple[list[tuple[str, str, str]], dict[str, Any] | None]:
     import zmq
 
+    from camcal.core.eventport import EventPortError, subscriber
     from camcal.core.settings import endpoint_list
 
     out = check_ingest_port(s)
     health = None
     ctx: Any = zmq.Context.instance()
-    sub = ctx.socket(zmq.SUB)
-    sub.setsockopt(zmq.SUBSCRIBE, b"health")
-    sub.setsockopt(zmq.LINGER, 0)
-    for endpoint in endpoint_list(s.events_connect):  # several ingests: any one's heartbeat will do
-        sub.connect(endpoint)
-    try:
-        if sub.poll(int(wait_s * 1000)):
-            _, body = sub.recv_multipart()
+    subs: list[Any] = []
+    try:  # several ingests: any one's heartbeat will do; beyond loopback with the ship's keys
+        for endpoint in endpoint_list(s.events_connect):
+            subs.append(
+                subscriber(ctx, endpoint, keys_dir=s.keys_path(), curve=s.events_curve, topics=[b"health"])
+            )
+        poller = zmq.Poller()
+        for sub in subs:
+            poller.register(sub, zmq.POLLIN)
+        ready = poller.poll(int(wait_s * 1000))
+        if ready:
+            _, body = ready[0][0].recv_multipart()
             health = Event.from_json(body).payload
+    except EventPortError as exc:
+        out.append(("ingest events", FAIL, str(exc)))
+        return out, None
     finally:
-        sub.close(0)
+        for sub in subs:
+            sub.close(0)
     if health is None:
         out.append(
             (
                 "ingest events",
                 FAIL,
                 f"no heartbeat on {s.events_connect} within {wait_s:g} s: "
-                "is the ingest running, and CAMCAL_EVENTS_CONNECT pointing at its --events?",
+                "is the ingest running, and CAMCAL_EVENTS_CONNECT pointing at its --events? (An "
+                "ingest publishing beyond loopback speaks CURVE: reach it by its network address or "
+                "set CAMCAL_EVENTS_CURVE=true)",
             )
         )
     else:
@@ -334,10 +345,12 @@ def running_settings(s: Settings) -> tuple[Settings, list[tuple[str, str, str]]]
         update["events_connect"] = up[-1].settings["events_connect"]
     elif ingests:
         update["ingest_bind"] = ingests[-1].settings["ingest_bind"]
-        update.setdefault(
-            "events_connect",
-            ",".join(_local(r.settings["events_bind"]) for r in ingests if r.settings.get("events_bind")),
-        )
+        if "events_connect" not in update:
+            update["events_connect"] = ",".join(
+                _local(r.settings["events_bind"]) for r in ingests if r.settings.get("events_bind")
+            )
+            if any(r.settings.get("events_curve") for r in ingests):  # reached on 127.0.0.1: say CURVE
+                update["events_curve"] = True
     differs = [
         f"{key} {update[key]} (your settings: {getattr(s, key)})"
         for key in ("http_port", "ingest_bind", "events_connect")

@@ -153,6 +153,7 @@ def ingest(
         data_dir=s.data_dir,
         bind=s.ingest_bind,
         events_bind=s.events_bind,
+        events_curve=s.events_curve,
         db_url=s.database_url,
         setup=load_setup(setup, s),
         dive_name=dive or s.dive,
@@ -194,6 +195,7 @@ def ingest(
         {
             "ingest_bind": svc.endpoint,
             "events_bind": svc.events_endpoint,
+            "events_curve": bool(svc.publisher and svc.publisher.curve),
             "modules": list(served),
             "link_plaintext": s.link_plaintext,
         },

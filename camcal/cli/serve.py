@@ -45,6 +45,8 @@ class HttpServer:
 
         import uvicorn
 
+        from camcal.core.eventport import port_keys, use_curve
+        from camcal.core.settings import endpoint_list
         from server.app import create_app
         from server.settings import ServerSettings
         from storage.store import Store
@@ -61,7 +63,12 @@ class HttpServer:
             max_requests_per_client=2 * settings.http_max_connections_per_client,
             simulation_speed=simulation_speed,
             trusted_proxies=tuple(settings.http_trusted_proxies),
+            keys_dir=settings.keys_path(),
+            events_curve=settings.events_curve,
         )
+        for endpoint in endpoint_list(events):  # an events port beyond loopback needs the ship's keys
+            if use_curve(endpoint, settings.events_curve):
+                port_keys(endpoint, settings.keys_path())
         # Opened here, not in the app's start-up: a database that cannot be opened is one line
         # (`storage.store.StoreUnavailable`) before anything runs, not uvicorn's traceback.
         self.store = Store.open(
@@ -209,11 +216,12 @@ def serve(
     tokens = operator_tokens(operator_token, s)
     sock = bind_http(s)
     stop = stop_signals()
+    from camcal.core.eventport import EventPortError
     from storage.store import StoreUnavailable
 
     try:
         http = HttpServer(s, tokens, None if s.events_connect == "none" else s.events_connect)
-    except StoreUnavailable as exc:
+    except (StoreUnavailable, EventPortError) as exc:
         sock.close()
         raise fail(str(exc), code=supervise.EXIT_NOT_STARTED) from None
     http.start(sock)

@@ -105,6 +105,11 @@ class Settings(BaseSettings):
         "tcp://127.0.0.1:5556",
         description="where the server subscribes to events (several ingests: comma-separated)",
     )
+    events_curve: bool | None = Field(
+        None,
+        description="CURVE on the events port: unset, beyond loopback only; true: whatever the address "
+        "(a subscriber reaching an ingest bound to tcp://*:PORT through 127.0.0.1)",
+    )
     http_host: str = Field("127.0.0.1", description="dashboard address (0.0.0.0 for the ship's network)")
     http_port: int = Field(8000, ge=1, le=65535, description="dashboard port")
     http_tls_cert: Path | None = Field(None, description="TLS certificate (PEM) for the dashboard: HTTPS")

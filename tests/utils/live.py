@@ -352,9 +352,15 @@ def link_keys(data: Path, *modules: str) -> Path:
 
 
 def start_ingest(
-    data: Path, port: int, events_port: int, *extra: str, log: str = "ingest.log"
+    data: Path,
+    port: int,
+    events_port: int,
+    *extra: str,
+    log: str = "ingest.log",
+    events_host: str = "127.0.0.1",
 ) -> subprocess.Popen[bytes]:
-    """``camcal ingest`` as its own process (one analysis worker) on 127.0.0.1; output to ``data/../log``.
+    """``camcal ingest`` as its own process (one analysis worker) on 127.0.0.1 (its events port on
+    ``events_host``); output to ``data/../log``.
 
     The link is CURVE with the keys of ``data/keys`` (made for A and B if missing, see `link_keys`),
     unless ``extra`` says ``--plaintext``.
@@ -375,7 +381,7 @@ def start_ingest(
                 "--bind",
                 f"tcp://127.0.0.1:{port}",
                 "--events",
-                f"tcp://127.0.0.1:{events_port}",
+                f"tcp://{events_host}:{events_port}",
                 "--workers",
                 "1",
             ],

@@ -45,9 +45,13 @@ REASON_HELP: dict[str, str] = {
     Reason.NO_SOURCE: "no LEM found: check the LEM is on and in the field of view",
     Reason.OFF_EDGE: "LEM cut by the frame edge: the module is tilted too far",
     Reason.UNREADABLE: "file missing or not a decodable image",
-    Reason.BAD_FORMAT: "image is not 8-bit grayscale, or too small to hold the LEM (under 8 x 8 px)",
+    Reason.BAD_FORMAT: "image is not 8- or 16-bit grayscale, or too small to hold the LEM (under 8 x 8 px)",
     Reason.BAD_METADATA: "manifest row has an invalid value",
 }
+
+
+#: A pixel at the frame's full scale (255 gray; a 16-bit one scaled to it, within float32's rounding).
+SATURATED_GRAY = 255.0 - 1e-3
 
 
 @dataclass(frozen=True)
@@ -161,8 +165,36 @@ def measure_crop(
     return CropMeasurement(profile, fit, center)
 
 
-def analyze_frame(frame: np.ndarray, config: FrameConfig | None = None) -> FrameAnalysis:
+def to_gray(frame: np.ndarray, full_scale: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """A frame as the analysis reads it: (8-bit frame to find the LEM in, gray values to measure).
+
+    Gray values are on the 8-bit scale whatever the camera's depth: 255 gray is the frame's
+    ``full_scale``, its saturation level (255 for ``uint8``; for ``uint16`` 65535 unless told,
+    65520 for 12-bit data MSB-aligned as PNG keeps it). An 8-bit frame is both as it is; a deeper
+    one is measured in fractional gray (its extra bits kept) and searched in its rounding.
+    Raises `FrameFormatError` for anything but a 2-D ``uint8``/``uint16`` array of 8 x 8 px or more.
+    """
+    if isinstance(frame, np.ndarray) and frame.ndim == 2 and frame.dtype == np.uint16:
+        top = 65535.0 if full_scale is None else float(full_scale)
+        if not 0 < top <= 65535:
+            raise FrameFormatError(f"full_scale must lie in (0, 65535] for 16-bit pixels, got {full_scale}")
+        gray = frame.astype(np.float32)
+        gray *= np.float32(255.0 / top)
+        np.minimum(gray, np.float32(255.0), out=gray)  # (a value above the saturation level is saturated)
+        return check_frame(np.rint(gray).astype(np.uint8)), gray
+    if full_scale is not None and full_scale != 255:
+        raise FrameFormatError(f"an 8-bit frame has a full scale of 255, not {full_scale}")
+    frame = check_frame(frame)
+    return frame, frame
+
+
+def analyze_frame(
+    frame: np.ndarray, config: FrameConfig | None = None, *, full_scale: float | None = None
+) -> FrameAnalysis:
     """Measure I_center on one frame, or say why the frame cannot be used.
+
+    ``frame`` is 8-bit, or 16-bit with its saturation level ``full_scale`` (`to_gray`): gray
+    values, the linear range and the saturation check are on the 8-bit scale either way.
 
     1. find the LEM and its sub-pixel centroid (`locate_source`);
     2. reject it if no source stands out, or if the disk touches the frame edge;
@@ -175,7 +207,7 @@ def analyze_frame(frame: np.ndarray, config: FrameConfig | None = None) -> Frame
     """
     config = config or FrameConfig()
     try:
-        frame = check_frame(frame)
+        frame, gray = to_gray(frame, full_scale)
     except FrameFormatError as exc:  # one frame of a set, not the set: rejected, never raised
         return rejected(Reason.BAD_FORMAT, str(exc))
     det: Detection = locate_source(frame, expected_radius_px=config.expected_radius_px)
@@ -210,12 +242,12 @@ def analyze_frame(frame: np.ndarray, config: FrameConfig | None = None) -> Frame
         return rejected(Reason.OFF_EDGE, "LEM disk reaches the frame border", **located)
 
     half = crop_half_size_px(det.radius_px, config.crop_px // 2)
-    crop = crop_around(frame, det.x_px, det.y_px, half)
+    crop = crop_around(gray, det.x_px, det.y_px, half)
     center = center_value(crop.pixels, crop.center_xy, config.center_pixels)
     lo, hi = config.linear_range_gray
 
     disk = _disk_pixels(crop, det.radius_px)
-    sat_fraction = float(np.count_nonzero(disk >= 255) / max(disk.size, 1))
+    sat_fraction = float(np.count_nonzero(disk >= SATURATED_GRAY) / max(disk.size, 1))
     located.update(
         center_gray=center.mean_gray,
         center_err_gray=center.err_gray,

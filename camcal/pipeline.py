@@ -25,7 +25,7 @@ from analysis import (
 )
 from camcal.core import __version__
 from camcal.core.frameset import FrameSetError, ManifestRow, Setup, read_manifest, read_setup
-from camcal.core.images import FrameReadError, read_frame
+from camcal.core.images import FrameReadError, read_frame_scaled
 from camcal.core.parallel import map_in_threads
 
 
@@ -89,10 +89,10 @@ def analyze_file(folder: str, row: ManifestRow, config: FrameConfig) -> FrameAna
     if row.error:
         return rejected(Reason.BAD_METADATA, row.error)
     try:
-        frame = read_frame(Path(folder) / row.file)
+        frame, top = read_frame_scaled(Path(folder) / row.file)
     except FrameReadError as exc:
         return rejected(exc.reason, exc.detail)
-    result = analyze_frame(frame, config)
+    result = analyze_frame(frame, config, full_scale=top)
     if not result.ok:
         # Rejected frames travel back without their crop: nothing downstream needs it.
         result = replace(result, crop=None, profile=None)

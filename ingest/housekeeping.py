@@ -75,6 +75,7 @@ class Housekeeping:
             schedule_version=sched.version,
             schedule_state=sched.state,
             distance_m=cameras[m.module].distance_m if m.module in cameras else None,
+            camera_json=m.camera.model_dump_json() if getattr(m, "camera", None) is not None else None,
         )
 
     # -- commands --------------------------------------------------------

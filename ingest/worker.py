@@ -17,7 +17,7 @@ import numpy as np
 
 from analysis import FrameAnalysis, FrameConfig, analyze_frame, rejected
 from camcal.core.files import write_atomic
-from camcal.core.images import FrameReadError, decode_frame, read_frame
+from camcal.core.images import FrameReadError, decode_frame_scaled, read_frame_scaled
 
 THUMB_WIDTH_PX = 512
 
@@ -38,6 +38,8 @@ def thumbnail_jpeg(frame: np.ndarray, width_px: int = THUMB_WIDTH_PX, quality: i
     """
     step = max(1, frame.shape[1] // (width_px * 2))
     small = frame[::step, ::step]
+    if small.dtype == np.uint16:  # a 16-bit frame (MSB-aligned, as stored): its top 8 bits
+        small = (small >> 8).astype(np.uint8)
     while small.shape[1] >= 2 * width_px and small.shape[0] >= 2:
         even = small[: small.shape[0] // 2 * 2, : small.shape[1] // 2 * 2]
         small = cv2.resize(even, (even.shape[1] // 2, even.shape[0] // 2), interpolation=cv2.INTER_AREA)
@@ -102,12 +104,12 @@ def analyse_stored_frame(path: str, config: FrameConfig, thumb_path: str | None)
     """
     t0 = time.perf_counter()
     try:
-        frame = read_frame(Path(path))
+        frame, top = read_frame_scaled(Path(path))
     except FrameReadError as exc:
         row = result_row(rejected(exc.reason, exc.detail))
         row["analysis_s"] = time.perf_counter() - t0
         return row
-    res = analyze_frame(frame, config)
+    res = analyze_frame(frame, config, full_scale=top)
     row = result_row(res)
     row["width_px"], row["height_px"] = frame.shape[1], frame.shape[0]
     if thumb_path:
@@ -145,7 +147,7 @@ def analyse_batch(
         t0 = time.perf_counter()
         name = url.rsplit("/", 1)[-1]
         try:
-            frame = decode_frame(read_url(url, storage_options), name)
+            frame, top = decode_frame_scaled(read_url(url, storage_options), name)
         except FileNotFoundError:
             row = result_row(rejected("unreadable", f"{name}: file not found"))
         except OSError as exc:
@@ -153,7 +155,7 @@ def analyse_batch(
         except FrameReadError as exc:
             row = result_row(rejected(exc.reason, exc.detail))
         else:
-            row = result_row(analyze_frame(frame, cfg))
+            row = result_row(analyze_frame(frame, cfg, full_scale=top))
             row["width_px"], row["height_px"] = frame.shape[1], frame.shape[0]
         row["analysis_s"] = time.perf_counter() - t0
         out.append((frame_id, row))

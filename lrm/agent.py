@@ -94,6 +94,7 @@ class Agent(CommandHandling, Producing):
         ctx: zmq.Context[Any] | None = None,
         depth: Callable[[], float | None] | None = None,
         simulated_clock_error_s: float = 0.0,
+        camera_info: Callable[[], dict[str, Any] | None] | None = None,
     ) -> None:
         if (runner is None) == (source is None):
             raise ValueError("give the agent either a schedule runner or a replay source")
@@ -109,6 +110,8 @@ class Agent(CommandHandling, Producing):
         self._source = source or (lambda stop: runner.next_capture(stop))  # type: ignore[union-attr]
         self.sensors = sensors
         self.camera_limits = camera_limits
+        #: What the ship is told of the camera (`wire.CameraInfo`'s fields), asked at every message.
+        self.camera_info = camera_info
         self.ctx = ctx or zmq.Context.instance()
         self.depth = depth
         #: Simulation only: a module clock (its real-time clock) this far off, in what the module
@@ -127,6 +130,8 @@ class Agent(CommandHandling, Producing):
         self._threads: list[threading.Thread] = []
         self.counters: Counter[str] = Counter()
         self.linked = threading.Event()
+        #: When the comm loop last went round (monotonic): a loop that stops is a hung agent (`alive`).
+        self.comm_beat = time.monotonic()
         self._commands: dict[str, dict[str, Any]] = {  # (a damaged line of the card is skipped)
             c["command_id"]: c
             for c in self.outbox.read_jsonl("commands.jsonl")
@@ -186,6 +191,24 @@ class Agent(CommandHandling, Producing):
     def stopped(self) -> bool:
         return self._stop.is_set()
 
+    def alive(self, within_s: float = 10.0) -> bool:
+        """Whether the agent works: not stopped, every thread it started running (a replay's capture
+        thread may have finished) and its comm loop round within ``within_s``. A service manager's
+        watchdog is fed only while this holds (`camcal.cli.lrm_run`)."""
+        running = all(t.is_alive() for t in self._threads if not t.name.startswith("lrm-capture"))
+        return not self.stopped and running and time.monotonic() - self.comm_beat <= within_s
+
+    def _camera(self) -> wire.CameraInfo | None:
+        """The camera as the ship is told of it (None: not known, or not one a message can carry)."""
+        if self.camera_info is None:
+            return None
+        try:
+            info = self.camera_info()
+            return wire.CameraInfo(**info) if info else None
+        except (ValidationError, TypeError, ValueError) as exc:
+            self.warn(logging.WARNING, "camera_info", "camera info not sent: %s", str(exc).splitlines()[0])
+            return None
+
     @property
     def refusal(self) -> Any:
         """Why the module refuses the peer it is connected to (`lrm.shipcheck.Refusal`), or None."""
@@ -231,6 +254,7 @@ class Agent(CommandHandling, Producing):
 
         try:
             while not self._stop.is_set():
+                self.comm_beat = time.monotonic()
                 while True:
                     try:
                         k = self._new.get_nowait()
@@ -307,6 +331,7 @@ class Agent(CommandHandling, Producing):
                             schedule=self._schedule_state(),
                             outbox_pending=self.outbox.pending_count(),
                             last_seq=self._seq,
+                            camera=self._camera(),
                             **dive,
                         ),
                     )
@@ -328,6 +353,7 @@ class Agent(CommandHandling, Producing):
                             sensor_errors=self.counters["sensor_errors"],
                             sensor_error=self.device_errors.get("sensors"),
                             deferred_shots=self.runner.deferred_shots if self.runner is not None else 0,
+                            camera=self._camera(),
                             **dive,
                         ),
                     )

@@ -43,6 +43,7 @@ from camcal.core.frameset import (
 from camcal.core.framewriter import FrameSetWriter
 from camcal.core.utctime import parse_utc
 from camcal.core.wire.dialect import INT_MAX
+from camcal.core.wire.image import read_header
 
 log = logging.getLogger("camcal.lrm")
 
@@ -326,6 +327,7 @@ class Outbox:
             row: ManifestRow = e.ref
             data = (self.root / "frames" / row.file).read_bytes()
             width, height = png_size(data)
+            depth = read_header(data, "png")
             header: wire.FrameMsg | wire.SensorsMsg = wire.FrameMsg(
                 module=module,
                 boot=e.boot,
@@ -339,6 +341,7 @@ class Outbox:
                 width_px=width,
                 height_px=height,
                 encoding="png",
+                bit_depth=depth.significant_bits,
                 size=len(data),
                 sha256=wire.sha256_hex(data),
                 schedule_version=row.schedule_version or 0,

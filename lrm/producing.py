@@ -131,6 +131,14 @@ class Producing:
         streak = self._device_streak[device] = self._device_streak.get(device, 0) + 1
         return float(min(DEVICE_RETRY_MAX_S, 2 ** (streak - 1)))
 
+    def _device_works(self, device: str) -> None:
+        """A camera or sensor read that worked: its failure streak ends and the heartbeat no longer
+        names its last failure (the ship clears the device's alarm then, `ingest.alarms`)."""
+        if self._device_streak.get(device):
+            log.info("module %s: the %s works again", self.config.module, device)
+        self._device_streak[device] = 0
+        self.device_errors.pop(device, None)
+
     # ------------------------------------------------------------ capture
     def _capture_loop(self) -> None:
         while not self._produce_stop.is_set():
@@ -139,11 +147,11 @@ class Producing:
             except (CameraError, OSError) as exc:  # the same shot is tried again
                 self._produce_stop.wait(self._device_failed("camera", exc))
                 continue
-            self._device_streak["camera"] = 0
+            self._device_works("camera")
             if cap is None:
                 return
             f = cap.frame
-            png = f.png if getattr(f, "png", None) else encode_png(f.pixels)
+            png = f.png if getattr(f, "png", None) else encode_png(f.pixels, getattr(f, "bit_depth", None))
             depth = f.depth_m if f.depth_m is not None else (self.depth() if self.depth else None)
 
             self._keep(
@@ -175,8 +183,8 @@ class Producing:
                 self._produce_stop.wait(self._device_failed("sensors", exc))
                 next_t = self.clock.monotonic()
                 continue
-            self._device_streak["sensors"] = 0
-            acc, gyro = s.acc_m_s2, s.gyro_dps
+            self._device_works("sensors")
+            acc, gyro = s.acc_m_s2 or (None, None, None), s.gyro_dps or (None, None, None)
             rows.append(
                 [
                     s.t.timestamp() + self.clock_error.total_seconds(),

@@ -37,13 +37,14 @@ class SensorSample:
     module
         The module's id (``"A"``, ``"B"``).
     temperature_c
-        Air temperature inside the housing.
+        Air temperature inside the housing (None: not measured).
     humidity_pct
-        Relative humidity inside the housing; a rise means water is getting in.
+        Relative humidity inside the housing; a rise means water is getting in (None: no
+        humidity sensor, e.g. a module whose only sensor is its camera's temperature).
     acc_m_s2
-        Specific force in the module frame (z up along the module axis).
+        Specific force in the module frame (z up along the module axis; None: no accelerometer).
     gyro_dps
-        Rotation rates about the module's x, y, z axes, degrees per second.
+        Rotation rates about the module's x, y, z axes, degrees per second (None: no gyroscope).
     depth_m
         Depth of the module, if known (the simulator knows it; on the real
         module it comes from the ship's winch log or a pressure sensor).
@@ -53,22 +54,26 @@ class SensorSample:
 
     t: datetime
     module: str
-    temperature_c: float
-    humidity_pct: float
-    acc_m_s2: tuple[float, float, float]
-    gyro_dps: tuple[float, float, float]
+    temperature_c: float | None
+    humidity_pct: float | None
+    acc_m_s2: tuple[float, float, float] | None
+    gyro_dps: tuple[float, float, float] | None
     depth_m: float | None = None
     pressure_dbar: float | None = None
 
     def __post_init__(self) -> None:
         if self.t.tzinfo is None or self.t.utcoffset() is None:
             raise ValueError(f"t must be timezone-aware UTC, got naive {self.t.isoformat()}")
-        object.__setattr__(self, "acc_m_s2", _triple("acc_m_s2", self.acc_m_s2))
-        object.__setattr__(self, "gyro_dps", _triple("gyro_dps", self.gyro_dps))
+        if self.acc_m_s2 is not None:
+            object.__setattr__(self, "acc_m_s2", _triple("acc_m_s2", self.acc_m_s2))
+        if self.gyro_dps is not None:
+            object.__setattr__(self, "gyro_dps", _triple("gyro_dps", self.gyro_dps))
 
     @property
     def tilt_deg(self) -> float:
         """Tilt of the module axis from the vertical, from the accelerometer."""
+        if self.acc_m_s2 is None:
+            raise ValueError(f"module {self.module}: no accelerometer in this sample, no tilt")
         return tilt_from_acceleration_deg(self.acc_m_s2)[2]
 
     def to_dict(self) -> dict[str, object]:
@@ -78,8 +83,8 @@ class SensorSample:
             "module": self.module,
             "temperature_c": self.temperature_c,
             "humidity_pct": self.humidity_pct,
-            "acc_m_s2": list(self.acc_m_s2),
-            "gyro_dps": list(self.gyro_dps),
+            "acc_m_s2": list(self.acc_m_s2) if self.acc_m_s2 is not None else None,
+            "gyro_dps": list(self.gyro_dps) if self.gyro_dps is not None else None,
             "depth_m": self.depth_m,
             "pressure_dbar": self.pressure_dbar,
         }

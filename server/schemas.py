@@ -285,6 +285,18 @@ class ModuleSchedule(BaseModel):
     state: str | None
 
 
+class ModuleCamera(Open):
+    """What a module said of its camera (protocol revision 1.7: `camcal.core.wire.CameraInfo`)."""
+
+    model: str = ""
+    serial: str = ""
+    pixel_format: str = ""
+    bit_depth: int = 8
+    exposure_range_s: tuple[float, float]
+    gain_range_db: tuple[float, float]
+    gain_step_db: float = 0.0
+
+
 class ModulePublic(BaseModel):
     id: str
     distance_m: float | None
@@ -292,6 +304,9 @@ class ModulePublic(BaseModel):
     boot: str | None
     software: str | None
     schedule: ModuleSchedule
+    camera: ModuleCamera | None = Field(
+        None, description="its camera and the ranges the ship checks its schedules against; null: not said"
+    )
 
 
 class Series(Open):
@@ -390,9 +405,19 @@ class Problem(BaseModel):
     reason: str
 
 
+class CameraLimitsPublic(BaseModel):
+    """The ranges a schedule was checked against, and whose they are."""
+
+    exposure_range_s: tuple[float, float]
+    gain_range_db: tuple[float, float]
+    gain_step_db: float
+    source: str = Field(description="the module's camera as it said, or the ship's default limits")
+
+
 class Preview(PassEstimate):
     ok: bool
     problems: list[Problem]
+    camera_limits: CameraLimitsPublic
     n_frames: int
     predictions: dict[str, list[dict[str, Any]]] = Field(description="per module, per setting")
     summary: dict[str, dict[str, int]]

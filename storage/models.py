@@ -61,6 +61,9 @@ class Module(Base):
     schedule_name: Mapped[str] = mapped_column(String(80), default="")
     schedule_version: Mapped[int] = mapped_column(Integer, default=0)
     schedule_state: Mapped[str] = mapped_column(String(16), default="idle")
+    #: What the module's camera is and can take, as its hello and heartbeats say (JSON of
+    #: `camcal.core.wire.CameraInfo`; None: the module never said, the ship's limits apply).
+    camera_json: Mapped[str | None] = mapped_column(Text)
 
 
 class Frame(Base):

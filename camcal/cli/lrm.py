@@ -409,7 +409,8 @@ def camera_module(
     from camcal.core.schedule import CameraLimits
     from camcal.core.utctime import parse_utc
     from lrm.agent import Agent, AgentConfig
-    from lrm.camera import CameraError, V4L2Camera
+    from lrm.camera import CameraError
+    from lrm.cameras.v4l2 import V4L2Camera
     from lrm.clock import SystemClock
     from lrm.dive import LEMTimetable
     from lrm.runner import LemTimetableClock, ScheduleRunner

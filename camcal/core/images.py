@@ -1,5 +1,10 @@
-"""Frame images: decoding PNG/TIFF bytes into 8-bit frames (a fast path for the unfiltered PNGs
+"""Frame images: decoding PNG/TIFF bytes into frames (a fast path for the unfiltered 8-bit PNGs
 camcal writes, OpenCV for the rest) and encoding them.
+
+Frames are 8-bit grayscale, or 16-bit grayscale for a camera of 10 to 16 bits (Mono12: the
+12-bit values MSB-aligned in 16-bit samples, the PNG's ``sBIT`` chunk saying 12, as the PNG
+standard keeps a depth it has no type for; lossless). `significant_bits` reads the depth back,
+`full_scale` turns it into the saturation level the analysis is told.
 
 `FrameReadError` says why one image cannot be used, with its frame-set reason word.
 """
@@ -12,6 +17,8 @@ from pathlib import Path
 import cv2
 import deflate
 import numpy as np
+
+from camcal.core.wire.image import PNG_HEAD_BYTES, png_significant_bits
 
 # OpenCV's own warnings ("[ WARN:0@0.09] global grfmt_png.cpp ... PNG input buffer is incomplete")
 # would reach the user's console beside the frame's reason, which says it better: errors only.
@@ -28,7 +35,7 @@ class FrameReadError(Exception):
 
 
 def decode_frame(data: bytes | np.ndarray, name: str = "frame") -> np.ndarray:
-    """Decode PNG/TIFF bytes into a 2-D ``uint8`` frame or raise `FrameReadError`."""
+    """Decode PNG/TIFF bytes into a 2-D ``uint8`` or ``uint16`` frame or raise `FrameReadError`."""
     buf = np.frombuffer(data, dtype=np.uint8) if isinstance(data, bytes | bytearray) else data
     if buf.size == 0:
         raise FrameReadError("unreadable", f"{name}: empty file")
@@ -47,11 +54,42 @@ def decode_frame(data: bytes | np.ndarray, name: str = "frame") -> np.ndarray:
         raise FrameReadError("unreadable", f"{name}: not a decodable PNG/TIFF (truncated or corrupt?)")
     if image.ndim != 2:
         raise FrameReadError(
-            "bad_format", f"{name}: {image.shape[2]}-channel image, expected 8-bit grayscale"
+            "bad_format", f"{name}: {image.shape[2]}-channel image, expected 8- or 16-bit grayscale"
         )
-    if image.dtype != np.uint8:
-        raise FrameReadError("bad_format", f"{name}: {image.dtype} pixels, expected 8-bit grayscale (uint8)")
+    if image.dtype not in (np.uint8, np.uint16):
+        raise FrameReadError(
+            "bad_format", f"{name}: {image.dtype} pixels, expected 8- or 16-bit grayscale (uint8, uint16)"
+        )
     return image
+
+
+def decode_frame_scaled(data: bytes | np.ndarray, name: str = "frame") -> tuple[np.ndarray, int]:
+    """`decode_frame`, and the frame's full scale (`full_scale`, from the image's own header)."""
+    frame = decode_frame(data, name)
+    head = bytes(data[:PNG_HEAD_BYTES])
+    return frame, full_scale(frame.dtype, significant_bits(head))
+
+
+def significant_bits(head: bytes) -> int | None:
+    """The significant bits a 16-bit PNG's ``sBIT`` chunk states (12 for Mono12), or None.
+
+    ``head`` is the file's start (the chunks before the image data). None: no ``sBIT`` (all the
+    sample's bits count), or not a 16-bit grey PNG.
+    """
+    if len(head) < 33 or head[24] != 16:
+        return None
+    return png_significant_bits(head)
+
+
+def full_scale(dtype: np.dtype | type, bits: int | None = None) -> int:
+    """The saturation level of a frame: 255 for 8-bit; for 16-bit samples holding ``bits``
+    MSB-aligned significant bits, ``(2**bits - 1) << (16 - bits)`` (65520 for 12 bits, 65535 for 16)."""
+    if np.dtype(dtype) == np.uint8:
+        return 255
+    b = 16 if bits is None else int(bits)
+    if not 8 <= b <= 16:
+        raise ValueError(f"significant bits must be 8 to 16, got {b}")
+    return ((1 << b) - 1) << (16 - b)
 
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -128,16 +166,25 @@ def _decode_unfiltered_png(buf: np.ndarray) -> np.ndarray | None:
     return rows[:, 1:].copy()
 
 
-def read_frame(path: Path) -> np.ndarray:
-    """Read one frame file; missing, undecodable or non-8-bit files raise `FrameReadError`."""
-    path = Path(path)
+def _read(path: Path) -> bytes:
     try:
-        data = path.read_bytes()
+        return path.read_bytes()
     except FileNotFoundError:
         raise FrameReadError("unreadable", f"{path.name}: file not found") from None
     except OSError as exc:
         raise FrameReadError("unreadable", f"{path.name}: {exc.strerror or exc}") from None
-    return decode_frame(data, path.name)
+
+
+def read_frame(path: Path) -> np.ndarray:
+    """Read one frame file; missing, undecodable or not grayscale files raise `FrameReadError`."""
+    path = Path(path)
+    return decode_frame(_read(path), path.name)
+
+
+def read_frame_scaled(path: Path) -> tuple[np.ndarray, int]:
+    """`read_frame`, and the frame's full scale (`decode_frame_scaled`)."""
+    path = Path(path)
+    return decode_frame_scaled(_read(path), path.name)
 
 
 #: PNG without row filters at zlib level 1: as small as OpenCV's default on
@@ -146,9 +193,20 @@ def read_frame(path: Path) -> np.ndarray:
 PNG_PARAMS = (cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_NONE, cv2.IMWRITE_PNG_COMPRESSION, 1)
 
 
-def encode_png(frame: np.ndarray) -> bytes:
-    """Lossless PNG bytes of an 8-bit frame (no row filters, zlib level 1: see `PNG_PARAMS`)."""
+def encode_png(frame: np.ndarray, bits: int | None = None) -> bytes:
+    """Lossless PNG bytes of a frame (no row filters, zlib level 1: see `PNG_PARAMS`).
+
+    A ``uint16`` frame of fewer than 16 significant ``bits`` (MSB-aligned: Mono12 as ``v << 4``)
+    gets an ``sBIT`` chunk saying so, which `significant_bits` reads back.
+    """
     ok, buf = cv2.imencode(".png", frame, list(PNG_PARAMS))
     if not ok:
         raise ValueError("PNG encoding failed")
-    return buf.tobytes()
+    data = buf.tobytes()
+    if frame.dtype == np.uint16 and bits is not None and bits < 16:
+        if not 8 < bits < 16:
+            raise ValueError(f"a 16-bit frame holds 9 to 16 significant bits, not {bits}")
+        chunk = b"sBIT" + bytes([bits])
+        # after IHDR (8-byte signature + 25-byte chunk), before any image data
+        data = data[:33] + struct.pack(">I", 1) + chunk + struct.pack(">I", deflate.crc32(chunk)) + data[33:]
+    return data

@@ -15,7 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from camcal.core.numbers import Integer
 from camcal.core.passplan import plan_pass
-from camcal.core.schedule import Schedule, presets
+from camcal.core.schedule import CameraLimits, Schedule, presets
 from camcal.core.utctime import iso_utc
 from ingest.derived import predict_settings, result_row
 from server.deps import ModuleId, OperatorDep, PreviewSlotDep, SettingsDep, StoreDep
@@ -46,11 +46,36 @@ class ActionCommand(BaseModel):
 class PreviewRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
     schedule: Schedule
-    module: str | None = Field(None, max_length=64)
+    module: str | None = Field(None, max_length=64, description="predict for this module's frames only")
+    camera_of: str | None = Field(
+        None,
+        max_length=64,
+        description="check against this module's camera (default: ``module``'s; without either, or "
+        "for a module that has not said its camera's ranges, the ship's default limits)",
+    )
 
 
-def _problems(settings: Any, schedule: Schedule) -> list[dict[str, str]]:
-    return [{"field": f"schedule.{f}", "reason": r} for f, r in settings.camera_limits.problems(schedule)]
+def camera_limits(settings: Any, store: Store, module: str | None) -> tuple[CameraLimits, str]:
+    """The ranges a schedule for ``module`` must fit: its camera's, as the module said (protocol
+    revision 1.7), else the ship's default limits (`ServerSettings.camera_limits`); and whose."""
+    cam = store.call(queries.module_camera, module) if module else None
+    if cam:
+        try:
+            limits = CameraLimits(
+                (float(cam["exposure_range_s"][0]), float(cam["exposure_range_s"][1])),
+                (float(cam["gain_range_db"][0]), float(cam["gain_range_db"][1])),
+                float(cam.get("gain_step_db") or 0.0),
+            )
+            what = " ".join(str(cam.get(k) or "") for k in ("model", "serial")).strip() or "its camera"
+            return limits, f"module {module}'s camera ({what})"
+        except (KeyError, IndexError, TypeError, ValueError):
+            pass  # (a row no module could have sent: the defaults)
+    whose = f"module {module} has not said its camera's" if module else "no module chosen"
+    return settings.camera_limits, f"the ship's default limits ({whose})"
+
+
+def _problems(limits: CameraLimits, schedule: Schedule) -> list[dict[str, str]]:
+    return [{"field": f"schedule.{f}", "reason": r} for f, r in limits.problems(schedule)]
 
 
 #: The pass estimate of a schedule, by its content: the same schedule previewed again (every edit
@@ -108,7 +133,8 @@ def preview(
     rr = [result_row(r) for r in store.call(newest_results, body.module)]
     setts = [(wl, e, g) for wl in sched.wavelengths_nm for e, g, _ in sched.settings()]
     pred = predict_settings(rr, setts, settings.linear_range) if rr else {}
-    problems = _problems(settings, sched)
+    limits, source = camera_limits(settings, store, body.camera_of or body.module)
+    problems = _problems(limits, sched)
     summary = {
         m: {v: sum(1 for p in ps if p["verdict"] == v) for v in ("ok", "too_dark", "saturated", "unknown")}
         for m, ps in pred.items()
@@ -118,6 +144,12 @@ def preview(
     return {
         "ok": not problems,
         "problems": problems,
+        "camera_limits": {
+            "exposure_range_s": limits.exposure_range_s,
+            "gain_range_db": limits.gain_range_db,
+            "gain_step_db": limits.gain_step_db,
+            "source": source,
+        },
         "n_frames": sched.n_frames,
         **estimate,
         "predictions": pred,
@@ -163,9 +195,10 @@ def send_schedule(
     done, which ``GET /api/commands/{id}`` and the live events show.
     """
     _module_or_404(store, module_id)
-    problems = _problems(settings, body.schedule)
+    limits, source = camera_limits(settings, store, module_id)
+    problems = _problems(limits, body.schedule)
     if problems:
-        raise Invalid(f"{problems[0]['field']}: {problems[0]['reason']}", problems)
+        raise Invalid(f"{problems[0]['field']}: {problems[0]['reason']} (checked against {source})", problems)
     current = store.call(queries.schedule_version, module_id)
     version = body.version if body.version is not None else current + 1
     if version <= current:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -32,9 +33,27 @@ def modules(s: Session) -> list[dict[str, Any]]:
             "boot": m.boot,
             "software": m.software,
             "schedule": {"name": m.schedule_name, "version": m.schedule_version, "state": m.schedule_state},
+            "camera": _camera(m.camera_json),
         }
         for m in s.scalars(select(Module).order_by(Module.id))
     ]
+
+
+def _camera(text: str | None) -> dict[str, Any] | None:
+    """A module's camera as it said (`camcal.core.wire.CameraInfo` as a dict), or None."""
+    if not text:
+        return None
+    try:
+        cam = json.loads(text)
+    except ValueError:
+        return None
+    return cam if isinstance(cam, dict) else None
+
+
+def module_camera(s: Session, module_id: str) -> dict[str, Any] | None:
+    """What a module said of its camera (model, ranges, pixel format), or None if it never said."""
+    mod = s.get(Module, module_id)
+    return _camera(mod.camera_json) if mod is not None else None
 
 
 def module_exists(s: Session, module_id: str) -> bool:

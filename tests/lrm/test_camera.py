@@ -19,6 +19,8 @@ from lrm.camera import (
     SensorBackend,
     SimulatedCamera,
     SimulatedSensors,
+)
+from lrm.cameras.v4l2 import (
     V4L2Camera,
     exposure_from_device,
     exposure_to_device,

@@ -204,7 +204,7 @@ def message_ref(msg: Any) -> dict[str, Any]:
 
 def _check_image(msg: Any, payload: memoryview | bytes, ref: dict[str, Any]) -> None:
     try:
-        check_frame(payload, msg.encoding, msg.width_px, msg.height_px)
+        check_frame(payload, msg.encoding, msg.width_px, msg.height_px, msg.bit_depth)
     except ImageHeaderError as exc:
         raise ProtocolError("bad_image", str(exc), ref) from None
 

@@ -1,10 +1,12 @@
 """What a frame payload claims to be, read from its first bytes (no pixels decoded).
 
 The ship refuses at the door a frame whose image is not what its header
-says: not a PNG or TIFF, not 8-bit single-channel, or of another width or
-height. Pixels are decoded later, by the analysis; a file whose header is
-right but whose pixels are damaged is stored as sent (it is the module's
-record) and its analysis says ``unreadable``.
+says: not a PNG or TIFF, not single-channel of the header's bit depth (8-bit,
+or 16-bit for 9 to 16 significant bits, which a PNG's ``sBIT`` chunk states
+when fewer than 16), or of another width or height. Pixels are decoded
+later, by the analysis; a file whose header is right but whose pixels are
+damaged is stored as sent (it is the module's record) and its analysis says
+``unreadable``.
 """
 
 from __future__ import annotations
@@ -29,11 +31,21 @@ class ImageHeader:
     bits: int
     channels: int
     palette: bool = False
+    #: Significant bits per sample: a PNG's ``sBIT`` (grey) where it has one, else ``bits``.
+    significant_bits: int = 0
+
+    def __post_init__(self) -> None:
+        if not self.significant_bits:
+            object.__setattr__(self, "significant_bits", self.bits)
+
+
+#: How far into a PNG its ``sBIT`` chunk is looked for (it comes before the image data).
+PNG_HEAD_BYTES = 4096
 
 
 def read_header(data: bytes | memoryview, encoding: str) -> ImageHeader:
-    """Width, height, bit depth and channels of a PNG or TIFF payload."""
-    head = bytes(memoryview(data)[: 64 * 1024] if encoding == "tiff" else memoryview(data)[:33])
+    """Width, height, bit depth, significant bits and channels of a PNG or TIFF payload."""
+    head = bytes(memoryview(data)[: 64 * 1024 if encoding == "tiff" else PNG_HEAD_BYTES])
     if encoding == "png":
         return _png(head)
     if encoding == "tiff":
@@ -41,12 +53,22 @@ def read_header(data: bytes | memoryview, encoding: str) -> ImageHeader:
     raise ImageHeaderError(f"unknown encoding {encoding!r}")
 
 
-def check_frame(data: bytes | memoryview, encoding: str, width_px: int, height_px: int) -> None:
-    """Raise `ImageHeaderError` unless the payload is an 8-bit grey image of the stated size."""
+def check_frame(
+    data: bytes | memoryview, encoding: str, width_px: int, height_px: int, bit_depth: int = 8
+) -> None:
+    """Raise `ImageHeaderError` unless the payload is a grey image of the stated size and depth:
+    8-bit for ``bit_depth`` 8, 16-bit with ``bit_depth`` significant bits for 9 to 16."""
     h = read_header(data, encoding)
-    if h.bits != 8 or h.channels != 1 or h.palette:
+    bits = 8 if bit_depth == 8 else 16
+    if h.bits != bits or h.channels != 1 or h.palette:
         kind = "palette" if h.palette else f"{h.bits}-bit, {h.channels}-channel"
-        raise ImageHeaderError(f"{encoding.upper()} is {kind}; frames must be 8-bit grayscale")
+        said = "8-bit grayscale" if bits == 8 else f"16-bit grayscale (bit_depth {bit_depth})"
+        raise ImageHeaderError(f"{encoding.upper()} is {kind}; the header says {said}")
+    if h.significant_bits != bit_depth:
+        raise ImageHeaderError(
+            f"{encoding.upper()} holds {h.significant_bits} significant bits, header says bit_depth "
+            f"{bit_depth}" + (" (a PNG states fewer than 16 in its sBIT chunk)" if encoding == "png" else "")
+        )
     if (h.width_px, h.height_px) != (width_px, height_px):
         raise ImageHeaderError(
             f"image is {h.width_px} x {h.height_px} px, header says {width_px} x {height_px}"
@@ -62,7 +84,25 @@ def _png(head: bytes) -> ImageHeader:
     width, height, bits, colour = struct.unpack_from(">IIBB", head, 16)
     if colour not in _PNG_COLOURS or not width or not height:
         raise ImageHeaderError("PNG header is invalid")
-    return ImageHeader(width, height, bits, _PNG_COLOURS[colour], palette=colour == 3)
+    sig = png_significant_bits(head) if colour == 0 and bits == 16 else None
+    channels = _PNG_COLOURS[colour]
+    return ImageHeader(width, height, bits, channels, palette=colour == 3, significant_bits=sig or 0)
+
+
+def png_significant_bits(head: bytes) -> int | None:
+    """The significant bits a grey PNG's ``sBIT`` chunk states (12 for Mono12 in 16-bit samples), or
+    None (no ``sBIT`` before the image data within ``head``: every bit of a sample counts)."""
+    if len(head) < 33 or head[:8] != _PNG_SIGNATURE:
+        return None
+    pos = 8
+    while pos + 12 <= len(head):
+        length, kind = struct.unpack_from(">I4s", head, pos)
+        if kind == b"sBIT" and length == 1 and pos + 9 <= len(head):
+            return head[pos + 8] if 1 <= head[pos + 8] <= head[24] else None
+        if kind in (b"IDAT", b"IEND"):
+            return None
+        pos += 12 + length
+    return None
 
 
 def _tiff(head: bytes) -> ImageHeader:

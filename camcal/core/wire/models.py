@@ -13,7 +13,7 @@ import re
 from datetime import UTC, datetime
 from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, Strict
+from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, Strict, model_validator
 
 from camcal.core.wire.limits import (
     INT_MAX,
@@ -125,6 +125,39 @@ class ScheduleState(BaseModel):
     state: Literal["running", "paused", "stopped", "idle"] = "idle"
 
 
+_Exposure = Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False), _NUMBER]
+_Gain = Annotated[float, Field(ge=-100, le=100, allow_inf_nan=False), _NUMBER]
+#: Significant bits per pixel: 8 (an 8-bit image), or 9 to 16 (a 16-bit image, MSB-aligned).
+BitDepth = Annotated[int, Strict(), Field(ge=8, le=16)]
+
+
+class CameraInfo(BaseModel):
+    """What a module's camera is and what it can take, as the camera itself says (revision 1.7).
+
+    The ship checks a schedule for the module against these ranges (its own default limits
+    otherwise) and the control page shows them.
+    """
+
+    model_config = ConfigDict(extra="ignore", frozen=True)
+    model: Annotated[str, Strict(), Field(max_length=120)] = ""
+    serial: Annotated[str, Strict(), Field(max_length=64)] = ""
+    pixel_format: Annotated[str, Strict(), Field(max_length=40)] = ""
+    bit_depth: BitDepth = 8
+    width_px: Annotated[int, Strict(), Field(ge=1, le=65535)] | None = None
+    height_px: Annotated[int, Strict(), Field(ge=1, le=65535)] | None = None
+    exposure_range_s: tuple[_Exposure, _Exposure]
+    gain_range_db: tuple[_Gain, _Gain]
+    gain_step_db: Annotated[float, Field(ge=0, le=100, allow_inf_nan=False), _NUMBER] = 0.0
+
+    @model_validator(mode="after")
+    def _ordered(self) -> CameraInfo:
+        for name in ("exposure_range_s", "gain_range_db"):
+            lo, hi = getattr(self, name)
+            if lo > hi:
+                raise ValueError(f"{name}: the minimum {lo} exceeds the maximum {hi}")
+        return self
+
+
 # ------------------------------------------------------------ module -> ship
 class Hello(_ModuleHeader):
     """First message after (re)connecting; repeated until the ship answers ``welcome``."""
@@ -135,10 +168,12 @@ class Hello(_ModuleHeader):
     schedule: ScheduleState = ScheduleState()
     outbox_pending: Count = 0
     last_seq: Count = 0
+    #: The module's camera and its ranges (revision 1.7; absent: a module that does not say).
+    camera: CameraInfo | None = None
 
 
 class FrameMsg(_ModuleHeader):
-    """One camera frame; the payload is the encoded image (8-bit grayscale PNG or TIFF)."""
+    """One camera frame; the payload is the encoded image (8- or 16-bit grayscale PNG or TIFF)."""
 
     type: Literal["frame"] = "frame"
     boot: Id
@@ -146,12 +181,15 @@ class FrameMsg(_ModuleHeader):
     captured_at: Timestamp
     camera: Id
     wavelength_nm: Annotated[int, Strict(), Field(ge=200, le=2000)]
-    exposure_s: Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False), _NUMBER]
-    gain_db: Annotated[float, Field(ge=-100, le=100, allow_inf_nan=False), _NUMBER]
+    exposure_s: _Exposure
+    gain_db: _Gain
     depth_m: Annotated[float, Field(ge=-1000, le=12000, allow_inf_nan=False), _NUMBER] | None = None
     width_px: Annotated[int, Strict(), Field(ge=1, le=65535)]
     height_px: Annotated[int, Strict(), Field(ge=1, le=65535)]
     encoding: Literal["png", "tiff"] = "png"
+    #: Significant bits per pixel (revision 1.7): 8, or 9-16 for a 16-bit image (fewer than 16: the
+    #: values MSB-aligned and a PNG's sBIT chunk saying how many). Its full scale is the saturation.
+    bit_depth: BitDepth = 8
     size: Annotated[int, Strict(), Field(ge=1, le=INT_MAX)]
     sha256: Annotated[str, Strict(), Field(pattern=r"^[0-9a-f]{64}$")]
     schedule_version: Version = 0
@@ -195,6 +233,9 @@ class ModuleHeartbeat(_ModuleHeader):
     #: LEM moved on (or was about to) amid a wavelength's shots: a schedule longer than the LEM shows
     #: a colour, or a module running slow (revision 1.6).
     deferred_shots: Count = 0
+    #: The module's camera and its ranges, as in ``hello`` (revision 1.7): a camera swapped or
+    #: reconfigured while the link is up.
+    camera: CameraInfo | None = None
 
 
 class CommandStatus(_ModuleHeader):

@@ -266,7 +266,8 @@ async function runPreview() {
   const spec = editor.read();
   lastPreviewAt = Date.now();
   try {
-    const p = await api("/api/schedules/preview", { method: "POST", body: { schedule: spec }, signal: ctrl.signal });
+    // checked against the selected module's own camera, where it has said its ranges (predictions for every module)
+    const p = await api("/api/schedules/preview", { method: "POST", body: { schedule: spec, camera_of: state.selected }, signal: ctrl.signal });
     if (ctrl.signal.aborted) return null;
     state.preview = p;
     state.previewError = null;

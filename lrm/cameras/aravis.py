@@ -1,0 +1,509 @@
+"""GenICam cameras (USB3 Vision, GigE Vision) through Aravis: `AravisCamera`, `list_cameras`.
+
+Aravis is the open GenICam library; Python reaches it through PyGObject
+(``pip install 'camcal[camera]'``) and its introspection data (Debian:
+``gir1.2-aravis-0.8``). Without them `load_aravis` raises `AravisMissing`,
+which says what to install: nothing else of a module needs them.
+
+A capture sets ExposureTime (µs) and Gain (dB) where they changed, reads
+them back (the frame records what the camera applied, after its own
+rounding), fires a software trigger and waits for the frame. A frame that
+arrives incomplete (packets lost on the link) is never stored: the shot is
+taken again, up to ``retries`` times, then `CaptureFailed`. A camera that
+stops answering is `CameraUnavailable`; the next capture looks for it again
+(by its id) and opens it anew, so a module picks its camera up when it comes
+back. The device's frame timestamps are mapped to UTC through the host's
+clock (`DeviceClock`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import threading
+from collections import deque
+from dataclasses import dataclass, field
+from datetime import UTC, datetime, timedelta
+from types import TracebackType
+from typing import Any, Self
+
+import numpy as np
+
+from lrm.camera import (
+    CameraClosed,
+    CameraError,
+    CameraUnavailable,
+    CapturedFrame,
+    CaptureFailed,
+    check_setting,
+)
+from lrm.clock import Clock, SystemClock
+
+log = logging.getLogger("camcal.lrm")
+
+#: Monochrome pixel formats a module takes, with their significant bits (unpacked: Mono10 to Mono16
+#: arrive in 16-bit little-endian samples, LSB-aligned; they are stored MSB-aligned, as PNG keeps them).
+PIXEL_FORMATS: dict[str, int] = {"Mono8": 8, "Mono10": 10, "Mono12": 12, "Mono14": 14, "Mono16": 16}
+#: GenICam PFNC codes of those formats (what a buffer says it holds).
+_PFNC = {0x01080001: "Mono8", 0x01100003: "Mono10", 0x01100005: "Mono12", 0x01100025: "Mono14"}
+_PFNC[0x01100007] = "Mono16"
+#: The Debian packages and the extra a camera needs (said by every error about a missing part).
+INSTALL_HINT = (
+    "apt install gir1.2-aravis-0.8 aravis-tools, then pip install 'camcal[camera]' (see docs/module.md)"
+)
+#: One discovery or open at a time in a process: Aravis' device list is global.
+_DISCOVERY = threading.Lock()
+
+
+class AravisMissing(CameraUnavailable):
+    """PyGObject or Aravis' introspection data is not installed."""
+
+
+def load_aravis() -> Any:
+    """The ``gi.repository.Aravis`` module, or `AravisMissing` saying what to install."""
+    try:
+        import gi
+    except ImportError:
+        raise AravisMissing(f"PyGObject (gi) is not installed: {INSTALL_HINT}") from None
+    try:
+        gi.require_version("Aravis", "0.8")
+        from gi.repository import Aravis
+    except (ValueError, ImportError) as exc:
+        raise AravisMissing(f"Aravis 0.8 is not installed ({exc}): {INSTALL_HINT}") from None
+    return Aravis
+
+
+def _glib_error() -> type[Exception]:
+    from gi.repository import GLib
+
+    return GLib.Error  # type: ignore[no-any-return]
+
+
+@dataclass(frozen=True)
+class CameraListing:
+    """One GenICam camera as `list_cameras` sees it (``error``: it could not be opened to ask more)."""
+
+    device_id: str
+    model: str
+    vendor: str
+    serial: str
+    protocol: str
+    address: str
+    pixel_formats: tuple[str, ...] = ()
+    exposure_range_s: tuple[float, float] | None = None
+    gain_range_db: tuple[float, float] | None = None
+    sensor_px: tuple[int, int] | None = None
+    temperature_c: float | None = None
+    error: str | None = None
+
+
+def _devices(ar: Any) -> list[dict[str, Any]]:
+    ar.update_device_list()
+    out = []
+    for i in range(ar.get_n_devices()):
+        out.append(
+            {
+                "device_id": ar.get_device_id(i) or "",
+                "model": ar.get_device_model(i) or "",
+                "vendor": ar.get_device_vendor(i) or "",
+                "serial": ar.get_device_serial_nbr(i) or "",
+                "protocol": ar.get_device_protocol(i) or "",
+                "address": ar.get_device_address(i) or "",
+            }
+        )
+    return out
+
+
+def list_cameras(details: bool = True) -> list[CameraListing]:
+    """The GenICam cameras this computer sees; with ``details`` each is opened for its pixel formats,
+    ranges, sensor size and temperature (a camera another process holds says so in ``error``)."""
+    ar = load_aravis()
+    glib_error = _glib_error()
+    out = []
+    with _DISCOVERY:
+        for d in _devices(ar):
+            if not details:
+                out.append(CameraListing(**d))
+                continue
+            try:
+                cam = ar.Camera.new(d["device_id"])
+                formats = tuple(cam.dup_available_pixel_formats_as_strings() or ())
+                e = cam.get_exposure_time_bounds()
+                g = cam.get_gain_bounds()
+                sensor = cam.get_sensor_size()
+                temp = cam.get_float("DeviceTemperature") if _has(cam, "DeviceTemperature") else None
+                out.append(
+                    CameraListing(
+                        **d,
+                        pixel_formats=formats,
+                        exposure_range_s=(round(e[0] * 1e-6, 12), round(e[1] * 1e-6, 12)),
+                        gain_range_db=(float(g[0]), float(g[1])),
+                        sensor_px=(int(sensor[0]), int(sensor[1])),
+                        temperature_c=temp,
+                    )
+                )
+                del cam
+            except glib_error as exc:
+                out.append(CameraListing(**d, error=_message(exc)))
+    return out
+
+
+def _has(cam: Any, feature: str) -> bool:
+    try:
+        return bool(cam.is_feature_available(feature))
+    except Exception:  # (an Aravis error: a feature the camera's description does not have)
+        return False
+
+
+def _message(exc: BaseException) -> str:
+    return str(getattr(exc, "message", None) or exc)
+
+
+class DeviceClock:
+    """Maps a camera's frame timestamps (ns of its own clock) to UTC.
+
+    Each frame carries the device's timestamp and the host's (UTC, when its
+    first packet arrived). Their difference is the clock offset plus the
+    transfer's delay, which is never negative: the smallest difference over
+    the last ``window`` frames is the offset's estimate (as NTP keeps its
+    least delayed sample). A camera without timestamps (0), or one whose
+    mapped time falls outside the capture's own window (a device clock that
+    was reset), gives None: the capture then uses the host's trigger time.
+    """
+
+    def __init__(self, window: int = 32) -> None:
+        self._offsets: deque[int] = deque(maxlen=window)
+
+    def reset(self) -> None:
+        self._offsets.clear()
+
+    def to_utc(self, device_ns: int, host_ns: int) -> datetime | None:
+        if device_ns <= 0 or host_ns <= 0:
+            return None
+        self._offsets.append(host_ns - device_ns)
+        return datetime.fromtimestamp((device_ns + min(self._offsets)) / 1e9, UTC)
+
+
+@dataclass
+class _Applied:
+    exposure_us: float = math.nan
+    gain_db: float = math.nan
+    asked: tuple[float, float] | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+class AravisCamera:
+    """A GenICam camera (USB3 Vision, GigE Vision) through Aravis.
+
+    Parameters
+    ----------
+    device
+        The camera's Aravis id (``Aravis-Fake-GV01``, ``Basler-40012345``), its serial number or
+        its address (`list_cameras`; ``camcal lrm cameras``).
+    camera_id
+        The module's id, written into every frame.
+    pixel_format
+        ``Mono8`` (default), ``Mono10``, ``Mono12``, ``Mono14`` or ``Mono16`` (unpacked); the camera
+        must offer it. Deeper formats come as ``uint16`` frames, MSB-aligned, with their bits.
+    width_px, height_px
+        The region read out, centred on the sensor (default: the whole sensor).
+    frame_timeout_s
+        How long past the exposure a frame may take to arrive.
+    retries
+        Shots taken again after an incomplete frame or a timeout before `CaptureFailed`.
+    """
+
+    def __init__(
+        self,
+        device: str,
+        camera_id: str = "A",
+        *,
+        clock: Clock | None = None,
+        pixel_format: str = "Mono8",
+        width_px: int | None = None,
+        height_px: int | None = None,
+        frame_timeout_s: float = 3.0,
+        retries: int = 2,
+        buffers: int = 3,
+    ) -> None:
+        if pixel_format not in PIXEL_FORMATS:
+            raise ValueError(f"pixel_format must be one of {', '.join(PIXEL_FORMATS)}, got {pixel_format!r}")
+        if not (frame_timeout_s > 0 and math.isfinite(frame_timeout_s)) or retries < 0 or buffers < 1:
+            raise ValueError("frame_timeout_s must be > 0, retries >= 0 and buffers >= 1")
+        self.device = device
+        self.camera_id = camera_id
+        self.clock: Clock = clock or SystemClock()
+        self.pixel_format = pixel_format
+        self.bit_depth = PIXEL_FORMATS[pixel_format]
+        self.requested_px = (width_px, height_px)
+        self.frame_timeout_s = float(frame_timeout_s)
+        self.retries = int(retries)
+        self.n_buffers = int(buffers)
+        self.device_clock = DeviceClock()
+        self.counters: dict[str, int] = {"incomplete": 0, "timeouts": 0, "reopened": 0}
+        self.temperature_c: float | None = None
+        self._lock = threading.Lock()
+        self._closed = False
+        self._cam: Any = None
+        self._stream: Any = None
+        self._applied = _Applied()
+        self._ar = load_aravis()
+        self._glib_error = _glib_error()
+        self._open()
+
+    # ------------------------------------------------------------ opening
+    def _find(self) -> str:
+        devices = _devices(self._ar)
+        for key in ("device_id", "serial", "address"):
+            for d in devices:
+                if d[key] == self.device:
+                    return d["device_id"]
+        seen = ", ".join(d["device_id"] for d in devices) or "none"
+        raise CameraUnavailable(
+            f"camera {self.camera_id}: no GenICam camera {self.device!r} is seen (cameras seen: {seen}); "
+            "check its cable and power (a GigE camera: its network and address), then "
+            "`camcal lrm cameras`"
+        )
+
+    def _open(self) -> None:
+        with _DISCOVERY:
+            device_id = self._find()
+            try:
+                cam = self._ar.Camera.new(device_id)
+            except self._glib_error as exc:
+                raise CameraUnavailable(
+                    f"camera {self.camera_id}: {device_id} is seen but cannot be opened ({_message(exc)}); "
+                    "is another program using it (arv-viewer, another camcal)?"
+                ) from None
+        try:
+            self._configure(cam, device_id)
+        except self._glib_error as exc:
+            raise CameraUnavailable(
+                f"camera {self.camera_id}: {device_id} refused its set-up ({_message(exc)})"
+            ) from None
+        self._cam = cam
+        self.device_clock.reset()
+        self._applied = _Applied()
+
+    def _configure(self, cam: Any, device_id: str) -> None:
+        ar = self._ar
+        self.device_id = device_id
+        self.model = f"{cam.get_vendor_name() or ''} {cam.get_model_name() or ''}".strip()
+        self.serial = cam.get_device_serial_number() or ""
+        formats = tuple(cam.dup_available_pixel_formats_as_strings() or ())
+        if self.pixel_format not in formats:
+            mono = [f for f in formats if f in PIXEL_FORMATS]
+            raise ValueError(
+                f"camera {self.camera_id} ({device_id}) has no pixel format {self.pixel_format}; "
+                f"it offers {', '.join(mono) or 'no monochrome format'}"
+            )
+        if cam.is_exposure_auto_available():
+            cam.set_exposure_time_auto(ar.Auto.OFF)
+        if cam.is_gain_auto_available():
+            cam.set_gain_auto(ar.Auto.OFF)
+        cam.set_pixel_format_from_string(self.pixel_format)
+        sw, sh = cam.get_sensor_size()
+        w, h = self.requested_px[0] or sw, self.requested_px[1] or sh
+        if not (0 < w <= sw and 0 < h <= sh):
+            raise ValueError(f"camera {self.camera_id}: region {w} x {h} px exceeds the sensor's {sw} x {sh}")
+        cam.set_region(0, 0, w, h)  # offsets first to 0, so that the full size is allowed
+        cam.set_region((sw - w) // 2, (sh - h) // 2, w, h)
+        region = cam.get_region()
+        self.width_px, self.height_px = int(region[2]), int(region[3])
+        self.sensor_px = (int(sw), int(sh))
+        e = cam.get_exposure_time_bounds()
+        g = cam.get_gain_bounds()
+        self.exposure_range_s = (round(float(e[0]) * 1e-6, 12), round(float(e[1]) * 1e-6, 12))
+        self.gain_range_db = (float(g[0]), float(g[1]))
+        self.gain_step_db = self._gain_step(cam)
+        self.has_temperature = _has(cam, "DeviceTemperature")
+        self.triggered = bool(cam.is_software_trigger_supported())
+        if self.triggered:  # the camera waits for our trigger; one stream for the camera's life
+            cam.set_trigger("Software")
+            cam.set_acquisition_mode(ar.AcquisitionMode.CONTINUOUS)
+            stream = cam.create_stream(None, None)
+            payload = cam.get_payload()
+            for _ in range(self.n_buffers):
+                stream.push_buffer(ar.Buffer.new_allocate(payload))
+            cam.start_acquisition()
+            self._stream = stream
+
+    def _gain_step(self, cam: Any) -> float:
+        for name, get in (("Gain", cam.get_float_increment), ("GainRaw", cam.get_integer_increment)):
+            if _has(cam, name):
+                try:
+                    return float(get(name))
+                except self._glib_error:
+                    continue
+        return 0.0
+
+    def _drop(self) -> None:
+        """Let go of a camera that stopped answering (its stream and handle)."""
+        cam, self._cam, self._stream = self._cam, None, None
+        if cam is not None:
+            with contextlib.suppress(self._glib_error):
+                cam.stop_acquisition()
+        del cam
+
+    # ------------------------------------------------------------ capturing
+    def capture(self, exposure_s: float, gain_db: float) -> CapturedFrame:
+        check_setting(exposure_s, gain_db, self.exposure_range_s, self.gain_range_db)
+        with self._lock:
+            if self._closed:
+                raise CameraClosed(f"camera {self.camera_id} ({self.device}) is closed")
+            if self._cam is None:
+                self._open()  # CameraUnavailable while it is still away
+                self.counters["reopened"] += 1
+                log.warning("camera %s: %s is back and opened again", self.camera_id, self.device_id)
+            try:
+                return self._capture(exposure_s, gain_db)
+            except self._glib_error as exc:
+                self._drop()
+                raise CameraUnavailable(
+                    f"camera {self.camera_id} ({self.device_id}) stopped answering ({_message(exc)}); "
+                    "the module opens it again when it is back: check its cable and power"
+                ) from None
+
+    def _apply(self, exposure_s: float, gain_db: float) -> None:
+        a = self._applied
+        if a.asked == (exposure_s, gain_db):
+            return
+        cam = self._cam
+        cam.set_exposure_time(exposure_s * 1e6)
+        cam.set_gain(gain_db)
+        self._applied = _Applied(cam.get_exposure_time(), cam.get_gain(), (exposure_s, gain_db))
+
+    def _capture(self, exposure_s: float, gain_db: float) -> CapturedFrame:
+        self._apply(exposure_s, gain_db)
+        timeout_us = int((exposure_s + self.frame_timeout_s) * 1e6)
+        problems: list[str] = []
+        for _ in range(1 + self.retries):
+            began = datetime.now(UTC)
+            buf = self._one_buffer(timeout_us)
+            if buf is None:
+                self.counters["timeouts"] += 1
+                self._cam.get_exposure_time()  # a camera gone raises here: CameraUnavailable
+                problems.append(f"no frame within {timeout_us / 1e6:.1f} s")
+                continue
+            try:
+                status = buf.get_status()
+                if status != self._ar.BufferStatus.SUCCESS:
+                    self.counters["incomplete"] += 1
+                    problems.append(f"incomplete frame ({status.value_nick})")
+                    continue
+                return self._frame(buf, began)
+            finally:
+                if self._stream is not None:
+                    self._stream.push_buffer(buf)
+        raise CaptureFailed(
+            f"camera {self.camera_id} ({self.device_id}): {len(problems)} tries, "
+            f"{'; '.join(problems)}; nothing stored. Lost packets: check the cable or network "
+            "(GigE: jumbo frames, packet size)"
+        )
+
+    def _one_buffer(self, timeout_us: int) -> Any:
+        if self._stream is None:  # no software trigger: one acquisition per shot
+            return self._cam.acquisition(timeout_us)
+        while (stale := self._stream.try_pop_buffer()) is not None:  # a late frame of an earlier try
+            self._stream.push_buffer(stale)
+        self._cam.software_trigger()
+        return self._stream.timeout_pop_buffer(timeout_us)
+
+    def _frame(self, buf: Any, began: datetime) -> CapturedFrame:
+        fmt = _PFNC.get(buf.get_image_pixel_format())
+        if fmt != self.pixel_format:
+            raise CaptureFailed(
+                f"camera {self.camera_id} delivered pixel format {fmt or hex(buf.get_image_pixel_format())}, "
+                f"not {self.pixel_format}"
+            )
+        w, h = buf.get_image_width(), buf.get_image_height()
+        data = buf.get_image_data()
+        bits = PIXEL_FORMATS[fmt]
+        size = 1 if bits == 8 else 2
+        if len(data) < w * h * size:
+            raise CaptureFailed(f"camera {self.camera_id}: frame of {len(data)} bytes for {w} x {h} px")
+        rows = np.frombuffer(data, np.uint8)[: (len(data) // h) * h].reshape(h, -1)[:, : w * size]
+        if bits == 8:
+            pixels = rows.copy()
+        else:
+            pixels = rows.copy().view("<u2").astype(np.uint16)
+            if bits < 16:
+                np.minimum(pixels, (1 << bits) - 1, out=pixels)
+                pixels <<= 16 - bits
+        received = datetime.now(UTC)
+        stamped = self.device_clock.to_utc(buf.get_timestamp(), buf.get_system_timestamp())
+        slack = timedelta(seconds=1)
+        captured = stamped if stamped is not None and began - slack <= stamped <= received + slack else began
+        a = self._applied
+        if self.has_temperature:
+            self.temperature_c = float(self._cam.get_float("DeviceTemperature"))
+        return CapturedFrame(
+            pixels=pixels,
+            captured_at=captured,
+            exposure_s=a.exposure_us * 1e-6,
+            gain_db=float(a.gain_db),
+            camera=self.camera_id,
+            bit_depth=bits,
+            extra={
+                "device": self.device_id,
+                "device_timestamp_ns": int(buf.get_timestamp()),
+                "frame_id": int(buf.get_frame_id()),
+                "timestamp_source": "device" if captured is stamped else "host",
+                "requested_exposure_s": a.asked[0] if a.asked else None,
+                "requested_gain_db": a.asked[1] if a.asked else None,
+                "device_temperature_c": self.temperature_c,
+                "latency_s": (received - began).total_seconds(),
+            },
+        )
+
+    # ------------------------------------------------------------ state
+    def info(self) -> dict[str, Any]:
+        """What the ship is told of this camera (`camcal.core.wire.CameraInfo`'s fields)."""
+        return {
+            "model": self.model[:120],
+            "serial": self.serial[:64],
+            "pixel_format": self.pixel_format,
+            "bit_depth": self.bit_depth,
+            "width_px": self.width_px,
+            "height_px": self.height_px,
+            "exposure_range_s": self.exposure_range_s,
+            "gain_range_db": self.gain_range_db,
+            "gain_step_db": self.gain_step_db,
+        }
+
+    @property
+    def connected(self) -> bool:
+        return self._cam is not None
+
+    def read_settings(self) -> tuple[float, float]:
+        """(exposure_s, gain_db) as the camera's registers hold them now (for checks and tests)."""
+        with self._lock:
+            if self._cam is None:
+                raise CameraUnavailable(f"camera {self.camera_id} is not connected")
+            return self._cam.get_exposure_time() * 1e-6, float(self._cam.get_gain())
+
+    def close(self) -> None:
+        with self._lock:
+            self._closed = True
+            self._drop()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+
+__all__ = [
+    "PIXEL_FORMATS",
+    "AravisCamera",
+    "AravisMissing",
+    "CameraError",
+    "CameraListing",
+    "DeviceClock",
+    "list_cameras",
+    "load_aravis",
+]

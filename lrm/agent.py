@@ -90,7 +90,7 @@ class Agent(CommandHandling, Producing):
         runner: ScheduleRunner | None = None,
         source: Callable[[threading.Event], Capture | None] | None = None,
         sensors: Any | None = None,
-        camera_limits: CameraLimits | None = None,
+        camera_limits: CameraLimits | Callable[[], CameraLimits | None] | None = None,
         ctx: zmq.Context[Any] | None = None,
         depth: Callable[[], float | None] | None = None,
         simulated_clock_error_s: float = 0.0,

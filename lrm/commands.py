@@ -29,7 +29,7 @@ class CommandHandling:
     boot: str
     runner: ScheduleRunner | None
     outbox: Outbox
-    camera_limits: CameraLimits | None
+    camera_limits: CameraLimits | Callable[[], CameraLimits | None] | None
     counters: Counter[str]
     _commands: dict[str, dict[str, Any]]
     _status_out: queue.SimpleQueue[Any]
@@ -162,7 +162,8 @@ class CommandHandling:
         self._status(cmd.command_id, "done")
 
     def _check_limits(self, sched: Schedule) -> str | None:
-        if self.camera_limits is None:
+        limits = self.camera_limits() if callable(self.camera_limits) else self.camera_limits
+        if limits is None:  # (a camera not opened yet: its own capture refuses what it cannot take)
             return None
-        problems = self.camera_limits.problems(sched)
+        problems = limits.problems(sched)
         return problems[0][1] if problems else None

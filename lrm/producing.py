@@ -147,6 +147,10 @@ class Producing:
             except (CameraError, OSError) as exc:  # the same shot is tried again
                 self._produce_stop.wait(self._device_failed("camera", exc))
                 continue
+            except ValueError as exc:  # a setting the camera refuses (its ranges known only now): the
+                # ship is told (camera alarm) and a schedule within them fixes it; the module goes on
+                self._produce_stop.wait(self._device_failed("camera", exc))
+                continue
             self._device_works("camera")
             if cap is None:
                 return

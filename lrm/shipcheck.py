@@ -71,6 +71,8 @@ class ShipCheck:
         self._connected = False
         self._foreign = 0
         self.renew_at: float | None = None
+        #: Handshakes that succeeded (ZMTP and, with keys, CURVE: the peer has the ship's key).
+        self.handshakes = 0
 
     # -- the socket ------------------------------------------------------
     def open(self, ctx: zmq.Context[Any]) -> Any:
@@ -107,6 +109,7 @@ class ShipCheck:
                 self._connected = True
             elif kind == zmq.EVENT_HANDSHAKE_SUCCEEDED:
                 self._connected = False
+                self.handshakes += 1
                 if self.refusal is not None and not self.refusal.definitive:
                     log.info("module %s: handshake with %s succeeded", self.module, self.connect)
                     self.refusal = None

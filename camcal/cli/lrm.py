@@ -1,9 +1,12 @@
-"""``camcal lrm``: run a module — on a real V4L2 camera, simulated, or replaying a recorded frame set."""
+"""``camcal lrm``: run a module — simulated, or replaying a recorded frame set; its real camera's
+commands (``run``, ``cameras``, ``snap``) are in `camcal.cli.lrm_camera`, ``doctor`` in
+`camcal.cli.lrm_doctor`."""
 
 from __future__ import annotations
 
 import logging
 import math
+import os
 import signal
 import threading
 import time
@@ -128,8 +131,15 @@ def _run_module(agent: Any, finished: Callable[[], bool], *, stop_on_refusal: bo
         raise fail(f"module {agent.config.module} stopped after a failure (see the log above)", code=1)
 
 
-def _run_until_signal(agent: object, finished: object) -> bool:
-    """Wait for SIGTERM/SIGINT or ``finished()``; True if the agent stopped by itself (a failure)."""
+def _run_until_signal(agent: Any, finished: Callable[[], bool]) -> bool:
+    """Wait for SIGTERM/SIGINT or ``finished()``; True if the agent stopped by itself (a failure).
+
+    Under systemd (``Type=notify``) this loop tells it the module is ready once the agent runs, and,
+    with ``WatchdogSec``, feeds the watchdog only while the agent works (`lrm.agent.Agent.alive`):
+    a module whose threads hang is restarted. ``STATUS=`` says what it has done, for ``systemctl status``.
+    """
+    from camcal.core.supervise import sd_notify
+
     done = threading.Event()
 
     def on_signal(signum: int, _frame: object) -> None:
@@ -137,12 +147,30 @@ def _run_until_signal(agent: object, finished: object) -> bool:
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
-    while not done.wait(0.5):
-        if agent.stopped:  # type: ignore[attr-defined]
+    watchdog_s = int(os.environ.get("WATCHDOG_USEC", "0") or 0) / 1e6
+    sd_notify("READY=1\n" + _status(agent))
+    last_ping = 0.0
+    while not done.wait(min(0.5, watchdog_s / 4) if watchdog_s > 0 else 0.5):
+        if agent.stopped:
             return True
-        if finished():  # type: ignore[operator]
+        if finished():
             break
+        now = time.monotonic()
+        if watchdog_s > 0 and now - last_ping >= watchdog_s / 4 and agent.alive():
+            sd_notify("WATCHDOG=1\n" + _status(agent))
+            last_ping = now
+    sd_notify("STOPPING=1")
     return False
+
+
+def _status(agent: Any) -> str:
+    """systemd's one-line STATUS of a module: frames taken, waiting on the card, link and camera."""
+    link = "linked" if agent.linked.is_set() else "looking for the ship"
+    camera = agent.device_errors.get("camera")
+    return (
+        f"STATUS={agent.counters['frames_captured']} frames, {agent.outbox.pending_count()} not yet "
+        f"acknowledged, {link}" + (f"; camera: {camera[:120]}" if camera else "")
+    )
 
 
 @app.command("simulate")
@@ -363,110 +391,6 @@ def replay(
         raise fail(f"replay of camera {camera} stopped after a failure (see the log above)", code=1)
 
 
-@app.command("camera")
-def camera_module(
-    device: Annotated[str, typer.Option(help="The camera: a V4L2 device path (/dev/video0) or index.")],
-    camera: Annotated[str, typer.Option(help="Module / camera id written into every frame.")] = "A",
-    connect: ConnectOption = "tcp://127.0.0.1:5555",
-    outbox: Annotated[
-        Path | None, typer.Option(help="SD-card outbox folder (default lrm-<camera>-outbox).")
-    ] = None,
-    schedule: Annotated[str, typer.Option(help="Schedule preset or a schedule JSON file.")] = "trex",
-    lem_epoch: Annotated[
-        str | None,
-        typer.Option(
-            help="UTC time (ISO 8601) at which the LEM's colour cycle started with its first wavelength; "
-            "without it frames carry no wavelength."
-        ),
-    ] = None,
-    lem_dwell_s: Annotated[float, typer.Option(help="Seconds the LEM shows each wavelength.")] = 60.0,
-    lem_wavelengths: Annotated[
-        str, typer.Option(help="The LEM's colour cycle in order [nm].")
-    ] = "405,460,525",
-    exposure_range_s: Annotated[
-        str, typer.Option(help="The camera's exposure range MIN,MAX [s].")
-    ] = "0.0001,1.0",
-    gain_range_db: Annotated[str, typer.Option(help="The camera's gain range MIN,MAX [dB].")] = "0,24",
-    gain_units_per_db: Annotated[
-        float, typer.Option(help="Driver gain units per dB (10 for a driver in 0.1 dB steps).")
-    ] = 1.0,
-    gain_offset: Annotated[float, typer.Option(help="Driver gain value at 0 dB.")] = 0.0,
-    dive: DiveOption = None,
-    keys: KeysOption = Path("keys"),
-    plaintext: PlaintextOption = False,
-    log_level: Annotated[str, typer.Option(help="debug, info, warning.")] = "info",
-) -> None:
-    """Run a real module: a V4L2 camera under the schedule, streaming to the ship.
-
-    The camera is driven through OpenCV's V4L2 backend with manual exposure
-    and gain (check the driver's controls with ``v4l2-ctl --list-ctrls``).
-    The housing sensors are not read here: their drivers depend on the
-    module's hardware (see lrm.camera.SensorBackend). A real module never
-    exits because the ship is the wrong one: it keeps capturing to the SD
-    card, says why in its log, and keeps looking for the right ship.
-    """
-    from camcal.cli.common import parse_floats
-    from camcal.core.schedule import CameraLimits
-    from camcal.core.utctime import parse_utc
-    from lrm.agent import Agent, AgentConfig
-    from lrm.camera import CameraError
-    from lrm.cameras.v4l2 import V4L2Camera
-    from lrm.clock import SystemClock
-    from lrm.dive import LEMTimetable
-    from lrm.runner import LemTimetableClock, ScheduleRunner
-
-    logging.basicConfig(level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    sched = load_schedule(schedule)
-    exp = parse_floats(exposure_range_s, "--exposure-range-s")
-    gain = parse_floats(gain_range_db, "--gain-range-db")
-    if len(exp) != 2 or len(gain) != 2:
-        raise fail("--exposure-range-s and --gain-range-db take MIN,MAX")
-    lem = None
-    if lem_epoch is not None:
-        try:
-            epoch = parse_utc(lem_epoch)
-            timetable = LEMTimetable(
-                tuple(int(w) for w in parse_floats(lem_wavelengths, "--lem-wavelengths")), lem_dwell_s
-            )
-        except ValueError as exc:
-            raise fail(f"--lem-epoch/--lem-dwell-s/--lem-wavelengths: {exc}") from None
-        lem = LemTimetableClock(timetable, epoch)
-    clock = SystemClock()
-    try:
-        cam = V4L2Camera(
-            int(device) if device.isdigit() else device,
-            camera,
-            clock=clock,
-            exposure_range_s=(exp[0], exp[1]),
-            gain_range_db=(gain[0], gain[1]),
-            gain_units_per_db=gain_units_per_db,
-            gain_offset=gain_offset,
-        )
-    except (CameraError, ValueError) as exc:
-        raise fail(str(exc)) from None
-    limits = CameraLimits(cam.exposure_range_s, cam.gain_range_db, cam.gain_step_db)
-    problems = limits.problems(sched)
-    if problems:
-        cam.close()
-        raise fail("; ".join(f"schedule {field}: {why}" for field, why in problems))
-    try:  # after the camera: its problems are the ones to fix first
-        module_keys = link_keys(keys, camera, plaintext)
-    except typer.Exit:
-        cam.close()
-        raise
-    runner = ScheduleRunner(cam, clock, sched, lem=lem)
-    cfg = AgentConfig(
-        module=camera,
-        connect=connect,
-        outbox=outbox or Path(f"lrm-{camera}-outbox"),
-        dive=dive,
-        keys=module_keys,
-        plaintext=plaintext,
-    )
-    agent = with_outbox(lambda: Agent(cfg, clock=clock, runner=runner, camera_limits=limits))
-    agent.start()
-    console.print(
-        f"module {camera}: camera {cam.device_path}, schedule {sched.name} v{sched.version}, "
-        f"sending to {connect}, outbox {cfg.outbox}"
-    )
-    _run_module(agent, lambda: False, stop_on_refusal=False)
+# The real camera's commands (run, cameras, snap) and the module's doctor live beside this file; importing
+# them registers them on `app`.
+from camcal.cli import lrm_camera, lrm_doctor  # noqa: E402, F401

@@ -30,6 +30,7 @@ from typing import Any, Self
 
 import numpy as np
 
+from camcal.core.schedule import CameraLimits
 from lrm.camera import (
     CameraClosed,
     CameraError,
@@ -137,7 +138,7 @@ def list_cameras(details: bool = True) -> list[CameraListing]:
                     CameraListing(
                         **d,
                         pixel_formats=formats,
-                        exposure_range_s=(round(e[0] * 1e-6, 12), round(e[1] * 1e-6, 12)),
+                        exposure_range_s=(_seconds(e[0]), _seconds(e[1])),
                         gain_range_db=(float(g[0]), float(g[1])),
                         sensor_px=(int(sensor[0]), int(sensor[1])),
                         temperature_c=temp,
@@ -147,6 +148,11 @@ def list_cameras(details: bool = True) -> list[CameraListing]:
             except glib_error as exc:
                 out.append(CameraListing(**d, error=_message(exc)))
     return out
+
+
+def _seconds(us: float) -> float:
+    """Seconds from a GenICam exposure in µs, without binary noise (12345 µs: 0.012345 s)."""
+    return round(float(us) / 1e6, 12)
 
 
 def _has(cam: Any, feature: str) -> bool:
@@ -212,6 +218,11 @@ class AravisCamera:
         How long past the exposure a frame may take to arrive.
     retries
         Shots taken again after an incomplete frame or a timeout before `CaptureFailed`.
+    wait
+        A camera not there yet is no error: the first capture looks for it (and raises
+        `CameraUnavailable` while it is away); its ranges are known once it was opened
+        (``connected``; `limits` is None before). A module started before its camera is
+        powered runs, and the ship shows why it takes no frames.
     """
 
     def __init__(
@@ -226,6 +237,7 @@ class AravisCamera:
         frame_timeout_s: float = 3.0,
         retries: int = 2,
         buffers: int = 3,
+        wait: bool = False,
     ) -> None:
         if pixel_format not in PIXEL_FORMATS:
             raise ValueError(f"pixel_format must be one of {', '.join(PIXEL_FORMATS)}, got {pixel_format!r}")
@@ -250,7 +262,17 @@ class AravisCamera:
         self._applied = _Applied()
         self._ar = load_aravis()
         self._glib_error = _glib_error()
-        self._open()
+        self.device_id = device
+        self.exposure_range_s = self.gain_range_db = (math.nan, math.nan)
+        self.gain_step_db = 0.0
+        self.has_temperature = False
+        self.ever_opened = False
+        try:
+            self._open()
+        except CameraUnavailable as exc:
+            if not wait:
+                raise
+            log.warning("%s; the module looks for it again at every shot", exc)
 
     # ------------------------------------------------------------ opening
     def _find(self) -> str:
@@ -285,6 +307,7 @@ class AravisCamera:
         self._cam = cam
         self.device_clock.reset()
         self._applied = _Applied()
+        self.ever_opened = True
 
     def _configure(self, cam: Any, device_id: str) -> None:
         ar = self._ar
@@ -314,7 +337,7 @@ class AravisCamera:
         self.sensor_px = (int(sw), int(sh))
         e = cam.get_exposure_time_bounds()
         g = cam.get_gain_bounds()
-        self.exposure_range_s = (round(float(e[0]) * 1e-6, 12), round(float(e[1]) * 1e-6, 12))
+        self.exposure_range_s = (_seconds(e[0]), _seconds(e[1]))
         self.gain_range_db = (float(g[0]), float(g[1]))
         self.gain_step_db = self._gain_step(cam)
         self.has_temperature = _has(cam, "DeviceTemperature")
@@ -348,14 +371,17 @@ class AravisCamera:
 
     # ------------------------------------------------------------ capturing
     def capture(self, exposure_s: float, gain_db: float) -> CapturedFrame:
-        check_setting(exposure_s, gain_db, self.exposure_range_s, self.gain_range_db)
         with self._lock:
             if self._closed:
                 raise CameraClosed(f"camera {self.camera_id} ({self.device}) is closed")
             if self._cam is None:
+                again = self.ever_opened
                 self._open()  # CameraUnavailable while it is still away
-                self.counters["reopened"] += 1
-                log.warning("camera %s: %s is back and opened again", self.camera_id, self.device_id)
+                self.counters["reopened"] += again
+                log.warning(
+                    "camera %s: %s is %s", self.camera_id, self.device_id, "back" if again else "here"
+                )
+            check_setting(exposure_s, gain_db, self.exposure_range_s, self.gain_range_db)
             try:
                 return self._capture(exposure_s, gain_db)
             except self._glib_error as exc:
@@ -441,7 +467,7 @@ class AravisCamera:
         return CapturedFrame(
             pixels=pixels,
             captured_at=captured,
-            exposure_s=a.exposure_us * 1e-6,
+            exposure_s=_seconds(a.exposure_us),
             gain_db=float(a.gain_db),
             camera=self.camera_id,
             bit_depth=bits,
@@ -458,8 +484,17 @@ class AravisCamera:
         )
 
     # ------------------------------------------------------------ state
-    def info(self) -> dict[str, Any]:
-        """What the ship is told of this camera (`camcal.core.wire.CameraInfo`'s fields)."""
+    def limits(self) -> CameraLimits | None:
+        """The ranges the camera takes (None until it was opened once)."""
+        if not self.ever_opened:
+            return None
+        return CameraLimits(self.exposure_range_s, self.gain_range_db, self.gain_step_db)
+
+    def info(self) -> dict[str, Any] | None:
+        """What the ship is told of this camera (`camcal.core.wire.CameraInfo`'s fields; None until
+        it was opened once)."""
+        if not self.ever_opened:
+            return None
         return {
             "model": self.model[:120],
             "serial": self.serial[:64],
@@ -472,6 +507,19 @@ class AravisCamera:
             "gain_step_db": self.gain_step_db,
         }
 
+    def stream_statistics(self) -> dict[str, float]:
+        """Aravis' counts of the stream: completed buffers, failures, missing packets, resends..."""
+        with self._lock:
+            stream = self._stream
+            if stream is None:
+                return {}
+            out: dict[str, float] = {}
+            for i in range(stream.get_n_infos()):
+                name = stream.get_info_name(i)
+                is_int = stream.get_info_type(i).name == "guint64"
+                out[name] = stream.get_info_uint64(i) if is_int else stream.get_info_double(i)
+            return out
+
     @property
     def connected(self) -> bool:
         return self._cam is not None
@@ -481,7 +529,7 @@ class AravisCamera:
         with self._lock:
             if self._cam is None:
                 raise CameraUnavailable(f"camera {self.camera_id} is not connected")
-            return self._cam.get_exposure_time() * 1e-6, float(self._cam.get_gain())
+            return _seconds(self._cam.get_exposure_time()), float(self._cam.get_gain())
 
     def close(self) -> None:
         with self._lock:

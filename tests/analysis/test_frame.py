@@ -90,3 +90,28 @@ def test_a_frame_full_of_light_is_saturated_and_no_detail_reads_infinite() -> No
     assert small.reason == "no_source" and "inf" not in small.detail and "nan" not in small.detail, (
         small.detail
     )
+
+
+def as_12_bit(frame8: np.ndarray) -> np.ndarray:
+    """The 8-bit frame as a 12-bit camera would give it, MSB-aligned in 16 bits (PNG's way)."""
+    return (np.rint(frame8.astype(np.float64) * 4095 / 255).astype(np.uint16)) << 4
+
+
+def test_a_12_bit_frame_is_measured_on_the_8_bit_gray_scale_with_its_saturation_level(near) -> None:
+    from camcal.core.images import decode_frame_scaled, encode_png
+
+    frame, _ = render(near)
+    stored, top = decode_frame_scaled(encode_png(as_12_bit(frame), 12))  # what the ship reads back
+    assert top == 4095 << 4
+    eight, twelve = analyze_frame(frame), analyze_frame(stored, full_scale=top)
+    assert eight.ok and twelve.ok
+    assert twelve.i_center_gray == pytest.approx(eight.i_center_gray, rel=2e-3)
+    assert twelve.centroid_px == pytest.approx(eight.centroid_px, abs=0.02)
+    # saturated pixels are those at the 12-bit top (65520), as the 8-bit frame's are at 255
+    bright, _ = render(near, exposure=0.5, gain=14.0)
+    sat8 = analyze_frame(bright)
+    sat12 = analyze_frame(as_12_bit(bright), full_scale=top)
+    assert sat8.reason == sat12.reason == Reason.SATURATED
+    assert sat12.saturated_fraction == pytest.approx(sat8.saturated_fraction) and sat8.saturated_fraction > 0.5
+    # told the wrong full scale (16 bits), the 12-bit top pixels would not count as saturated
+    assert analyze_frame(as_12_bit(bright), full_scale=65535).saturated_fraction == 0.0

@@ -276,10 +276,7 @@ class AlarmEvaluator:
                         f"usable ({100 * frac:.0f} % {what}): no λ_att from them; {advice}",
                     )
             for device, (_, count, error, rose) in st.failures.items():
-                # A camera or sensors the module says work again (no error named any more) clear
-                # at once; a card's failure holds its time (the card is still as full).
-                recovered = device != "card" and error is None
-                if rose is not None and now_unix_s - rose <= lim.card_hold_s and not recovered:
+                if rose is not None and now_unix_s - rose <= lim.card_hold_s:
                     add(device, module, "MAJOR", _failure_message(device, module, count, error, _hms(rose)))
             clock = self._clock(st)
             if clock is not None:

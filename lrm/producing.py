@@ -132,12 +132,12 @@ class Producing:
         return float(min(DEVICE_RETRY_MAX_S, 2 ** (streak - 1)))
 
     def _device_works(self, device: str) -> None:
-        """A camera or sensor read that worked: its failure streak ends and the heartbeat no longer
-        names its last failure (the ship clears the device's alarm then, `ingest.alarms`)."""
+        """A camera or sensor read that worked: its failure streak ends (the next failure is retried
+        after 1 s again). The heartbeat keeps naming the last failure; the ship's alarm holds for a
+        while after the failures stop rising (`ingest.alarms`)."""
         if self._device_streak.get(device):
             log.info("module %s: the %s works again", self.config.module, device)
         self._device_streak[device] = 0
-        self.device_errors.pop(device, None)
 
     # ------------------------------------------------------------ capture
     def _capture_loop(self) -> None:

@@ -88,7 +88,7 @@ def open_camera(
 
 @app.command("cameras")
 def cameras(
-    as_json: Annotated[bool, typer.Option("--json", help="One JSON object per camera.")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="One JSON object per camera, a line each.")] = False,
 ) -> None:
     """List the GenICam cameras this computer sees: id, model, serial, pixel formats, ranges.
 
@@ -107,7 +107,7 @@ def cameras(
         raise _aravis_missing(exc) from None
     if as_json:
         for c in found:
-            console.print_json(json.dumps(dataclasses.asdict(c)))
+            typer.echo(json.dumps(dataclasses.asdict(c)))
     else:
         table = Table("id", "model", "serial", "address", "mono formats", "exposure", "gain", "sensor")
         for c in found:

@@ -112,6 +112,8 @@ def test_a_12_bit_frame_is_measured_on_the_8_bit_gray_scale_with_its_saturation_
     sat8 = analyze_frame(bright)
     sat12 = analyze_frame(as_12_bit(bright), full_scale=top)
     assert sat8.reason == sat12.reason == Reason.SATURATED
-    assert sat12.saturated_fraction == pytest.approx(sat8.saturated_fraction) and sat8.saturated_fraction > 0.5
+    assert (
+        sat12.saturated_fraction == pytest.approx(sat8.saturated_fraction) and sat8.saturated_fraction > 0.5
+    )
     # told the wrong full scale (16 bits), the 12-bit top pixels would not count as saturated
     assert analyze_frame(as_12_bit(bright), full_scale=65535).saturated_fraction == 0.0

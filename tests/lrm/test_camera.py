@@ -203,12 +203,12 @@ def test_v4l2_control_flow_against_a_fake_device() -> None:
         camera.capture(0.05, 8.0)
 
 
-def test_camcal_lrm_camera_without_the_device_says_what_to_check(tmp_path) -> None:
+def test_camcal_lrm_run_without_the_device_says_what_to_check(tmp_path) -> None:
     from typer.testing import CliRunner
 
     from camcal.cli import app
 
-    args = ["lrm", "camera", "--device", "/dev/video-missing", "--outbox", str(tmp_path / "ob")]
+    args = ["lrm", "run", "--camera", "v4l2:/dev/video-missing", "--outbox", str(tmp_path / "ob")]
     res = CliRunner().invoke(app, args)
     assert res.exit_code == 2, res.output
     assert "/dev/video-missing does not exist" in res.output and "v4l2-ctl" in res.output

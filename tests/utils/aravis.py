@@ -83,7 +83,9 @@ class FakeGigECamera:
             except BlockingIOError:
                 if time.monotonic() > end:
                     os.close(fd)
-                    raise TimeoutError(f"the GigE emulator's lock {LOCK} stayed taken {LOCK_WAIT_S:.0f} s") from None
+                    raise TimeoutError(
+                        f"the GigE emulator's lock {LOCK} stayed taken {LOCK_WAIT_S:.0f} s"
+                    ) from None
                 time.sleep(0.2)
         self._lock_fd = fd
 

@@ -66,7 +66,10 @@ class AppendLog:
 
     def __init__(self, path: Path, *, fsync: bool, newline: str | None = None) -> None:
         self.path, self.fsync, self._newline = Path(path), fsync, newline
+        new = not self.path.exists()
         self.fh: TextIO = self._open()
+        if new and fsync:  # the new file's name survives a power cut too, not only its lines
+            fsync_dir(self.path.parent)
 
     def _open(self) -> TextIO:
         return self.path.open("a", newline=self._newline, encoding="utf-8")

@@ -12,7 +12,7 @@ from typing import TextIO
 
 import numpy as np
 
-from camcal.core.files import AppendLog, write_atomic
+from camcal.core.files import AppendLog, fsync_dir, write_atomic
 from camcal.core.frameset import (
     MANIFEST,
     MANIFEST_COLUMNS,
@@ -54,11 +54,22 @@ class FrameSetWriter:
         self._count = 0 if new else len(parse_manifest(text, str(manifest)))
 
     def add(self, frame: np.ndarray | bytes, row: ManifestRow) -> ManifestRow:
-        """Store one frame (array or encoded PNG bytes) under ``row.file`` and record it."""
+        """Store one frame (array or encoded PNG bytes) under ``row.file`` and record it.
+
+        With ``fsync`` the order is what survives a power cut: the image's bytes (fsync), its name
+        (rename, then fsync of its folder, and of the folder above when the image's folder is new),
+        then its manifest row (fsync). A row on the card thus always names a whole image; an image
+        without a row is not part of the set.
+        """
         data = frame if isinstance(frame, bytes) else encode_png(frame)
         target = self.folder / row.file
+        new_dir = not target.parent.is_dir()
         target.parent.mkdir(parents=True, exist_ok=True)
         write_atomic(target, data, fsync=self.fsync)
+        if self.fsync:
+            fsync_dir(target.parent)
+            if new_dir:
+                fsync_dir(target.parent.parent)
         try:
             return self.record(row)
         except OSError:

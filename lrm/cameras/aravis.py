@@ -253,7 +253,7 @@ class AravisCamera:
         self.retries = int(retries)
         self.n_buffers = int(buffers)
         self.device_clock = DeviceClock()
-        self.counters: dict[str, int] = {"incomplete": 0, "timeouts": 0, "reopened": 0}
+        self.counters: dict[str, int] = {"incomplete": 0, "timeouts": 0, "stale": 0, "reopened": 0}
         self.temperature_c: float | None = None
         self._lock = threading.Lock()
         self._closed = False
@@ -432,6 +432,7 @@ class AravisCamera:
         if self._stream is None:  # no software trigger: one acquisition per shot
             return self._cam.acquisition(timeout_us)
         while (stale := self._stream.try_pop_buffer()) is not None:  # a late frame of an earlier try
+            self.counters["stale"] += 1
             self._stream.push_buffer(stale)
         self._cam.software_trigger()
         return self._stream.timeout_pop_buffer(timeout_us)

@@ -156,8 +156,8 @@ def test_doctor_reports_what_to_fix(tmp_path: Path, monkeypatch: pytest.MonkeyPa
     assert json.loads(json.dumps(Settings().masked()))  # serialisable
 
 
-def _unit() -> dict[str, str]:
-    text = (ROOT / "deploy" / "camcal.service").read_text().replace("\\\n", " ")
+def _unit(name: str = "camcal.service") -> dict[str, str]:
+    text = (ROOT / "deploy" / name).read_text().replace("\\\n", " ")
     return {
         k.strip(): v.strip()
         for k, _, v in (line.partition("=") for line in text.splitlines())
@@ -180,15 +180,34 @@ def test_systemd_unit_runs_a_real_camcal_command_and_uses_its_readiness() -> Non
     assert unit["RestartPreventExitStatus"] == str(supervise.EXIT_USAGE)
 
 
+def test_the_module_unit_runs_lrm_run_restarts_it_and_watches_it() -> None:
+    unit = _unit("camcal-lrm.service")
+    words = unit["ExecStart"].split()
+    assert words[0].endswith("/camcal") and words[1:3] == ["lrm", "run"]
+    res = runner.invoke(app, ["lrm", "run", "--help"], env={"COLUMNS": "300"})
+    helptext = re.sub(r"\s+", " ", res.output)
+    for opt in (w for w in words if w.startswith("--")):
+        assert opt in helptext, f"ExecStart: {opt} is not an option of `camcal lrm run`"
+    # the variables its comments tell a technician to set are the command's
+    said = set(re.findall(r"#\s+(CAMCAL_\w+)=", (ROOT / "deploy" / "camcal-lrm.service").read_text()))
+    assert said and all(f"env var: {v}" in helptext for v in said), said
+    assert unit["Type"] == "notify" and unit["NotifyAccess"] == "main" and "WatchdogSec" in unit
+    assert unit["Restart"] == "on-failure" and unit["StartLimitIntervalSec"] == "0"
+    from camcal.core import supervise
+
+    assert unit["RestartPreventExitStatus"] == str(supervise.EXIT_USAGE)
+
+
 @pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze is not installed")
-def test_systemd_accepts_the_unit(tmp_path: Path) -> None:
+@pytest.mark.parametrize("name", ["camcal.service", "camcal-lrm.service"])
+def test_systemd_accepts_the_unit(tmp_path: Path, name: str) -> None:
     """`systemd-analyze verify` on the unit, its camcal pointed at this installation's."""
     camcal = Path(sys.executable).with_name("camcal")
-    text = (ROOT / "deploy" / "camcal.service").read_text()
+    text = (ROOT / "deploy" / name).read_text()
     text = text.replace("/opt/camcal/.venv/bin/camcal", str(camcal))
-    (tmp_path / "camcal.service").write_text(text)
+    (tmp_path / name).write_text(text)
     proc = subprocess.run(
-        ["systemd-analyze", "verify", str(tmp_path / "camcal.service")],
+        ["systemd-analyze", "verify", str(tmp_path / name)],
         capture_output=True,
         text=True,
         timeout=60,

@@ -17,7 +17,6 @@ import typer
 
 from camcal.cli.common import console, fail, labelled
 from camcal.cli.lrm import (
-    ConnectOption,
     DiveOption,
     KeysOption,
     PlaintextOption,
@@ -32,12 +31,17 @@ CameraSpec = Annotated[
     str,
     typer.Option(
         "--camera",
+        envvar="CAMCAL_LRM_CAMERA",
         help="The camera: aravis:ID (a GenICam camera by its id, serial or address: `camcal lrm "
         "cameras`) or v4l2:DEVICE (a UVC camera, /dev/video0).",
     ),
 ]
 PixelFormatOption = Annotated[
-    str, typer.Option(help="GenICam pixel format: Mono8, Mono10, Mono12, Mono14 or Mono16 (unpacked).")
+    str,
+    typer.Option(
+        envvar="CAMCAL_LRM_PIXEL_FORMAT",
+        help="GenICam pixel format: Mono8, Mono10, Mono12, Mono14 or Mono16 (unpacked).",
+    ),
 ]
 WidthOption = Annotated[int | None, typer.Option(help="Region width [px], centred (default: the sensor's).")]
 HeightOption = Annotated[
@@ -187,17 +191,25 @@ def snap(
 @app.command("run")
 def run(
     camera: CameraSpec,
-    module: Annotated[str, typer.Option(help="Module id written into every frame (A, B).")] = "A",
-    connect: ConnectOption = "tcp://127.0.0.1:5555",
+    module: Annotated[
+        str, typer.Option(envvar="CAMCAL_LRM_MODULE", help="Module id written into every frame (A, B).")
+    ] = "A",
+    connect: Annotated[
+        str, typer.Option(envvar="CAMCAL_LRM_CONNECT", help="The ship's ingest: tcp://HOST:PORT.")
+    ] = "tcp://127.0.0.1:5555",
     outbox: Annotated[
-        Path | None, typer.Option(help="SD-card outbox folder (default lrm-<module>-outbox).")
+        Path | None,
+        typer.Option(envvar="CAMCAL_LRM_OUTBOX", help="SD-card outbox folder (default lrm-<module>-outbox)."),
     ] = None,
-    schedule: Annotated[str, typer.Option(help="Schedule preset or a schedule JSON file.")] = "trex",
+    schedule: Annotated[
+        str, typer.Option(envvar="CAMCAL_LRM_SCHEDULE", help="Schedule preset or a schedule JSON file.")
+    ] = "trex",
     lem_epoch: Annotated[
         str | None,
         typer.Option(
+            envvar="CAMCAL_LRM_LEM_EPOCH",
             help="UTC time (ISO 8601) at which the LEM's colour cycle started with its first wavelength; "
-            "without it frames carry the schedule's wavelength and every shot is taken at once."
+            "without it frames carry the schedule's wavelength and every shot is taken at once.",
         ),
     ] = None,
     lem_dwell_s: Annotated[float, typer.Option(help="Seconds the LEM shows each wavelength.")] = 60.0,

@@ -1,9 +1,4 @@
-"""GenICam cameras (USB3 Vision, GigE Vision) through Aravis: `AravisCamera`, `list_cameras`.
-
-Aravis is the open GenICam library; Python reaches it through PyGObject
-(``pip install 'camcal[camera]'``) and its introspection data (Debian:
-``gir1.2-aravis-0.8``). Without them `load_aravis` raises `AravisMissing`,
-which says what to install: nothing else of a module needs them.
+"""A GenICam camera (USB3 Vision, GigE Vision) through Aravis: `AravisCamera`.
 
 A capture sets ExposureTime (µs) and Gain (dB) where they changed, reads
 them back (the frame records what the camera applied, after its own
@@ -13,7 +8,8 @@ taken again, up to ``retries`` times, then `CaptureFailed`. A camera that
 stops answering is `CameraUnavailable`; the next capture looks for it again
 (by its id) and opens it anew, so a module picks its camera up when it comes
 back. The device's frame timestamps are mapped to UTC through the host's
-clock (`DeviceClock`).
+clock (`lrm.cameras.genicam.DeviceClock`). Loading Aravis and listing cameras:
+`lrm.cameras.genicam`.
 """
 
 from __future__ import annotations
@@ -22,7 +18,6 @@ import contextlib
 import logging
 import math
 import threading
-from collections import deque
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from types import TracebackType
@@ -39,156 +34,24 @@ from lrm.camera import (
     CaptureFailed,
     check_setting,
 )
+from lrm.cameras.genicam import (
+    DISCOVERY,
+    PFNC,
+    PIXEL_FORMATS,
+    AravisMissing,
+    CameraListing,
+    DeviceClock,
+    devices,
+    error_text,
+    glib_error,
+    has_feature,
+    list_cameras,
+    load_aravis,
+    seconds_from_us,
+)
 from lrm.clock import Clock, SystemClock
 
 log = logging.getLogger("camcal.lrm")
-
-#: Monochrome pixel formats a module takes, with their significant bits (unpacked: Mono10 to Mono16
-#: arrive in 16-bit little-endian samples, LSB-aligned; they are stored MSB-aligned, as PNG keeps them).
-PIXEL_FORMATS: dict[str, int] = {"Mono8": 8, "Mono10": 10, "Mono12": 12, "Mono14": 14, "Mono16": 16}
-#: GenICam PFNC codes of those formats (what a buffer says it holds).
-_PFNC = {0x01080001: "Mono8", 0x01100003: "Mono10", 0x01100005: "Mono12", 0x01100025: "Mono14"}
-_PFNC[0x01100007] = "Mono16"
-#: The Debian packages and the extra a camera needs (said by every error about a missing part).
-INSTALL_HINT = (
-    "apt install gir1.2-aravis-0.8 aravis-tools, then pip install 'camcal[camera]' (see docs/module.md)"
-)
-#: One discovery or open at a time in a process: Aravis' device list is global.
-_DISCOVERY = threading.Lock()
-
-
-class AravisMissing(CameraUnavailable):
-    """PyGObject or Aravis' introspection data is not installed."""
-
-
-def load_aravis() -> Any:
-    """The ``gi.repository.Aravis`` module, or `AravisMissing` saying what to install."""
-    try:
-        import gi
-    except ImportError:
-        raise AravisMissing(f"PyGObject (gi) is not installed: {INSTALL_HINT}") from None
-    try:
-        gi.require_version("Aravis", "0.8")
-        from gi.repository import Aravis
-    except (ValueError, ImportError) as exc:
-        raise AravisMissing(f"Aravis 0.8 is not installed ({exc}): {INSTALL_HINT}") from None
-    return Aravis
-
-
-def _glib_error() -> type[Exception]:
-    from gi.repository import GLib
-
-    return GLib.Error  # type: ignore[no-any-return]
-
-
-@dataclass(frozen=True)
-class CameraListing:
-    """One GenICam camera as `list_cameras` sees it (``error``: it could not be opened to ask more)."""
-
-    device_id: str
-    model: str
-    vendor: str
-    serial: str
-    protocol: str
-    address: str
-    pixel_formats: tuple[str, ...] = ()
-    exposure_range_s: tuple[float, float] | None = None
-    gain_range_db: tuple[float, float] | None = None
-    sensor_px: tuple[int, int] | None = None
-    temperature_c: float | None = None
-    error: str | None = None
-
-
-def _devices(ar: Any) -> list[dict[str, Any]]:
-    ar.update_device_list()
-    out = []
-    for i in range(ar.get_n_devices()):
-        out.append(
-            {
-                "device_id": ar.get_device_id(i) or "",
-                "model": ar.get_device_model(i) or "",
-                "vendor": ar.get_device_vendor(i) or "",
-                "serial": ar.get_device_serial_nbr(i) or "",
-                "protocol": ar.get_device_protocol(i) or "",
-                "address": ar.get_device_address(i) or "",
-            }
-        )
-    return out
-
-
-def list_cameras(details: bool = True) -> list[CameraListing]:
-    """The GenICam cameras this computer sees; with ``details`` each is opened for its pixel formats,
-    ranges, sensor size and temperature (a camera another process holds says so in ``error``)."""
-    ar = load_aravis()
-    glib_error = _glib_error()
-    out = []
-    with _DISCOVERY:
-        for d in _devices(ar):
-            if not details:
-                out.append(CameraListing(**d))
-                continue
-            try:
-                cam = ar.Camera.new(d["device_id"])
-                formats = tuple(cam.dup_available_pixel_formats_as_strings() or ())
-                e = cam.get_exposure_time_bounds()
-                g = cam.get_gain_bounds()
-                sensor = cam.get_sensor_size()
-                temp = cam.get_float("DeviceTemperature") if _has(cam, "DeviceTemperature") else None
-                out.append(
-                    CameraListing(
-                        **d,
-                        pixel_formats=formats,
-                        exposure_range_s=(_seconds(e[0]), _seconds(e[1])),
-                        gain_range_db=(float(g[0]), float(g[1])),
-                        sensor_px=(int(sensor[0]), int(sensor[1])),
-                        temperature_c=temp,
-                    )
-                )
-                del cam
-            except glib_error as exc:
-                out.append(CameraListing(**d, error=_message(exc)))
-    return out
-
-
-def _seconds(us: float) -> float:
-    """Seconds from a GenICam exposure in µs, without binary noise (12345 µs: 0.012345 s)."""
-    return round(float(us) / 1e6, 12)
-
-
-def _has(cam: Any, feature: str) -> bool:
-    try:
-        return bool(cam.is_feature_available(feature))
-    except Exception:  # (an Aravis error: a feature the camera's description does not have)
-        return False
-
-
-def _message(exc: BaseException) -> str:
-    return str(getattr(exc, "message", None) or exc)
-
-
-class DeviceClock:
-    """Maps a camera's frame timestamps (ns of its own clock) to UTC.
-
-    Each frame carries the device's timestamp and the host's (UTC, when its
-    first packet arrived). Their difference is the clock offset plus the
-    transfer's delay, which is never negative: the smallest difference over
-    the last ``window`` frames is the offset's estimate (as NTP keeps its
-    least delayed sample). A camera without timestamps (0), or one whose
-    mapped time falls outside the capture's own window (a device clock that
-    was reset), gives None: the capture then uses the host's trigger time.
-    """
-
-    def __init__(self, window: int = 32) -> None:
-        self._offsets: deque[int] = deque(maxlen=window)
-
-    def reset(self) -> None:
-        self._offsets.clear()
-
-    def to_utc(self, device_ns: int, host_ns: int) -> datetime | None:
-        if device_ns <= 0 or host_ns <= 0:
-            return None
-        self._offsets.append(host_ns - device_ns)
-        return datetime.fromtimestamp((device_ns + min(self._offsets)) / 1e9, UTC)
 
 
 @dataclass
@@ -261,7 +124,7 @@ class AravisCamera:
         self._stream: Any = None
         self._applied = _Applied()
         self._ar = load_aravis()
-        self._glib_error = _glib_error()
+        self._glib_error = glib_error()
         self.device_id = device
         self.exposure_range_s = self.gain_range_db = (math.nan, math.nan)
         self.gain_step_db = 0.0
@@ -276,33 +139,33 @@ class AravisCamera:
 
     # ------------------------------------------------------------ opening
     def _find(self) -> str:
-        devices = _devices(self._ar)
+        seen = devices(self._ar)
         for key in ("device_id", "serial", "address"):
-            for d in devices:
+            for d in seen:
                 if d[key] == self.device:
                     return d["device_id"]
-        seen = ", ".join(d["device_id"] for d in devices) or "none"
+        names = ", ".join(d["device_id"] for d in seen) or "none"
         raise CameraUnavailable(
-            f"camera {self.camera_id}: no GenICam camera {self.device!r} is seen (cameras seen: {seen}); "
+            f"camera {self.camera_id}: no GenICam camera {self.device!r} is seen (cameras seen: {names}); "
             "check its cable and power (a GigE camera: its network and address), then "
             "`camcal lrm cameras`"
         )
 
     def _open(self) -> None:
-        with _DISCOVERY:
+        with DISCOVERY:
             device_id = self._find()
             try:
                 cam = self._ar.Camera.new(device_id)
             except self._glib_error as exc:
                 raise CameraUnavailable(
-                    f"camera {self.camera_id}: {device_id} is seen but cannot be opened ({_message(exc)}); "
+                    f"camera {self.camera_id}: {device_id} is seen but cannot be opened ({error_text(exc)}); "
                     "is another program using it (arv-viewer, another camcal)?"
                 ) from None
         try:
             self._configure(cam, device_id)
         except self._glib_error as exc:
             raise CameraUnavailable(
-                f"camera {self.camera_id}: {device_id} refused its set-up ({_message(exc)})"
+                f"camera {self.camera_id}: {device_id} refused its set-up ({error_text(exc)})"
             ) from None
         self._cam = cam
         self.device_clock.reset()
@@ -337,10 +200,10 @@ class AravisCamera:
         self.sensor_px = (int(sw), int(sh))
         e = cam.get_exposure_time_bounds()
         g = cam.get_gain_bounds()
-        self.exposure_range_s = (_seconds(e[0]), _seconds(e[1]))
+        self.exposure_range_s = (seconds_from_us(e[0]), seconds_from_us(e[1]))
         self.gain_range_db = (float(g[0]), float(g[1]))
         self.gain_step_db = self._gain_step(cam)
-        self.has_temperature = _has(cam, "DeviceTemperature")
+        self.has_temperature = has_feature(cam, "DeviceTemperature")
         self.triggered = bool(cam.is_software_trigger_supported())
         if self.triggered:  # the camera waits for our trigger; one stream for the camera's life
             cam.set_trigger("Software")
@@ -354,7 +217,7 @@ class AravisCamera:
 
     def _gain_step(self, cam: Any) -> float:
         for name, get in (("Gain", cam.get_float_increment), ("GainRaw", cam.get_integer_increment)):
-            if _has(cam, name):
+            if has_feature(cam, name):
                 try:
                     return float(get(name))
                 except self._glib_error:
@@ -387,7 +250,7 @@ class AravisCamera:
             except self._glib_error as exc:
                 self._drop()
                 raise CameraUnavailable(
-                    f"camera {self.camera_id} ({self.device_id}) stopped answering ({_message(exc)}); "
+                    f"camera {self.camera_id} ({self.device_id}) stopped answering ({error_text(exc)}); "
                     "the module opens it again when it is back: check its cable and power"
                 ) from None
 
@@ -438,7 +301,7 @@ class AravisCamera:
         return self._stream.timeout_pop_buffer(timeout_us)
 
     def _frame(self, buf: Any, began: datetime) -> CapturedFrame:
-        fmt = _PFNC.get(buf.get_image_pixel_format())
+        fmt = PFNC.get(buf.get_image_pixel_format())
         if fmt != self.pixel_format:
             raise CaptureFailed(
                 f"camera {self.camera_id} delivered pixel format {fmt or hex(buf.get_image_pixel_format())}, "
@@ -468,7 +331,7 @@ class AravisCamera:
         return CapturedFrame(
             pixels=pixels,
             captured_at=captured,
-            exposure_s=_seconds(a.exposure_us),
+            exposure_s=seconds_from_us(a.exposure_us),
             gain_db=float(a.gain_db),
             camera=self.camera_id,
             bit_depth=bits,
@@ -530,7 +393,7 @@ class AravisCamera:
         with self._lock:
             if self._cam is None:
                 raise CameraUnavailable(f"camera {self.camera_id} is not connected")
-            return _seconds(self._cam.get_exposure_time()), float(self._cam.get_gain())
+            return seconds_from_us(self._cam.get_exposure_time()), float(self._cam.get_gain())
 
     def close(self) -> None:
         with self._lock:

@@ -286,7 +286,7 @@ class ModuleSchedule(BaseModel):
 
 
 class ModuleCamera(Open):
-    """What a module said of its camera (protocol revision 1.7: `camcal.core.wire.CameraInfo`)."""
+    """What a module said of its camera (protocol revision 1.8: `camcal.core.wire.CameraInfo`)."""
 
     model: str = ""
     serial: str = ""

@@ -1,6 +1,6 @@
 """The frame set: camcal's on-disk exchange format (``docs/frameset.md``).
 
-A folder with ``manifest.csv``, an optional ``setup.json`` and 8-bit
+A folder with ``manifest.csv``, an optional ``setup.json`` and 8- or 16-bit
 grayscale images. This module is the one place that reads it, and
 `camcal.core.framewriter` the one that writes it: the LRM outbox,
 ``camcal analyze``, ``camcal import`` and replay all use them.

@@ -57,7 +57,7 @@ class PreviewRequest(BaseModel):
 
 def camera_limits(settings: Any, store: Store, module: str | None) -> tuple[CameraLimits, str]:
     """The ranges a schedule for ``module`` must fit: its camera's, as the module said (protocol
-    revision 1.7), else the ship's default limits (`ServerSettings.camera_limits`); and whose."""
+    revision 1.8), else the ship's default limits (`ServerSettings.camera_limits`); and whose."""
     cam = store.call(queries.module_camera, module) if module else None
     if cam:
         try:

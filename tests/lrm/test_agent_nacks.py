@@ -90,3 +90,26 @@ def test_not_served_sends_the_module_back_to_saying_hello(tmp_path: Path) -> Non
     finally:
         m.stop()
         ship.close()
+
+
+def test_a_hung_link_loop_stops_feeding_the_watchdog(tmp_path: Path) -> None:
+    """`Agent.alive` (what `camcal lrm run` feeds systemd's watchdog on) turns false when the link
+    loop stops going round, so that systemd restarts a module that hangs."""
+    import threading
+
+    ship = FakeShip(zmq.Context.instance())
+    m = Module(tmp_path / "outbox", ship.endpoint, schedule(1))
+    release = threading.Event()
+    try:
+        assert ship.pump(lambda: m.agent.counters["acked"] >= 2, 15)
+        assert m.agent.alive(within_s=1.0)
+        watch = m.agent.check.watch
+        m.agent.check.watch = lambda: (release.wait(30), watch())[1]  # the loop blocks in its next round
+        time.sleep(1.5)
+        assert not m.agent.alive(within_s=1.0)
+        release.set()
+        assert ship.pump(lambda: m.agent.alive(within_s=1.0), 5)
+    finally:
+        release.set()
+        m.stop()
+        ship.close()

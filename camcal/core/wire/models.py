@@ -132,7 +132,7 @@ BitDepth = Annotated[int, Strict(), Field(ge=8, le=16)]
 
 
 class CameraInfo(BaseModel):
-    """What a module's camera is and what it can take, as the camera itself says (revision 1.7).
+    """What a module's camera is and what it can take, as the camera itself says (revision 1.8).
 
     The ship checks a schedule for the module against these ranges (its own default limits
     otherwise) and the control page shows them.
@@ -168,7 +168,7 @@ class Hello(_ModuleHeader):
     schedule: ScheduleState = ScheduleState()
     outbox_pending: Count = 0
     last_seq: Count = 0
-    #: The module's camera and its ranges (revision 1.7; absent: a module that does not say).
+    #: The module's camera and its ranges (revision 1.8; absent: a module that does not say).
     camera: CameraInfo | None = None
 
 
@@ -187,7 +187,7 @@ class FrameMsg(_ModuleHeader):
     width_px: Annotated[int, Strict(), Field(ge=1, le=65535)]
     height_px: Annotated[int, Strict(), Field(ge=1, le=65535)]
     encoding: Literal["png", "tiff"] = "png"
-    #: Significant bits per pixel (revision 1.7): 8, or 9-16 for a 16-bit image (fewer than 16: the
+    #: Significant bits per pixel (revision 1.8): 8, or 9-16 for a 16-bit image (fewer than 16: the
     #: values MSB-aligned and a PNG's sBIT chunk saying how many). Its full scale is the saturation.
     bit_depth: BitDepth = 8
     size: Annotated[int, Strict(), Field(ge=1, le=INT_MAX)]
@@ -233,7 +233,7 @@ class ModuleHeartbeat(_ModuleHeader):
     #: LEM moved on (or was about to) amid a wavelength's shots: a schedule longer than the LEM shows
     #: a colour, or a module running slow (revision 1.6).
     deferred_shots: Count = 0
-    #: The module's camera and its ranges, as in ``hello`` (revision 1.7): a camera swapped or
+    #: The module's camera and its ranges, as in ``hello`` (revision 1.8): a camera swapped or
     #: reconfigured while the link is up.
     camera: CameraInfo | None = None
 

@@ -107,7 +107,7 @@ export function renderPreview(box, p, { modules, selected, error }) {
       { class: "stat", title: limitsTitle(p.camera_limits) },
       el("div", { class: "label" }, "camera limits"),
       el("div", { class: `big ${p.ok ? "status-ok" : "status-rejected"}` }, p.ok ? "ok" : plural(p.problems.length, "problem")),
-      p.camera_limits ? el("div", { class: "muted hint", id: "preview-limits" }, limitsLine(p.camera_limits)) : null,
+      p.camera_limits ? el("div", { class: "muted hint", id: "preview-limits" }, ...limitsLines(p.camera_limits)) : null,
     ),
     legend(),
   );
@@ -139,11 +139,14 @@ export function renderPreview(box, p, { modules, selected, error }) {
   );
 }
 
-/** "exposure 10 µs – 10 s, gain 0 – 10 dB (steps of 1 dB)": the ranges the schedule was checked against. */
-function limitsLine(c) {
+/** ["exposure 10 µs – 10 s", "gain 0 – 10 dB, steps of 1 dB"]: the ranges the schedule was checked against. */
+function limitsLines(c) {
   const s = (v) => (v >= 1 ? `${+v.toPrecision(3)} s` : v >= 1e-3 ? `${+(v * 1e3).toPrecision(3)} ms` : `${+(v * 1e6).toPrecision(3)} µs`);
-  const step = c.gain_step_db > 0 ? ` (steps of ${+c.gain_step_db.toPrecision(3)} dB)` : "";
-  return `exposure ${s(c.exposure_range_s[0])} – ${s(c.exposure_range_s[1])}, gain ${c.gain_range_db[0]} – ${c.gain_range_db[1]} dB${step}`;
+  const step = c.gain_step_db > 0 ? `, steps of ${+c.gain_step_db.toPrecision(3)} dB` : "";
+  return [
+    el("div", {}, `exposure ${s(c.exposure_range_s[0])} – ${s(c.exposure_range_s[1])}`),
+    el("div", {}, `gain ${c.gain_range_db[0]} – ${c.gain_range_db[1]} dB${step}`),
+  ];
 }
 
 function limitsTitle(c) {

@@ -1,4 +1,4 @@
-"""Modules say what their camera is and can take (protocol revision 1.7): kept with the module
+"""Modules say what their camera is and can take (protocol revision 1.8): kept with the module
 
 Revision ID: 0007
 Revises: 0006

@@ -18,7 +18,7 @@ import contextlib
 import logging
 import math
 import threading
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from types import TracebackType
 from typing import Any, Self
@@ -28,7 +28,6 @@ import numpy as np
 from camcal.core.schedule import CameraLimits
 from lrm.camera import (
     CameraClosed,
-    CameraError,
     CameraUnavailable,
     CapturedFrame,
     CaptureFailed,
@@ -59,7 +58,6 @@ class _Applied:
     exposure_us: float = math.nan
     gain_db: float = math.nan
     asked: tuple[float, float] | None = None
-    extra: dict[str, Any] = field(default_factory=dict)
 
 
 class AravisCamera:
@@ -413,7 +411,6 @@ __all__ = [
     "PIXEL_FORMATS",
     "AravisCamera",
     "AravisMissing",
-    "CameraError",
     "CameraListing",
     "DeviceClock",
     "list_cameras",

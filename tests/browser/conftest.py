@@ -43,11 +43,12 @@ def artifacts() -> Path:
 
 
 @contextlib.contextmanager
-def camcal_page(browser: Any, system: System) -> Iterator[Any]:
-    """A fresh page that can reach only the camcal server; page errors fail the test."""
+def camcal_page(browser: Any, system: System | str) -> Iterator[Any]:
+    """A fresh page that can reach only the camcal server (a `System` or a base URL); page errors
+    fail the test."""
     context = browser.new_context(viewport={"width": 1280, "height": 900}, accept_downloads=True)
     context.set_default_timeout(Pace().bound(20) * 1000)  # 20 s of an idle machine (`tests.utils.pace`)
-    host = urlsplit(system.base_url).netloc
+    host = urlsplit(system if isinstance(system, str) else system.base_url).netloc
     foreign: list[str] = []
     errors: list[str] = []
 

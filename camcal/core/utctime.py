@@ -31,9 +31,13 @@ def parse_utc_unix_s(text: str) -> float:
 
 
 def iso_utc(unix_s: float | None) -> str | None:
-    """UNIX seconds as ISO 8601 UTC to the millisecond, ``2021-09-05T03:12:44.500Z`` (None stays None):
+    """UNIX seconds as ISO 8601 UTC to the millisecond, ``2021-09-05T03:12:44.500Z`` (None, NaN and a time no
+    calendar holds, as a corrupt row may, give None):
     what an export writes beside each ``*_unix_s`` time, for people and spreadsheets."""
     if unix_s is None or unix_s != unix_s:  # None or NaN
         return None
-    t = datetime.fromtimestamp(float(unix_s), UTC)
+    try:
+        t = datetime.fromtimestamp(float(unix_s), UTC)
+    except (OverflowError, OSError, ValueError):  # beyond what a calendar date can say (a corrupt row)
+        return None
     return t.isoformat(timespec="milliseconds").replace("+00:00", "Z")

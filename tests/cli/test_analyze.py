@@ -109,7 +109,8 @@ def broken_set(trex_small_set: Path, tmp_path: Path) -> tuple[Path, dict[str, st
     (folder / ok_files[1]).write_bytes(data[: len(data) // 3])
     expected[ok_files[1]] = "unreadable"
     img = cv2.imread(str(folder / ok_files[2]), cv2.IMREAD_UNCHANGED)
-    cv2.imwrite(str(folder / ok_files[2]), img.astype(np.uint16) * 256)
+    # 16-bit grayscale is a camera's format now (docs/frameset.md); colour with alpha is not
+    cv2.imwrite(str(folder / ok_files[2]), cv2.cvtColor(img, cv2.COLOR_GRAY2BGRA))
     expected[ok_files[2]] = "bad_format"
     cv2.imwrite(str(folder / ok_files[3]), cv2.cvtColor(img, cv2.COLOR_GRAY2BGR))
     expected[ok_files[3]] = "bad_format"

@@ -86,7 +86,7 @@ CASES: dict[str, TableCase] = {
     "deep-sea-460": TableCase(65.0, 50.0, NOMINAL, 460),
     "turbid": TableCase(25.0, 25.0, NOMINAL, 460),
     # the smooth templates' checks away from the nominal and in very turbid water
-    # (`tests/analysis/test_smooth_templates.py`; rendered when named, not checked in)
+    # (`tests/analysis/test_smooth_templates.py`; checked in at 512 spp, --max-depth 26 --reach 320)
     "turbid-g85-r35": TableCase(25.0, 25.0, _hg(0.85, 0.35), 460),
     "turbid-g97-r05": TableCase(25.0, 25.0, _hg(0.97, 0.05), 460),
     "very-turbid": TableCase(30.0, 10.0, NOMINAL, 460),

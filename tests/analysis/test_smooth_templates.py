@@ -1,7 +1,7 @@
 """Smooth halo templates: exact first order + small-angle higher orders, against Mitsuba and the Monte Carlo.
 
-One set of tables (T-REX distances, one-pixel bands to 320 px, ⟨cos θ⟩ nodes
-over 0.90-0.96) is built per session; building it takes ~40 s on two cores.
+One set of tables (T-REX distances, one-pixel bands to 320 px, six ⟨cos θ⟩ nodes
+over 0.85-0.97) is built per session; building it takes ~40 s on two idle cores.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from analysis.transport.templates import build_template_grid
 
 FOCAL_PX = 1224.0 / math.tan(math.radians(8.0))
 MITSUBA = Path(__file__).resolve().parents[1] / "data" / "mitsuba"
-GRID = SmoothGrid(mie_g_range=(0.90, 0.96), n_g=5, n_orders=16)
+GRID = SmoothGrid(mie_g_range=(0.85, 0.97), n_g=6, n_orders=20)
 
 
 @pytest.fixture(scope="session")
@@ -60,7 +60,8 @@ def test_small_angle_first_order_matches_the_exact_quadrature(smooth: SmoothTemp
     quadrature, outside 1.2 disk radii: the small-angle approximation's own error there."""
     st, a = smooth, smooth.settings.lem_radius_m
     k_nodes = st.grid.k_nodes()
-    for j in range(st.grid.n_g):
+    for j, x in enumerate(st.grid.x_nodes()):
+        bound = 0.003 + 0.06 * math.exp(x)  # 1.2 % at ⟨cos θ⟩ 0.85, 0.5 % at 0.97
         for i in (3, 20):
             k = float(k_nodes[i])
             for c, cam in enumerate(st.settings.cameras):
@@ -69,27 +70,52 @@ def test_small_angle_first_order_matches_the_exact_quadrature(smooth: SmoothTemp
                 saa = dist * st.orders[j, c, 0] * math.exp(-k * (dist - 2 * a / 3))
                 out = np.arange(exact.size) + 0.5 > 1.2 * disk_px(st, c)
                 ratio = saa[out] / exact[out]
-                assert np.all(np.abs(ratio - 1) < 0.008), (j, k, c, ratio.min(), ratio.max())
+                assert np.all(np.abs(ratio - 1) < bound), (j, k, c, ratio.min(), ratio.max())
 
 
-@pytest.mark.parametrize("water", ["turbid", "deep-sea-460"])
+#: Every Henyey-Greenstein table of tests/data/mitsuba (ff-460 is Fournier-Forand: docs/transport.md).
+HG_TABLES = (
+    "turbid",
+    "deep-sea-460",
+    "hg96-460",
+    "hg87-460",
+    "turbid-g85-r35",
+    "turbid-g97-r05",
+    "very-turbid",
+    "very-turbid-g88-r30",
+)
+
+
+@pytest.mark.parametrize("water", HG_TABLES)
 def test_agrees_with_mitsuba(smooth: SmoothTemplates, water: str) -> None:
-    """An independent path tracer (13 orders), 4-px bins from 1.2 disk radii to 311 px, both cameras."""
+    """An independent path tracer, 4-px bins from 1.2 disk radii to the table's end, both cameras,
+    within Mitsuba's errors and the model's stated ones; on average within 1 % where the far
+    camera is at most two scattering lengths away, 3 % beyond (λ_sca 8-10 m: the higher orders'
+    share and their stated error grow). Without the exact-geometry factor on the Rayleigh orders
+    the Rayleigh-heavy waters (f 0.30-0.35) were 1.0-1.3 % high at 25 m, 3-6 % at 8 m."""
     with np.load(MITSUBA / f"{water}.npz") as z:
         la, ls, g, f = (float(z[k]) for k in ("lambda_abs_m", "lambda_sca_m", "mie_g", "rayleigh_fraction"))
         tables = [(z[f"rho_px_{c}"], z[f"halo_{c}"], z[f"halo_err_{c}"]) for c in range(2)]
     value, err = smooth.halo(la, ls, g, f).total(EmissionProfile(1.0))
-    for c, (rho, halo, halo_err) in enumerate(tables):
+    r = np.arange(value.shape[1]) + 0.5
+    for c, (rho, halo, raw_err) in enumerate(tables):
+        # Mitsuba's per-bin error is the pixels' scatter; in turbid water their values are heavy-tailed
+        # and a bin that met none of the rare bright ones claims too small an error (one did: 4.5 %
+        # among neighbours' 7-10 %), one that met one keeps its large error: the larger of its own
+        # relative error and the median over 7 neighbours.
+        rel = raw_err / halo
+        local = np.array([np.median(rel[max(i - 3, 0) : i + 4]) for i in range(len(rel))])
+        halo_err = halo * np.maximum(rel, local)
         sel = rho > 1.2 * disk_px(smooth, c)
         lo = np.floor(rho[sel] - 2).astype(int)
-        r = np.arange(value.shape[1]) + 0.5
         model = np.array([np.average(value[c, i : i + 4], weights=r[i : i + 4]) for i in lo])
         model_err = np.array([np.average(err[c, i : i + 4], weights=r[i : i + 4]) for i in lo])
         pull = (halo[sel] - model) / np.hypot(halo_err[sel], model_err)
-        ratio = np.average(halo[sel] / model, weights=(halo[sel] / halo_err[sel]) ** 2)
-        assert abs(ratio - 1) < 0.01, (water, c, ratio)
-        assert np.mean(pull**2) < 2.0, (water, c, np.mean(pull**2))
+        assert np.mean(pull**2) < 1.5, (water, c, np.mean(pull**2))
         assert np.max(np.abs(pull)) < 4.0, (water, c, pull)
+        ratio = np.average(halo[sel] / model, weights=(halo[sel] / halo_err[sel]) ** 2)
+        far_depth = smooth.settings.cameras[1].distance_m / ls
+        assert abs(ratio - 1) < (0.01 if far_depth <= 2.0 else 0.03), (water, c, ratio)
 
 
 def kinks(values: np.ndarray) -> float:

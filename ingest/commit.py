@@ -49,7 +49,7 @@ from ingest.messages import Checked, Key
 from ingest.quarantine import Quarantine
 from ingest.sensorbuf import SensorBuffers
 from storage import queries
-from storage.store import FrameRow, SensorBatchRow, Store
+from storage.store import BatchOutcome, FrameRow, SensorBatchRow, Store
 
 log = logging.getLogger("camcal.ingest")
 Guard = Callable[..., bool]
@@ -61,6 +61,7 @@ class Committer:
         store: Store,
         *,
         dive_id: int,
+        ingest_id: str,
         fsync: bool,
         counters: Counters,
         alarms: AlarmEvaluator,
@@ -73,6 +74,7 @@ class Committer:
     ) -> None:
         self.store = store
         self.dive_id = dive_id
+        self.ingest_id = ingest_id
         self.fsync = fsync
         self.counters = counters
         self.alarms = alarms
@@ -83,7 +85,8 @@ class Committer:
         self.analyse = analyse
         self.guarded = guarded
         self.quarantine = Quarantine(self.store.files.root)
-        self.recent: OrderedDict[Key, str | None] = OrderedDict()  # committed keys -> sha256 (LRU)
+        #: Committed keys -> (payload sha256, content checksum), the newest 4096.
+        self.recent: OrderedDict[Key, tuple[str | None, str | None]] = OrderedDict()
         self.failures: dict[tuple[str, str, int, str], list[int]] = defaultdict(list)
         self.stored = 0  # messages committed so far (to tell a bad message from a bad disk)
         #: Sensor batches answered by their first part (a resend, a conflict, a failure): their
@@ -133,20 +136,19 @@ class Committer:
         # Frames and sensor messages share one sequence per boot: look each key up in both tables.
         firsts = [it for it in items if it.part is None or it.part[0] == 0]
         keys = [it.key for it in firsts if it.key not in self.recent]
-        stored_frames, stored_sensors = self.store.call(queries.stored_checksums, keys, keys)
-        stored_before: dict[Key, str | None] = {**stored_sensors, **stored_frames}
+        stored_before = self.store.call(queries.stored_contents, keys)
         for it in items:
             m, key = it.msg, it.key
+            content = wire.content_sha256(m)
             if it.part is None or it.part[0] == 0:
                 if key in seen:  # the same message twice in one batch (a resend crossed the first)
-                    self._settled_early(it, seen[key] == m.sha256, ok)
+                    self._settled_early(it, seen[key] == content, ok)
                     continue
                 if key in self.recent or key in stored_before:
                     stored = self.recent[key] if key in self.recent else stored_before[key]
-                    # (None: stored before checksums were kept)
-                    self._settled_early(it, stored is None or stored == m.sha256, ok)
+                    self._settled_early(it, _same(stored, m.sha256, content), ok)
                     continue
-                seen[key] = m.sha256
+                seen[key] = content
             ok.append(it)
             if it.kind == "frame":
                 rel = files.relative_path(self.dive_id, m.module, m.boot, m.seq, m.encoding)
@@ -168,6 +170,7 @@ class Committer:
                         size_bytes=m.size,
                         sha256=m.sha256,
                         schedule_version=m.schedule_version,
+                        content_sha256=content,
                     )
                 )
             else:
@@ -175,7 +178,14 @@ class Committer:
                 parts.append((it, rows))
                 sensors.append(
                     SensorBatchRow(
-                        m.module, m.boot, m.seq, it.received_unix_s, rows_dicts(rows), m.sha256, part=it.part
+                        m.module,
+                        m.boot,
+                        m.seq,
+                        it.received_unix_s,
+                        rows_dicts(rows),
+                        m.sha256,
+                        part=it.part,
+                        content_sha256=content,
                     )
                 )
         files.write_many(list(payloads.values()), fsync=self.fsync)  # every file durable before its row
@@ -191,26 +201,23 @@ class Committer:
             }
             return Event(EventKind.FRAME, payload, time.time(), f.module_id, self.dive_id)
 
-        outcome = self.store.commit_batch(self.dive_id, frames, sensors, frame_event=frame_event)
+        def counted(outcome: BatchOutcome) -> tuple[str, dict[str, int]]:  # (in the transaction)
+            return self.ingest_id, self.counters.flat_with(_counts(ok, outcome)[1])
+
+        outcome = self.store.commit_batch(
+            self.dive_id, frames, sensors, frame_event=frame_event, counters=counted
+        )
         # -- committed: from here on nothing may refuse these messages --
         new_sensors = set(outcome.new_sensor_batches)
-        answered: list[Checked] = []
-        duplicates = 0
-        for it in ok:
-            first = it.part is None or it.part[0] == 0
-            new = it.key in outcome.new_frames or it.key in new_sensors
-            duplicates += first and not new
-            if it.part is not None and first and not new:  # stored before all the same (another ingest)
-                if not it.last_part:
-                    self.answered_early.add(it.key)
-                answered.append(it)
-            elif it.last_part:
-                answered.append(it)
-        self.stored += len(answered)
-        self.counters.inc("frames_stored", len(outcome.new_frames))
-        self.counters.inc("duplicates", duplicates)
+        answered, counts = _counts(ok, outcome)
         for it in answered:
-            self._remember(it.key, it.msg.sha256)
+            if it.part is not None and not it.last_part:  # stored before all the same (another ingest)
+                self.answered_early.add(it.key)
+        self.stored += len(answered)
+        for name, n in counts.items():
+            self.counters.inc(name, n)
+        for it in answered:
+            self._remember(it.key, (it.msg.sha256, wire.content_sha256(it.msg)))
         self.guarded("ack", self.acknowledge.ack, [it.key for it in answered])
         self.guarded("events", self.events.published_stored, outcome.events)
         by_key = {(f.module_id, f.boot, f.seq): f for f in frames}
@@ -242,8 +249,8 @@ class Committer:
         self._refuse(
             it,
             "conflict",
-            f"{m.type} {m.boot}/{m.seq} is stored with other content (sha256 differs); the ship keeps "
-            "the first copy: compare the module's SD card with `camcal import`",
+            f"{m.type} {m.boot}/{m.seq} is stored with other content (its header or its payload "
+            "differs); the ship keeps the first copy: compare the module's SD card with `camcal import`",
         )
 
     def _failed(self, it: Checked, exc: Exception) -> None:
@@ -299,11 +306,35 @@ class Committer:
     def _qkey(it: Checked) -> tuple[str, str, int, str]:
         return (it.msg.module, it.msg.boot, it.msg.seq, it.msg.sha256)
 
-    def _remember(self, key: Key, sha: str) -> None:
-        self.recent[key] = sha
+    def _remember(self, key: Key, stored: tuple[str | None, str | None]) -> None:
+        self.recent[key] = stored
         self.recent.move_to_end(key)
         while len(self.recent) > 4096:
             self.recent.popitem(last=False)
+
+
+def _counts(ok: list[Checked], outcome: BatchOutcome) -> tuple[list[Checked], dict[str, int]]:
+    """What a commit answers (a message whole, the last part of a batch, or the first part of a batch
+    stored before), and the counts of what it stored."""
+    new_sensors = set(outcome.new_sensor_batches)
+    answered: list[Checked] = []
+    duplicates = 0
+    for it in ok:
+        first = it.part is None or it.part[0] == 0
+        new = it.key in outcome.new_frames or it.key in new_sensors
+        duplicates += first and not new
+        if it.last_part or (first and not new):
+            answered.append(it)
+    return answered, {"frames_stored": len(outcome.new_frames), "duplicates": duplicates}
+
+
+def _same(stored: tuple[str | None, str | None], sha: str, content: str) -> bool:
+    """Whether a message is the one stored under its key: the same content (header fields and payload),
+    or for a row stored without a content checksum (imported, older) the same payload (or no checksum)."""
+    stored_sha, stored_content = stored
+    if stored_content is not None:
+        return stored_content == content
+    return stored_sha is None or stored_sha == sha
 
 
 def _part_rows(it: Checked) -> Any:

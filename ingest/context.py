@@ -48,7 +48,7 @@ class StoreContext:
     backlog: Callable[[], int]
     credit: Any  # `ingest.fairness.Credit`: the window given to the modules
     #: The ingest's health (published once a second).
-    health: Callable[[], dict[str, Any]]
+    health: Callable[[dict[str, dict[str, int]] | None], dict[str, Any]]
     latency_s: deque[float] = field(default_factory=lambda: deque(maxlen=2000))
     disk_free_gb: float | None = None
     warn: RateLimitedLog = field(default_factory=lambda: RateLimitedLog(log))

@@ -7,8 +7,11 @@ later, such as conflicts) and ``refused`` (messages of modules this ingest
 does not serve, by module). Totals are kept beside the groups so that
 ``counters["malformed"] == sum(malformed.values())`` and ``counters["nacked"]
 == sum(nacked.values())`` always hold: both are changed together, under one
-lock. The store keeps them (`save`/`load`), so a restart continues the
-counts instead of zeroing them.
+lock. The store keeps them, so a restart continues the counts instead of
+zeroing them: the counts of stored messages in the very transaction that
+stores them (`ingest.commit`), the rest once a second, and the ingest
+publishes in its health the values it has just saved, so that what anyone
+saw never goes backwards after a crash.
 """
 
 from __future__ import annotations
@@ -71,6 +74,20 @@ class Counters:
                 group, _, name = key.partition(".")
                 if group in self._groups and name:
                     self._groups[group][name] += value
+
+    def flat_with(self, more: dict[str, int]) -> dict[str, int]:
+        """Every counter as ``group.name`` -> value, with ``more`` added to ``counters`` (not kept: for
+        the transaction that stores what they count, `ingest.commit`)."""
+        with self._lock:
+            flat = {f"{g}.{k}": v for g, c in self._groups.items() for k, v in c.items()}
+        for name, n in more.items():
+            flat[f"counters.{name}"] = flat.get(f"counters.{name}", 0) + n
+        return flat
+
+    @staticmethod
+    def flat(snapshot: dict[str, dict[str, int]]) -> dict[str, int]:
+        """A `snapshot` as ``group.name`` -> value (what the store keeps)."""
+        return {f"{g}.{k}": v for g, c in snapshot.items() for k, v in c.items()}
 
     def flat_if_changed(self) -> dict[str, int] | None:
         """Every counter as ``group.name`` -> value, or None if nothing changed since the last call."""

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import logging
 import os
+import socket
 import time
 from collections import OrderedDict, deque
 from dataclasses import dataclass
@@ -71,15 +72,17 @@ class RefusedConnections:
         self.counters.inc("refused_connections")
         self.counters.inc(f"refused_connections_{reason}")
         self.recent.append(now)
-        k = (reason, address, key)
+        host = _host(address)
+        k = (reason, host, key)
         src = self.sources.pop(k, None) or Source(reason, address, key, first_unix_s=now)
         src.count += 1
-        src.last_unix_s = now
+        src.address, src.last_unix_s = address, now
         self.sources[k] = src
         while len(self.sources) > MAX_SOURCES:
             self.sources.popitem(last=False)
         who = " ".join(x for x in (address or "an unknown address", f"key {key}" if key else "") if x)
-        self.warn(logging.WARNING, f"conn:{k}", "refused a connection from %s: %s", who, reason)
+        # Rate-limited per source (reason and host), not per key: a flood of fresh keys is one line.
+        self.warn(logging.WARNING, f"conn:{reason}:{host}", "refused a connection from %s: %s", who, reason)
 
     def summary(self) -> dict[str, Any]:
         """For the ingest's health: totals, the last minute, and the newest sources first."""
@@ -109,6 +112,23 @@ class RefusedConnections:
 _MISMATCH = getattr(zmq, "PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH", 0x11000002)
 
 
+def _host(address: str) -> str:
+    """The host of an address ("10.0.0.7", "10.0.0.7:51234", "[::1]:51234" -> "10.0.0.7", "::1")."""
+    if address.startswith("["):
+        return address[1:].split("]", 1)[0]
+    return address.rsplit(":", 1)[0] if address.count(":") == 1 else address
+
+
+def _peer_address(fd: int) -> str:
+    """The remote address of an accepted TCP connection ("host:port"; "" if it cannot be read)."""
+    try:
+        with socket.socket(fileno=os.dup(fd)) as s:  # a duplicate (closing it is safe), its family read
+            host, port = s.getpeername()[:2]
+            return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+    except OSError:
+        return ""
+
+
 class Gatekeeper:
     """The ZAP handler and handshake watcher of one ingest's link (see the module docstring)."""
 
@@ -126,11 +146,17 @@ class Gatekeeper:
         self.zap.bind(ZAP_ENDPOINT)
         self.monitor: Any = None
         self.sockets: tuple[Any, ...] = (self.zap,)
+        self._peers: dict[int, str] = {}  # the ROUTER's accepted connections: socket -> "host:port"
+        self._failed: deque[tuple[str, float]] = deque()  # handshakes that failed, their ends to come
 
     def watch(self, router: Any) -> None:
-        """Count the ROUTER's own handshake failures (plaintext clients, garbage) too."""
+        """Count the ROUTER's own handshake failures (plaintext clients, garbage) too, with the address
+        of each (its connection's, from the accepted socket: the failure events do not say)."""
         self.monitor = router.get_monitor_socket(
-            zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL
+            zmq.EVENT_ACCEPTED
+            | zmq.EVENT_DISCONNECTED
+            | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL
+            | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL
         )
         self.sockets = (self.zap, self.monitor)
 
@@ -171,10 +197,20 @@ class Gatekeeper:
                 event = parse_monitor_message(self.monitor.recv_multipart(zmq.NOBLOCK))
             except zmq.Again:
                 break
-            if event["event"] == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL and event["value"] == _MISMATCH:
-                self.refused.add("plaintext")  # a client without CURVE (or with another mechanism)
+            kind, value = event["event"], event["value"]
+            if kind == zmq.EVENT_ACCEPTED:
+                self._peers[value] = _peer_address(value)
+            elif kind == zmq.EVENT_DISCONNECTED:
+                # libzmq reports a failed handshake, then the connection's end (with its socket).
+                address = self._peers.pop(value, "")
+                if self._failed:
+                    self.refused.add(self._failed.popleft()[0], address)
+            elif kind == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL and value == _MISMATCH:
+                self._failed.append(("plaintext", time.monotonic()))  # no CURVE (or another mechanism)
             else:  # garbage, a timeout, a broken handshake, or a plaintext client that hung up first
-                self.refused.add("no_handshake")
+                self._failed.append(("no_handshake", time.monotonic()))
+        while self._failed and time.monotonic() - self._failed[0][1] > 1.0:  # its end never came
+            self.refused.add(self._failed.popleft()[0])
 
     def _answer(self, req: list[bytes]) -> None:
         # [peer, "", version, request id, domain, address, identity, mechanism, credentials...]

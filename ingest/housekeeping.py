@@ -4,8 +4,9 @@ Links and module state, attitude from the sensor samples, alarms (raised
 once, changed when their state changes, cleared when the condition ends),
 disk and retention, operator commands (delivered oldest first, repeated
 until the module answers; a status counts only from the command's own
-module), the credit window, and the counters (saved every few seconds, so
-a restart continues them).
+module), the credit window, and the counters (saved once a second and with
+every commit, so a restart continues them; `ingest.storeloop` saves and
+publishes them).
 """
 
 from __future__ import annotations
@@ -29,8 +30,6 @@ log = logging.getLogger("camcal.ingest")
 
 #: Seconds of sensor samples the attitude (tilt, rotation, heave period) is estimated from.
 ATTITUDE_WINDOW_S = 120.0
-#: How often the counters are written to the store.
-COUNTERS_SAVE_S = 5.0
 
 
 class Housekeeping:
@@ -48,7 +47,6 @@ class Housekeeping:
         self.attitude_t: dict[str, float] = {}
         self.last_housekeeping = -1e18
         self.last_purge = -1e18
-        self.last_counters_save = -1e18
 
     # -- links and modules ----------------------------------------------
     def link(self, it: Note) -> None:
@@ -165,16 +163,14 @@ class Housekeeping:
         g("alarms", self._apply_alarms, self.st.alarms.evaluate(now))
         g("commands", self.deliver_commands)
         g("window", lambda: self.st.credit.adapt(self.st.backlog()))
-        if mono - self.last_counters_save >= COUNTERS_SAVE_S:
-            self.last_counters_save = mono
-            g("counters", self.save_counters)
 
-    def publish_health(self) -> None:
-        self.st.events.transient(EventKind.HEALTH, self.st.health())
+    def publish_health(self, counts: dict[str, dict[str, int]] | None = None) -> None:
+        self.st.events.transient(EventKind.HEALTH, self.st.health(counts))
 
-    def save_counters(self) -> None:
-        values = self.st.counters.flat_if_changed()
-        if values:
+    def save_counters(self, counts: dict[str, dict[str, int]] | None = None) -> None:
+        """Save the counters (``counts``, a snapshot; default: now) if any changed since the last save."""
+        if self.st.counters.flat_if_changed() is not None:
+            values = self.st.counters.flat(counts or self.st.counters.snapshot())
             self.store.save_counters(self.st.ingest_id, values)
 
     def _attitude(self) -> None:

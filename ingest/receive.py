@@ -32,7 +32,7 @@ import zmq
 
 from camcal.core import wire
 from camcal.core.ratelog import RateLimitedLog
-from camcal.core.wire.sockets import route_module
+from camcal.core.wire.sockets import route_is_safe, route_module
 from ingest.counters import Counters
 from ingest.fairness import FairQueue
 from ingest.links import CLOCK_MIN_BEATS, Link
@@ -154,12 +154,13 @@ class Receiver:
                 ref,
             )
             return
-        if route_module(identity) != module:
+        if route_module(identity) != module or not route_is_safe(identity):
             self.refuse(
                 identity,
                 "wrong_identity",
                 f"module {module!r} on a connection whose routing id is {identity[:64]!r}: a module "
-                "sets its socket's routing id to its module id, '/' and random digits",
+                "sets its socket's routing id to its module id, '/' and 32 random hex digits, new at "
+                "every start (a route that can be guessed can be taken over)",
                 ref,
             )
             return
@@ -207,6 +208,15 @@ class Receiver:
         elif kind == "heartbeat":
             self._heartbeat(link, msg, t_unix)
         elif kind == "bye":
+            if msg.boot != link.boot:  # an old boot's goodbye (or someone else's): the module stays
+                self.refuse(
+                    identity,
+                    "invalid_field",
+                    f"bye for boot {msg.boot!r}, but module {module}'s link is boot {link.boot!r}: "
+                    "it stays linked",
+                    ref,
+                )
+                return
             link.up, link.welcomed, link.down_reason = False, False, "bye"
             self._note(Note("link", module, info=down_notice(link, "bye"), received_unix_s=t_unix))
             return
@@ -234,6 +244,24 @@ class Receiver:
     ) -> None:
         """Hand a data message to the checking stage, unless the module holds too much on the ship."""
         key, nbytes = (msg.boot, msg.seq), len(payload)
+        if not link.welcomed:
+            self.refuse(
+                identity,
+                "no_hello",
+                f"module {link.module} sent data before hello (or since its link was lost, or the ship "
+                "restarted): say hello, wait for welcome, then resend",
+                wire.message_ref(msg),
+            )
+            return
+        if key not in link.unanswered and len(link.unanswered) >= self.config.window:
+            self.refuse(
+                identity,
+                "over_window",
+                f"module {link.module} has {len(link.unanswered)} data messages unanswered, the window is "
+                f"{self.config.window}: send the next once an answer came",
+                wire.message_ref(msg),
+            )
+            return
         if (
             link.unanswered
             and key not in link.unanswered

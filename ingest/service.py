@@ -363,8 +363,9 @@ class IngestService:
             f" ({','.join(self.config.modules)})" if self.config.modules else ""
         )
 
-    def health(self) -> dict[str, Any]:
-        """Per-module link state, last packet age, frame rates, queue depths, counters.
+    def health(self, counts: dict[str, dict[str, int]] | None = None) -> dict[str, Any]:
+        """Per-module link state, last packet age, frame rates, queue depths, counters (``counts``: a
+        snapshot of the counters to show, the one just saved; default: now).
 
         ``frames_per_s`` counts the last 10 s; ``frames_last_min`` the last 60 s (between test stops the
         first reads 0 long before the second); ``last_frame_age_s`` is the ship's time since the last frame.
@@ -395,7 +396,7 @@ class IngestService:
                 "unanswered_bytes": link.unanswered_bytes,
                 "busy_refused": link.busy_refused,
             }
-        counts = self.counters.snapshot()
+        counts = counts or self.counters.snapshot()
         return {
             "ingest_id": self.ingest_id,
             "instance": self.instance,

@@ -77,6 +77,7 @@ class StoreLoop:
         self.committer = Committer(
             ctx.store,
             dive_id=ctx.dive_id,
+            ingest_id=ctx.ingest_id,
             fsync=ctx.config.fsync,
             counters=ctx.counters,
             alarms=ctx.alarms,
@@ -165,4 +166,7 @@ class StoreLoop:
         g("unsaved results", self.results.store_unsaved)
         g("linearity", self.results.update_linearity)
         g("visits", self.results.close_idle_visits)
-        g("health", self.housekeeping.publish_health)
+        # The counters are saved, then published as saved: what anyone saw survives a crash.
+        counts = self.ctx.counters.snapshot()
+        g("counters", self.housekeeping.save_counters, counts)
+        g("health", self.housekeeping.publish_health, counts)

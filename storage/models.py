@@ -91,6 +91,9 @@ class Frame(Base):
     path: Mapped[str] = mapped_column(String(400))
     size_bytes: Mapped[int] = mapped_column(BigInteger)
     sha256: Mapped[str] = mapped_column(String(64))
+    #: `camcal.core.wire.content_sha256` of the message (None: imported, or before migration 0008):
+    #: a resend with another header is a conflict, not a resend.
+    content_sha256: Mapped[str | None] = mapped_column(String(64))
     schedule_version: Mapped[int] = mapped_column(Integer, default=0)
     source: Mapped[str] = mapped_column(String(16), default="live")
 
@@ -225,6 +228,7 @@ class SensorBatch(Base):
     count: Mapped[int] = mapped_column(Integer)
     received_unix_s: Mapped[float] = mapped_column(Float)
     sha256: Mapped[str | None] = mapped_column(String(64))  # of the payload; None before migration 0004
+    content_sha256: Mapped[str | None] = mapped_column(String(64))  # as `Frame.content_sha256`
     #: False while a large batch is stored a part per turn (`storage.store.Store.commit_batch`): not
     #: acknowledged yet; a batch a crash left incomplete is removed at the next start and resent.
     complete: Mapped[bool] = mapped_column(Boolean, default=True, server_default=text("true"))

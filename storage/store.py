@@ -63,6 +63,7 @@ class FrameRow:
     schedule_version: int = 0
     source: str = "live"
     dive_id: int | None = None
+    content_sha256: str | None = None  # `camcal.core.wire.content_sha256` of a received message
 
     def as_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
@@ -81,6 +82,7 @@ class SensorBatchRow:
     #: One part of a large batch, stored a part per turn: (first row, rows, rows of the batch); the
     #: batch is complete (acknowledged) with its last part. None: the whole batch.
     part: tuple[int, int, int] | None = None
+    content_sha256: str | None = None  # `camcal.core.wire.content_sha256` of the message
 
 
 @dataclass
@@ -230,6 +232,7 @@ class Store(AnalysisWrites, OperationsWrites):
         sensors: Sequence[SensorBatchRow] = (),
         frame_event: Callable[[FrameRow, int], Event] | None = None,
         events: Sequence[Event] = (),
+        counters: Callable[[BatchOutcome], tuple[str, dict[str, int]]] | None = None,
     ) -> BatchOutcome:
         """Insert frames and sensor batches in one transaction, skipping any already stored.
 
@@ -237,7 +240,10 @@ class Store(AnalysisWrites, OperationsWrites):
         resend after a lost acknowledgement changes nothing. ``frame_event``
         makes the event of each new frame (given the row and its id); the
         events are written in the same transaction, so a crash can never
-        leave a stored frame without its event.
+        leave a stored frame without its event. ``counters`` gives, from what
+        was stored, an ingest's id and its counters counting it: they are
+        written in the same transaction too, so that the counts are never
+        behind the data after a crash.
         """
         t = now_unix_s()
         new_frames: dict[tuple[str, str, int], int] = {}
@@ -278,15 +284,18 @@ class Store(AnalysisWrites, OperationsWrites):
                         stored.append(frame_event(f, fid))
             if stored:
                 self._insert_events(s, stored)
-        keys = [(f.module_id, f.boot, f.seq) for f in frames]
-        skeys = [(b.module_id, b.boot, b.seq) for b in sensors]
-        return BatchOutcome(
-            new_frames=new_frames,
-            duplicate_frames=[k for k in keys if k not in new_frames],
-            new_sensor_batches=new_sensors,
-            duplicate_sensor_batches=[k for k in skeys if k not in new_sensors],
-            events=stored,
-        )
+            keys = [(f.module_id, f.boot, f.seq) for f in frames]
+            skeys = [(b.module_id, b.boot, b.seq) for b in sensors]
+            outcome = BatchOutcome(
+                new_frames=new_frames,
+                duplicate_frames=[k for k in keys if k not in new_frames],
+                new_sensor_batches=new_sensors,
+                duplicate_sensor_batches=[k for k in skeys if k not in new_sensors],
+                events=stored,
+            )
+            if counters is not None:
+                self._save_counters(s, *counters(outcome))
+        return outcome
 
     def _sensor_batch(self, s: Session, b: SensorBatchRow) -> int | None:
         """The row of a sensor batch (or of a part of one) to store samples under; None for a batch
@@ -314,6 +323,7 @@ class Store(AnalysisWrites, OperationsWrites):
                 count=total,
                 received_unix_s=b.received_unix_s,
                 sha256=b.sha256,
+                content_sha256=b.content_sha256,
                 complete=last,
             )
             .on_conflict_do_nothing(index_elements=["module_id", "boot", "seq"])
@@ -373,6 +383,10 @@ class Store(AnalysisWrites, OperationsWrites):
 
     def save_counters(self, ingest_id: str, values: dict[str, int]) -> None:
         """Write an ingest's counters (one upsert)."""
+        with self.session() as s:
+            self._save_counters(s, ingest_id, values)
+
+    def _save_counters(self, s: Session, ingest_id: str, values: dict[str, int]) -> None:
         if not values:
             return
         t = now_unix_s()
@@ -385,5 +399,4 @@ class Store(AnalysisWrites, OperationsWrites):
             index_elements=["ingest_id", "name"],
             set_={"value": stmt.excluded.value, "updated_unix_s": stmt.excluded.updated_unix_s},
         )
-        with self.session() as s:
-            s.execute(stmt)
+        s.execute(stmt)

@@ -30,6 +30,7 @@ from storage.queries.ingest import (
     load_counters,
     open_gaps,
     stored_checksums,
+    stored_contents,
 )
 from storage.queries.operations import (
     active_alarms,
@@ -150,6 +151,7 @@ __all__ = [
     "sensor_series",
     "setup_in_force",
     "stored_checksums",
+    "stored_contents",
     "timeline",
     "visit_keys",
 ]

@@ -20,9 +20,14 @@ def _checksums_statement() -> Any:
     """One SELECT of both tables for a list of keys (built once: a Core statement, cached compiled)."""
     keys: Any = bindparam("keys", expanding=True)
     parts = [
-        select(t.c.module_id, t.c.boot, t.c.seq, t.c.sha256, literal(is_frame).label("is_frame")).where(
-            tuple_(t.c.module_id, t.c.boot, t.c.seq).in_(keys), *extra
-        )
+        select(
+            t.c.module_id,
+            t.c.boot,
+            t.c.seq,
+            t.c.sha256,
+            t.c.content_sha256,
+            literal(is_frame).label("is_frame"),
+        ).where(tuple_(t.c.module_id, t.c.boot, t.c.seq).in_(keys), *extra)
         for t, is_frame, extra in (
             (Frame.__table__, True, ()),
             (SensorBatch.__table__, False, (SensorBatch.__table__.c.complete.is_(True),)),
@@ -45,13 +50,28 @@ def stored_checksums(
     sensors: dict[tuple[str, str, int], str | None] = {}
     fkeys, skeys = set(frame_keys), set(sensor_keys)
     for chunk in _chunks(sorted(fkeys | skeys), 300):
-        for mid, boot, seq, sha, is_frame in s.execute(_CHECKSUMS, {"keys": list(chunk)}):
+        for mid, boot, seq, sha, _, is_frame in s.execute(_CHECKSUMS, {"keys": list(chunk)}):
             key = (mid, boot, int(seq))
             if is_frame and key in fkeys:
                 frames[key] = sha
             elif not is_frame and key in skeys:
                 sensors[key] = sha
     return frames, sensors
+
+
+def stored_contents(
+    s: Session, keys: Sequence[tuple[str, str, int]]
+) -> dict[tuple[str, str, int], tuple[str | None, str | None]]:
+    """What is stored under these keys (module, boot, seq), frame or complete sensor batch: the
+    payload's sha256 and the message's content checksum (`camcal.core.wire.content_sha256`; None for a
+    row stored without one), in one statement."""
+    out: dict[tuple[str, str, int], tuple[str | None, str | None]] = {}
+    for chunk in _chunks(sorted(set(keys)), 300):
+        for mid, boot, seq, sha, content, is_frame in s.execute(_CHECKSUMS, {"keys": list(chunk)}):
+            key = (mid, boot, int(seq))
+            if is_frame or key not in out:  # (a frame and a batch under one key: the frame's)
+                out[key] = (sha, content)
+    return out
 
 
 def known_seqs(s: Session, module_id: str, boot: str) -> set[int]:

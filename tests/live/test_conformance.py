@@ -45,6 +45,12 @@ def ship(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[IngestProbe
     probe.stop()
 
 
+def greet(rogue: Rogue, module: str, boot: str = "k") -> None:
+    """Say hello (data before a welcome is refused as ``no_hello``)."""
+    hello = json.dumps({"v": 1, "type": "hello", "module": module, "boot": boot}).encode()
+    assert [m.type for m in rogue.send([hello])] == ["welcome"]
+
+
 def nacks(rogue: Rogue) -> list[wire.Nack]:
     return [r for r in rogue.replies if r.type == "nack"]
 
@@ -53,6 +59,7 @@ def test_each_malformed_case_gets_its_nack_and_the_ingest_goes_on(ship) -> None:
     probe, agent = ship
     rogue = probe.rogue("R")
     try:
+        greet(rogue, "R")
         for what, parts, reason in CASES:
             replies = rogue.send(as_module(parts, "R"))
             assert [(r.type, r.reason) for r in replies] == [("nack", reason)], what
@@ -158,6 +165,7 @@ def test_a_message_that_fails_twice_while_others_are_stored_is_quarantined(ship)
     blocker.write_text("not a folder")
     q = probe.rogue("Q")
     try:
+        greet(q, "Q")
         poisoned = as_module(frame_parts(boot="bad", seq=1), "Q")
         (reply,) = q.send(poisoned)
         assert (reply.reason, reply.retry) == ("internal_error", True)

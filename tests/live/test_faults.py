@@ -14,7 +14,7 @@ import pytest
 from sqlalchemy import func, select
 
 from camcal.core.frameset import read_manifest
-from storage.models import Event, Frame, FrameResult
+from storage.models import Event, Frame, FrameResult, IngestCounter
 from storage.store import Store
 from tests.live.test_ingest import wait_for
 from tests.utils.live import make_agent, start_ingest, stop_and_drain
@@ -62,6 +62,10 @@ def test_sigkill_the_ingest_repeatedly_and_every_frame_is_stored_exactly_once(tm
         with store.read() as s:
             n_frames = s.scalar(select(func.count(Frame.id)))
         assert wait_for(lambda: _results(store) == n_frames, 60), "frames left unanalysed after the restarts"
+        # The counters were kept with the data they count: none fell behind through the kills.
+        with store.read() as s:
+            counted = {n: v for n, v in s.execute(select(IngestCounter.name, IngestCounter.value))}
+        assert counted.get("counters.frames_stored") == n_frames, (counted, n_frames)
     finally:
         for a in agents:
             a.stop()

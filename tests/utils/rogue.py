@@ -25,6 +25,7 @@ import zmq
 
 from camcal.core import wire
 from camcal.core.wire.keys import KeyPair, create_module_key, ship_public
+from camcal.core.wire.sockets import new_route
 from tests.utils.live import link_keys, start_ingest
 from tests.utils.system import free_ports
 
@@ -34,7 +35,8 @@ class Rogue:
 
     ``keys_dir``: the ingest's keys folder; the rogue gets (a new if need be) key of module
     ``key_of`` (default ``identity``) from it. ``pair``: any key pair instead (an unknown key).
-    Neither: a plaintext client.
+    Neither: a plaintext client. ``route``: its routing id (default: a module's, ``identity/`` and
+    32 random hex digits).
     """
 
     def __init__(
@@ -46,6 +48,7 @@ class Rogue:
         keys_dir: Path | None = None,
         key_of: str | None = None,
         pair: KeyPair | None = None,
+        route: bytes | None = None,
     ) -> None:
         self.sock = ctx.socket(zmq.DEALER)
         if keys_dir is not None and pair is None:
@@ -57,7 +60,8 @@ class Rogue:
             self.sock.setsockopt(zmq.CURVE_SERVERKEY, ship_public(keys_dir))
             self.sock.setsockopt(zmq.CURVE_PUBLICKEY, pair.public)
             self.sock.setsockopt(zmq.CURVE_SECRETKEY, pair.secret)
-        self.sock.setsockopt(zmq.ROUTING_ID, identity.encode())
+        # A module's routing id: its id, '/' and random digits (``route``: any other, to test the ship).
+        self.sock.setsockopt(zmq.ROUTING_ID, route if route is not None else new_route(identity))
         self.sock.setsockopt(zmq.LINGER, 0)
         self.sock.connect(endpoint)
         self.replies: list[Any] = []

@@ -138,7 +138,7 @@ def decode_header(
         raise ProtocolError("bad_header", "header is not a JSON object")
     ref = _ref(obj)
     version = obj.get("v")
-    if version != PROTOCOL_VERSION or isinstance(version, bool):
+    if type(version) is not int or version != PROTOCOL_VERSION:  # not 1.0, not true: no coercion
         raise ProtocolError(
             "bad_version", f"protocol version {str(version)[:20]!r} (this side speaks 1)", ref
         )
@@ -190,6 +190,18 @@ def check_payload(msg: Any, payload: memoryview | bytes) -> Generator[None, None
         return (yield from sensorrows.check_steps(msg.columns, payload, msg.count))
     except sensorrows.PayloadError as exc:
         raise ProtocolError("invalid_field", f"sensors payload: {exc}"[:300], ref) from None
+
+
+#: A data message's fields that are not its data: a resend may differ in them and still be the same.
+_TRANSPORT_FIELDS = frozenset({"v", "type", "module", "sent_at", "dive"})
+
+
+def content_sha256(msg: Any) -> str:
+    """What makes two data messages the same message: the SHA-256 of every header field but the
+    transport's (`_TRANSPORT_FIELDS`: version, type, module, when it was sent, the dive), the payload's
+    checksum among them. A resend of ``(module, boot, seq)`` whose content differs is a ``conflict``."""
+    fields = msg.model_dump(mode="json", exclude=set(_TRANSPORT_FIELDS))
+    return hashlib.sha256(dialect.dumps(dict(sorted(fields.items())))).hexdigest()
 
 
 def message_ref(msg: Any) -> dict[str, Any]:

@@ -34,7 +34,8 @@ FILE_PATTERN = rf"^{_SEGMENT}(?:/{_SEGMENT})*$"
 
 def is_id(v: object) -> bool:
     """Whether ``v`` is a valid identifier (module, boot, camera, command)."""
-    return isinstance(v, str) and 1 <= len(v) <= 64 and _ID_RE.match(v) is not None
+    # fullmatch: ``$`` alone would let a final newline through ("B\n"), which the models refuse.
+    return isinstance(v, str) and 1 <= len(v) <= 64 and _ID_RE.fullmatch(v) is not None
 
 
 def utc_now() -> datetime:

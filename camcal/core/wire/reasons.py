@@ -55,6 +55,20 @@ _ALL = (
         until_it_works=True,
     ),
     Reason(
+        "no_hello",
+        True,
+        "a data message from a module the ship has not welcomed since its link came up (or since the "
+        "ship started): say hello, wait for welcome, then resend",
+        until_it_works=True,
+    ),
+    Reason(
+        "over_window",
+        True,
+        "more data messages of the module unanswered than the window allows: wait for answers, then "
+        "resend it",
+        until_it_works=True,
+    ),
+    Reason(
         "busy",
         True,
         "the ship holds too much of this module's data not yet stored (a flood): resend it once "

@@ -9,6 +9,7 @@ link is plaintext, for a lab bench only.
 
 from __future__ import annotations
 
+import re
 import secrets
 from collections.abc import Callable
 from typing import Any
@@ -67,6 +68,17 @@ def new_route(module: str) -> bytes:
 def route_module(route: bytes) -> str:
     """The module id a routing id names (the part before ``/``; all of it for a route without one)."""
     return route.split(b"/", 1)[0].decode("utf-8", errors="replace")
+
+
+#: A module's routing id: its id, ``/`` and at least 32 random hex digits (`new_route`).
+_ROUTE = re.compile(rb"[A-Za-z0-9_.-]{1,64}/[0-9a-f]{32,128}")
+
+
+def route_is_safe(route: bytes) -> bool:
+    """Whether a routing id is a module's fresh one (`new_route`): a bare module id, or one with too few
+    random digits, could be guessed, and with ``ROUTER_HANDOVER`` whoever connects under it takes the
+    route over (the ship's answers go to them). The ship refuses such a route (``wrong_identity``)."""
+    return _ROUTE.fullmatch(route) is not None
 
 
 def module_socket(

@@ -246,3 +246,14 @@ def test_structured_fuzz_only_protocol_errors(kind: str, fields: dict, payload: 
     frames = [header] if payload is None else [header, payload]
     with contextlib.suppress(wire.ProtocolError):
         wire.decode(frames)
+
+
+def test_the_protocol_document_lists_every_numbered_rule() -> None:
+    """The conformance kits print rule numbers: each is the document's, with the same words."""
+    from camcal.core.wire.rules import RULES
+
+    doc = (REPO / "docs" / "protocol.md").read_text()
+    rows = [
+        ln for ln in doc.split("## The rules", 1)[1].splitlines() if ln.startswith("| ") and ln[2].isdigit()
+    ]
+    assert rows == [f"| {r.number} | {r.binds} | {r.title} |" for r in RULES]

@@ -125,6 +125,16 @@ def ingest(
         bool | None,
         typer.Option(help="No keys, no encryption: a lab bench only [CAMCAL_LINK_PLAINTEXT]."),
     ] = None,
+    conformance: Annotated[
+        bool,
+        typer.Option(
+            help="Store nothing: check the module that connects against the rules of docs/protocol.md, "
+            "print pass or fail per rule, exit (0: none broken)."
+        ),
+    ] = False,
+    conformance_s: Annotated[
+        float, typer.Option(help="With --conformance: how long to wait for the module at most [s].")
+    ] = 60.0,
     config: Annotated[Path | None, typer.Option(help="A TOML configuration file [CAMCAL_CONFIG].")] = None,
     log_level: Annotated[str | None, typer.Option(help="debug, info, warning [CAMCAL_LOG_LEVEL].")] = None,
 ) -> None:
@@ -149,6 +159,11 @@ def ingest(
         link_plaintext=plaintext,
     )
     configure_logging(s.log_level, s.log_format)
+    if conformance:
+        from camcal.cli.conformance import ingest_conformance
+
+        ingest_conformance(s.ingest_bind, s.keys_path(), s.link_plaintext, dive or s.dive, conformance_s)
+        return
     cfg = IngestConfig(
         data_dir=s.data_dir,
         bind=s.ingest_bind,

@@ -91,7 +91,7 @@ class Frame(Base):
     path: Mapped[str] = mapped_column(String(400))
     size_bytes: Mapped[int] = mapped_column(BigInteger)
     sha256: Mapped[str] = mapped_column(String(64))
-    #: `camcal.core.wire.content_sha256` of the message (None: imported, or before migration 0008):
+    #: `camcal.core.wire.content_sha256` of the message (None: imported, or before migration 0009):
     #: a resend with another header is a conflict, not a resend.
     content_sha256: Mapped[str | None] = mapped_column(String(64))
     schedule_version: Mapped[int] = mapped_column(Integer, default=0)

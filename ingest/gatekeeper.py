@@ -120,7 +120,8 @@ def _host(address: str) -> str:
 
 
 def _peer_address(fd: int) -> str:
-    """The remote address of an accepted TCP connection ("host:port"; "" if it cannot be read)."""
+    """The remote address of an accepted TCP connection ("host:port"; "" if it cannot be read: the
+    connection may be gone already when a busy receiving thread reads its ACCEPTED event)."""
     try:
         with socket.socket(fileno=os.dup(fd)) as s:  # a duplicate (closing it is safe), its family read
             host, port = s.getpeername()[:2]

@@ -186,7 +186,10 @@ def test_refused_connections_are_logged_per_source_with_its_address(probe: Inges
     unknown = [ln for ln in lines if "unknown_key" in ln]
     assert 1 <= len(unknown) <= 2, unknown  # one line, then at most one every ten seconds per source
     plaintext = [ln for ln in lines if "plaintext" in ln or "no_handshake" in ln]
-    assert plaintext and all("127.0.0.1" in ln for ln in plaintext), plaintext
+    # A plaintext client retries every 0.1 s; a try whose connection was gone before the receiving
+    # thread read its address (a busy machine) is logged "from an unknown address": never a wrong one.
+    assert any("127.0.0.1" in ln for ln in plaintext), plaintext
+    assert all("127.0.0.1" in ln or "an unknown address" in ln for ln in plaintext), plaintext
 
 
 def _random_pair() -> wire.KeyPair:

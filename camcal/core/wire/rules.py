@@ -59,7 +59,11 @@ RULES: tuple[Rule, ...] = (
     ),
     Rule(8, "ship", "a type the ship does not know, or one only the ship sends, is refused (unknown_type)"),
     Rule(9, "both", "a payload matches the header's size and sha256 (bad_payload, resend)"),
-    Rule(10, "both", "a frame is an 8-bit grayscale PNG or TIFF of the stated size (bad_image)"),
+    Rule(
+        10,
+        "both",
+        "a frame is a grayscale PNG or TIFF of the stated size, 8-bit (bit_depth 8) or 16-bit (bad_image)",
+    ),
     Rule(
         11,
         "both",

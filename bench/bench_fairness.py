@@ -17,12 +17,15 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing
+import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests.utils, run as a script
 
 from tests.utils.rogue import IngestProbe, Rogue
 from tests.utils.wiremsgs import frame_parts, sensors_parts

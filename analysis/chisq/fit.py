@@ -7,8 +7,11 @@ import math
 import numpy as np
 from scipy.optimize import brentq, minimize, minimize_scalar
 
-from analysis.chisq.model import Problem
+from analysis.chisq.model import OutsideTemplates, Problem
 from analysis.chisq.results import ContourMap
+
+#: What the objective returns where the templates give no halo (far above any real χ²).
+OUTSIDE_CHI2 = 1e12
 
 
 class Objective:
@@ -21,7 +24,12 @@ class Objective:
     def __call__(self, p: np.ndarray) -> float:
         q = np.clip(p, self.bounds[:, 0], self.bounds[:, 1])
         penalty = 1e6 * float(np.sum((p - q) ** 2))  # keeps Nelder-Mead inside
-        return self.prob.chi2(math.exp(q[0]), math.exp(q[1]))[0] + penalty
+        try:
+            return self.prob.chi2(math.exp(q[0]), math.exp(q[1]))[0] + penalty
+        except OutsideTemplates:
+            # A water the templates do not reach (an attenuation length shorter than they were made
+            # for): no χ² there, and the searches keep away.
+            return OUTSIDE_CHI2 + penalty
 
     def on_edge(self, x: float, k: int) -> bool:
         return bool(min(abs(x - self.bounds[k, 0]), abs(x - self.bounds[k, 1])) < 1e-3)
@@ -34,17 +42,22 @@ class Objective:
         j, i = np.unravel_index(int(np.argmin(scan)), scan.shape)
         return np.array([la[i], ls[j]])
 
-    def minimise(self, start: np.ndarray | None = None, *, near: bool = False) -> np.ndarray:
+    def minimise(
+        self, start: np.ndarray | None = None, *, near: bool = False, refreeze: bool = True
+    ) -> np.ndarray:
         """The minimum: from ``start`` (ln λ_abs, ln λ_sca), or from a coarse scan when None.
 
         ``near``: the start is already close (a refit of the same data with one input
         changed): a small first simplex, and no second pass when the first stayed put.
+        ``refreeze=False`` keeps the templates' errors frozen where they are (the phase map:
+        its points compare only with the same weights).
         """
         best = self.coarse_start() if start is None else np.clip(start, self.bounds[:, 0], self.bounds[:, 1])
         prob = self.prob
         step = np.array([0.02, 0.01]) if near else np.array([0.1, 0.05])
         for _ in range(2):  # the template errors held at the current best water
-            prob.freeze_template_errors(math.exp(best[0]), math.exp(best[1]))
+            if refreeze or prob.frozen_halo_err is None:
+                prob.freeze_template_errors(math.exp(best[0]), math.exp(best[1]))
             before = best
             best = self._nelder_mead(best, step)
             # A refit that stayed put is done; one that moved (another ⟨cos θ⟩ moves λ_sca by tens of
@@ -64,6 +77,40 @@ class Objective:
             prob.set_working_point(work)
             best = self._nelder_mead(best, step)
         return best
+
+    def newton(self, start: np.ndarray, *, max_iter: int = 8, h: float = 0.01) -> np.ndarray | None:
+        """A local minimum from a start already near it, by Newton steps on the finite-difference
+        Hessian (9 χ² evaluations a step; the phase map's refits: a few steps where Nelder-Mead takes
+        a hundred evaluations). None when a step fails to lower χ² (the caller falls back).
+        """
+        x = np.clip(np.asarray(start, dtype=np.float64), self.bounds[:, 0], self.bounds[:, 1])
+        f0 = self(x)
+        e = np.eye(2) * h
+        for _ in range(max_iter):
+            fp = np.array([self(x + e[i]) for i in range(2)])
+            fm = np.array([self(x - e[i]) for i in range(2)])
+            grad = (fp - fm) / (2 * h)
+            hess = np.diag((fp - 2 * f0 + fm) / h**2)
+            hess[0, 1] = hess[1, 0] = (
+                self(x + e[0] + e[1]) - self(x + e[0] - e[1]) - self(x - e[0] + e[1]) + self(x - e[0] - e[1])
+            ) / (4 * h * h)
+            if not np.all(np.isfinite(hess)) or np.linalg.det(hess) <= 0 or hess[0, 0] <= 0:
+                return None
+            step = -np.linalg.solve(hess, grad)
+            step *= min(1.0, 0.5 / max(float(np.max(np.abs(step))), 1e-12))  # at most 0.5 in ln λ
+            for _ in range(6):  # backtrack until χ² falls
+                trial = np.clip(x + step, self.bounds[:, 0], self.bounds[:, 1])
+                f1 = self(trial)
+                if f1 <= f0:
+                    break
+                step *= 0.5
+            else:
+                return None
+            moved = float(np.max(np.abs(trial - x)))
+            x, f0 = trial, f1
+            if moved < 2e-4:
+                return x
+        return x
 
     def _nelder_mead(self, start: np.ndarray, step: np.ndarray) -> np.ndarray:
         simplex = np.array([start, start + np.array([step[0], 0.0]), start + np.array([0.0, step[1]])])

@@ -9,9 +9,27 @@ import numpy as np
 
 from analysis.attenuation import EmissionRatio, Geometry
 from analysis.chisq.data import FitInputError, SettingProfiles, quantisation_bias_gray
-from analysis.chisq.results import FitConfig
+from analysis.chisq.results import NUISANCES, FitConfig
 from analysis.transport.disk import BandPixels, disk_radius_px, disk_transmittance
 from analysis.transport.templates import EmissionProfile, TemplateGrid
+
+
+class OutsideTemplates(ValueError):
+    """The water asked for lies outside what the templates serve."""
+
+
+def shape_basis(radius_px: np.ndarray, disk_px: float, step: float) -> np.ndarray:
+    """Hat functions ``step`` apart in ln ρ from the disk's edge to the last band (rows), at ``radius_px``.
+
+    They sum to one everywhere; inside the disk the first takes all (the halo under the disk moves
+    with the edge's).
+    """
+    u = np.log(np.maximum(radius_px, disk_px) / disk_px)
+    n_knots = max(math.ceil(float(u.max()) / step) + 1, 2)
+    knots = np.linspace(0.0, float(u.max()), n_knots)
+    width = knots[1] - knots[0] if n_knots > 1 else 1.0
+    return np.clip(1.0 - np.abs(u[None, :] - knots[:, None]) / max(width, 1e-9), 0.0, 1.0)
+
 
 #: Prior width of the edge's mixture weights (per setting and camera; see `Problem.chi2`).
 EDGE_WEIGHT_PRIOR = 1.0
@@ -60,9 +78,21 @@ class Problem:
                 config.halo_scale_err,
             ]
         )
+        # The halo's shape per camera: `shape_basis` functions in ln ρ, a nuisance each (see
+        # `FitConfig.halo_shape_err`), after the six above.
+        self.shape = []
+        names = list(NUISANCES)
+        for c, (cam, d) in enumerate((("near", geometry.distance_near_m), ("far", geometry.distance_far_m))):
+            rd = disk_radius_px(d, self.lem_radius_m, self.focal_px)
+            basis = shape_basis(np.arange(n) + 0.5, rd, config.halo_shape_step)
+            self.shape.append((c, basis))
+            names += [f"halo_shape_{cam}_{j + 1}" for j in range(len(basis))]
+        self.nuisance_names = tuple(names)
+        n_shape = len(names) - len(NUISANCES)
+        sig = np.concatenate([sig, np.full(n_shape, config.halo_shape_err)])
         self.active = np.flatnonzero(sig > 0)
         self.prior_sigma = sig
-        self.work = np.zeros(6)  # working point: shifts from nominal of the six nuisances
+        self.work = np.zeros(len(sig))  # working point: shifts from nominal of the nuisances
         m, e, used, n_px = [], [], [], []
         for s in self.settings:
             pd = np.stack(
@@ -91,13 +121,16 @@ class Problem:
         self.counts = np.stack(n_px)
         self.n_eval = 0
         self.frozen_halo_err: np.ndarray | None = None
-        self.set_working_point(np.zeros(6))
+        self.set_working_point(np.zeros(len(self.prior_sigma)))
 
     def set_phase(self, mie_g: float, rayleigh_share: float) -> None:
-        """Evaluate the model at another phase function (Mie ⟨cos θ⟩, Rayleigh share)."""
+        """Evaluate the model at another phase function (Mie ⟨cos θ⟩, Rayleigh share).
+
+        The templates' errors stay frozen where they were: χ² at different phase functions compares
+        only with the same weights.
+        """
         self.mie_g = float(mie_g)
         self.rayleigh_share = float(rayleigh_share)
-        self.frozen_halo_err = None
 
     def freeze_template_errors(self, lambda_abs_m: float, lambda_sca_m: float) -> None:
         """Hold the templates' Monte Carlo errors at their values for this water.
@@ -175,7 +208,10 @@ class Problem:
         work = self.work
         ratio = self.ratio.value * (1.0 + work[2])
         lam_att = 1.0 / (1.0 / lambda_abs_m + 1.0 / lambda_sca_m)
-        tmpl = self.grid.halo(lambda_abs_m, lambda_sca_m, self.mie_g, self.rayleigh_share)
+        try:
+            tmpl = self.grid.halo(lambda_abs_m, lambda_sca_m, self.mie_g, self.rayleigh_share)
+        except ValueError as exc:
+            raise OutsideTemplates(str(exc)) from exc
         scale = 1.0 + work[4]
         halo_c = tmpl.radiance[:, :, : self.grid.settings.n_bands]
         halo_e = tmpl.error[:, :, : self.grid.settings.n_bands]
@@ -210,7 +246,7 @@ class Problem:
         )  # (set, cam, band)
         total = direct + halo[None]
         # Derivatives with respect to each nuisance (per unit of its shift).
-        deriv = np.zeros((6, *total.shape))
+        deriv = np.zeros((len(self.prior_sigma), *total.shape))
         for c in range(2):
             big_l = self.distances[c]
             dr_dl = -self.disk_r[c] * big_l / (big_l * big_l - self.lem_radius_m**2)
@@ -224,6 +260,12 @@ class Problem:
         deriv[4] = (
             amp[None, :, None] * self.disk_dr * self.disk_r[None, :, None] - (self.radius_px * dh)[None]
         )
+        # The templates' accuracy: the halo's level, and its shape per camera.
+        deriv[5] = halo[None]
+        k = len(NUISANCES)
+        for c, basis in self.shape:
+            deriv[k : k + len(basis), :, c] = (halo[c][None, :] * basis)[:, None, :]
+            k += len(basis)
         return {"total": total, "halo": halo, "halo_err": halo_err, "deriv": deriv, "amp": amp}
 
     def chi2(

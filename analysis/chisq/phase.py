@@ -67,6 +67,8 @@ def scan_phase(obj: Objective, start: np.ndarray, config: PhaseConfig) -> PhaseM
         ((j, i) for j in range(len(fs)) for i in range(len(gs))),
         key=lambda ji: ((gs[ji[1]] - g0) / (g_hi - g_lo)) ** 2 + ((fs[ji[0]] - f0) / (f_hi - f_lo)) ** 2,
     )
+    # One set of weights for the whole map: the templates' errors frozen at the nominal minimum.
+    prob.freeze_template_errors(math.exp(start[0]), math.exp(start[1]))
     done: list[tuple[int, int]] = []
     for j, i in order:
         if done:
@@ -77,7 +79,11 @@ def scan_phase(obj: Objective, start: np.ndarray, config: PhaseConfig) -> PhaseM
             p0 = np.asarray(start, dtype=np.float64).copy()
             p0[1] += math.log((1 - g0) / (1 - gs[i]))
         prob.set_phase(gs[i], fs[j])
-        best = obj.minimise(p0, near=True)
+        # Newton steps where the start lies inside the range; a minimum on its edge (λ_abs beyond what
+        # 20 m of baseline resolves) is Nelder-Mead's.
+        inside = not (obj.on_edge(float(p0[0]), 0) or obj.on_edge(float(p0[1]), 1))
+        found = obj.newton(p0) if inside else None
+        best = obj.minimise(p0, near=True, refreeze=False) if found is None else found
         chi2[j, i] = obj(best)
         lnl[:, j, i] = best
         done.append((j, i))

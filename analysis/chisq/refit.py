@@ -13,7 +13,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from analysis.chisq.data import SettingProfiles
-from analysis.chisq.results import ChiSquareFit
+from analysis.chisq.results import NUISANCES, ChiSquareFit
 from analysis.chisq.wavelength import make_objective
 from analysis.transport.templates import TemplateGrid
 
@@ -67,7 +67,8 @@ class Refitter:
             prob = obj.prob
             shifts = np.asarray(prob.chi2(float(best[0]), float(best[1]), detail=True)[1]["shifts"])
             sigma = np.asarray(prob.prior_sigma, dtype=float)
-            pull = max((abs(shifts[k] / sigma[k]) for k in prob.active if sigma[k] > 0), default=0.0)
+            calibrations = (k for k in prob.active if k < len(NUISANCES) and sigma[k] > 0)
+            pull = max((abs(shifts[k] / sigma[k]) for k in calibrations), default=0.0)
         return np.array([best[0], best[1], 1.0 / (1.0 / best[0] + 1.0 / best[1]), obj(p)]), pull
 
     def _memo(self, **replaced: object) -> tuple[np.ndarray, float]:

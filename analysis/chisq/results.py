@@ -32,7 +32,15 @@ class FitConfig:
     plus the sub-pixel spread of stacking); ``focal_rel_err`` the relative
     uncertainty of the image scale; ``halo_scale_err`` that of the templates'
     overall halo level (their accuracy: the quadrature's, the Monte Carlo's
-    normalisation), common to all bands; ``lambda_sca_sys_rel`` the relative
+    normalisation), common to all bands; ``halo_shape_err`` that of the
+    halo's shape per camera: the halo is multiplied by 1 + Σ ε_j B_j(ln ρ),
+    B_j hat functions ``halo_shape_step`` apart in ln ρ from the disk's edge
+    to the last band (the halo under the disk takes the edge's), each ε_j a
+    nuisance with that prior width. A template off by a percent over a
+    tenth of the radius (or the truth of a test, tabulated by another
+    engine with its own noise) then costs χ² once, as it should, instead of
+    once per band, as independent per-band errors would, which average down
+    and let the shape's misfit pass for another water or phase function; ``lambda_sca_sys_rel`` the relative
     systematic error quoted on λ_sca for the templates' accuracy (the halo's
     radial shape fixes λ_sca to ~0.1 % statistically, finer than the first
     order's quadrature is exact near the LEM's limb, 0.1-0.4 %);
@@ -62,6 +70,8 @@ class FitConfig:
     edge_sigmas_px: tuple[float, ...] = (0.6, 2.0, 3.2, 4.5)
     focal_rel_err: float = 0.003
     halo_scale_err: float = 0.005
+    halo_shape_err: float = 0.01
+    halo_shape_step: float = 0.15
     lambda_sca_sys_rel: float = 0.005
     model_rel_err: float = 0.002
     min_band_pixels: int = 16
@@ -75,10 +85,14 @@ class FitConfig:
     def __post_init__(self) -> None:
         if not self.psf_sigma_px > 0 or self.psf_sigma_err_px < 0:
             raise ValueError(f"psf_sigma_px must be > 0 and psf_sigma_err_px >= 0, got {self.psf_sigma_px}")
-        if min(self.focal_rel_err, self.model_rel_err, self.halo_scale_err, self.lambda_sca_sys_rel) < 0:
+        errs = (self.focal_rel_err, self.model_rel_err, self.halo_scale_err, self.halo_shape_err)
+        if min(*errs, self.lambda_sca_sys_rel) < 0:
             raise ValueError(
-                "focal_rel_err, halo_scale_err, lambda_sca_sys_rel and model_rel_err must be >= 0"
+                "focal_rel_err, halo_scale_err, halo_shape_err, lambda_sca_sys_rel and model_rel_err "
+                "must be >= 0"
             )
+        if not self.halo_shape_step > 0:
+            raise ValueError(f"halo_shape_step must be > 0, got {self.halo_shape_step}")
         if self.contour_points < 5:
             raise ValueError(f"contour_points must be >= 5, got {self.contour_points}")
 
@@ -420,7 +434,14 @@ class ChiSquareFit:
         return self.lambda_abs.status != UNCONSTRAINED or self.lambda_sca.status != UNCONSTRAINED
 
 
-NUISANCES = ("distance_near", "distance_far", "emission_ratio", "psf_sigma", "focal_scale", "halo_scale")
+NUISANCES = (
+    "distance_near",
+    "distance_far",
+    "emission_ratio",
+    "psf_sigma",
+    "focal_scale",
+    "halo_scale",
+)
 UNITS = {
     "distance_near": "m",
     "distance_far": "m",

@@ -428,7 +428,7 @@ def _profiled_impacts(fit: ChiSquareFit, refit: Refitter) -> list[SystematicShif
         ref = {"ratio": EmissionRatio(ratio.value, 0.0)}
         label = f"I0'/I0 {ratio.value:g} ± {ratio.err:g}"
         out.append(_impact("emission_ratio", label, cases, refit.shifts(cases, ref)))
-    if cfg.psf_sigma_err_px > 0:
+    if cfg.psf_sigma_err_px > 0 and not cfg.edge_sigmas_px:  # a free edge has no one PSF width
         c0 = replace(cfg, psf_sigma_err_px=0.0)
         cases = [
             (f"{s:+d}σ", {"config": replace(c0, psf_sigma_px=cfg.psf_sigma_px + s * cfg.psf_sigma_err_px)})

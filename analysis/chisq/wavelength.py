@@ -153,6 +153,7 @@ def _result(
     nuis = tuple(
         Nuisance(NUISANCES[k], UNITS[NUISANCES[k]], float(shifts[k]), float(prob.prior_sigma[k]))
         for k in prob.active
+        if k < len(NUISANCES)
     )
     fit_arr, err_arr, halo_arr = (np.asarray(info[k]) for k in ("fit", "err", "halo"))
     models = tuple(

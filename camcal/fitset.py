@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -28,15 +28,26 @@ from analysis.chisq import (
     collect_settings,
     fit_wavelength,
 )
+from analysis.chisq.phase_results import PhaseConfig
 from analysis.chisq.systematics import SystematicsConfig, systematic_budget, variation_settings
 from analysis.transport.cache import TemplateCache
 from analysis.transport.disk import disk_radius_px
 from analysis.transport.scene import LEM_RADIUS_M
+from analysis.transport.smooth import SmoothTemplates
+from analysis.transport.smooth_build import build_smooth_templates
+from analysis.transport.smooth_variants import higher_order_variants
+from analysis.transport.source import HaloSource
 from analysis.transport.template_settings import DEFAULT_LAMBDA_SCA_NODES_M
-from analysis.transport.templates import TemplateGrid, TemplateSettings, build_template_grid
+from analysis.transport.templates import TemplateSettings, build_template_grid
 from camcal.core.frameset import FrameSetError
 from camcal.core.parallel import process_pool
 from camcal.pipeline import FrameSetAnalysis, Overrides, analyze_folder
+
+#: Template kinds: smooth in all four optical parameters (exact first order + small-angle orders), or
+#: the Monte Carlo grid (nodes in λ_sca, one phase function).
+SMOOTH = "smooth"
+MONTE_CARLO = "monte-carlo"
+TEMPLATE_KINDS = (SMOOTH, MONTE_CARLO)
 
 #: Focal length in pixels of the T-REX camera (2448 px across a 16° field of view in water).
 TREX_FOCAL_PX = 1224.0 / math.tan(math.radians(8.0))
@@ -70,6 +81,8 @@ class FitOptions:
     wavelengths_nm: tuple[int, ...] | None = None
     fit: FitConfig = field(default_factory=FitConfig)
     systematics: SystematicsConfig | None = field(default_factory=SystematicsConfig)
+    templates: str = SMOOTH
+    float_phase: bool = True
 
     def __post_init__(self) -> None:
         if self.focal_px is not None and not self.focal_px > 0:
@@ -84,6 +97,21 @@ class FitOptions:
             raise ValueError(f"n_photons must be >= 1000, got {self.n_photons}")
         if self.min_frames < 1:
             raise ValueError(f"min_frames must be >= 1, got {self.min_frames}")
+        if self.templates not in TEMPLATE_KINDS:
+            raise ValueError(f"templates must be one of {', '.join(TEMPLATE_KINDS)}, got {self.templates!r}")
+        if self.float_phase and self.templates != SMOOTH:
+            raise ValueError(
+                "the phase function is measured with the smooth templates only: pass --templates smooth, "
+                "or --fix-phase to hold it at --mie-g / --rayleigh-fraction"
+            )
+
+    def fit_config(self) -> FitConfig:
+        """The χ² fit's settings, with the phase function floated when asked."""
+        if self.float_phase and self.fit.phase is None:
+            return replace(self.fit, phase=PhaseConfig(), mie_g=self.mie_g)
+        if not self.float_phase and self.fit.phase is not None:
+            return replace(self.fit, phase=None)
+        return self.fit
 
     def template_settings(self, geometry: Geometry, n_bands: int) -> TemplateSettings:
         return TemplateSettings.near_far(
@@ -250,7 +278,7 @@ def _check(fit: ChiSquareFit, att: AttenuationResult | None) -> AttenuationCheck
 
 
 def _fit_job(
-    args: tuple[int, list[SettingProfiles], TemplateGrid, Geometry, EmissionRatio, FitConfig],
+    args: tuple[int, list[SettingProfiles], HaloSource, Geometry, EmissionRatio, FitConfig],
 ) -> ChiSquareFit | str:
     """One wavelength's fit, or why it failed (the other wavelengths go on)."""
     try:
@@ -260,9 +288,7 @@ def _fit_job(
 
 
 def _budget_job(
-    args: tuple[
-        ChiSquareFit, list[SettingProfiles], TemplateGrid, dict[str, TemplateGrid], SystematicsConfig
-    ],
+    args: tuple[ChiSquareFit, list[SettingProfiles], HaloSource, Mapping[str, HaloSource], SystematicsConfig],
 ) -> ChiSquareFit | str:
     """The fit with its systematic budget attached, or why the budget failed."""
     fit = args[0]
@@ -412,10 +438,9 @@ def fit_analysis(
     notes: dict[int, str] = {}
     pool = process_pool(workers) if workers > 1 else None  # one pool: templates, fits and budgets
     try:
-        grid = build_template_grid(
-            tsettings, TemplateCache(options.cache_dir), executor=pool, progress=stage("templates")
-        )
-        jobs = [(wl, s, grid, geometry, ratios[wl], options.fit) for wl, s in sorted(todo.items())]
+        grid = _templates(tsettings, options, pool, stage("templates"))
+        cfg = options.fit_config()
+        jobs = [(wl, s, grid, geometry, ratios[wl], cfg) for wl, s in sorted(todo.items())]
         fits: dict[int, ChiSquareFit] = {}
         for job, res in zip(jobs, _map(_fit_job, jobs, pool, stage("fitting")), strict=True):
             if isinstance(res, str):
@@ -433,10 +458,23 @@ def fit_analysis(
     return FolderFit(an, fits, checks, skipped, tsettings, options, geometry, notes)
 
 
+def _templates(
+    settings: TemplateSettings,
+    options: FitOptions,
+    pool: ProcessPoolExecutor | None,
+    progress: Callable[[int, int], None] | None,
+) -> HaloSource:
+    """The fit's templates: smooth ones, or the Monte Carlo grid (`FitOptions.templates`)."""
+    cache = TemplateCache(options.cache_dir)
+    if options.templates == SMOOTH:
+        return build_smooth_templates(settings, cache, executor=pool, progress=progress)
+    return build_template_grid(settings, cache, executor=pool, progress=progress)
+
+
 def _with_budgets(
     fits: dict[int, ChiSquareFit],
     todo: dict[int, list[SettingProfiles]],
-    grid: TemplateGrid,
+    grid: HaloSource,
     options: FitOptions,
     workers: int,
     pool: ProcessPoolExecutor | None,
@@ -447,11 +485,14 @@ def _with_budgets(
     assert options.systematics is not None
     lam_sca = [f.lambda_sca_m for f in fits.values()]
     cache = TemplateCache(options.cache_dir)
+    if options.templates == SMOOTH:
+        smooth = _smooth_variations(grid, options, pool, stage)
+        return _attach_budgets(fits, todo, grid, smooth, options.systematics, pool, stage, notes)
     variants = variation_settings(grid.settings, lam_sca, options.systematics)
     n_pieces = sum(len(v.mie_g_nodes) * (1 + len(v.lambda_sca_nodes_m)) for v in variants.values())
     report = stage("sys templates")
     done = 0
-    vgrids: dict[str, TemplateGrid] = {}
+    vgrids: dict[str, HaloSource] = {}
     for name, vs in variants.items():
         base = done
 
@@ -461,7 +502,41 @@ def _with_budgets(
 
         vgrids[name] = build_template_grid(vs, cache, executor=pool, progress=piece)
         done += len(vs.mie_g_nodes) * (1 + len(vs.lambda_sca_nodes_m))
-    jobs = [(f, todo[wl], grid, vgrids, options.systematics) for wl, f in sorted(fits.items())]
+    return _attach_budgets(fits, todo, grid, vgrids, options.systematics, pool, stage, notes)
+
+
+def _smooth_variations(
+    grid: HaloSource,
+    options: FitOptions,
+    pool: ProcessPoolExecutor | None,
+    stage: Callable[[str], Callable[[int, int], None] | None],
+) -> dict[str, HaloSource]:
+    """The budget's templates with smooth ones: the other emission shapes, the small-angle orders
+    scaled by their stated accuracy (cheap: tables of the same geometry, built once and cached)."""
+    assert options.systematics is not None
+    cache = TemplateCache(options.cache_dir)
+    out: dict[str, HaloSource] = {}
+    for shape in options.systematics.emission_shapes:
+        settings = replace(grid.settings, emission_shape=shape)
+        report = stage("sys templates")
+        out[f"emission={shape}"] = build_smooth_templates(settings, cache, executor=pool, progress=report)
+    assert isinstance(grid, SmoothTemplates)
+    out.update(higher_order_variants(grid))
+    return out
+
+
+def _attach_budgets(
+    fits: dict[int, ChiSquareFit],
+    todo: dict[int, list[SettingProfiles]],
+    grid: HaloSource,
+    vgrids: Mapping[str, HaloSource],
+    config: SystematicsConfig,
+    pool: ProcessPoolExecutor | None,
+    stage: Callable[[str], Callable[[int, int], None] | None],
+    notes: dict[int, str],
+) -> dict[int, ChiSquareFit]:
+    """Each fit with its budget on the variations' templates (in the pool)."""
+    jobs = [(f, todo[wl], grid, vgrids, config) for wl, f in sorted(fits.items())]
     out = dict(fits)
     for job, res in zip(jobs, _map(_budget_job, jobs, pool, stage("systematics")), strict=True):
         wl = job[0].wavelength_nm

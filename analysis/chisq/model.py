@@ -11,7 +11,8 @@ from analysis.attenuation import EmissionRatio, Geometry
 from analysis.chisq.data import FitInputError, SettingProfiles, quantisation_bias_gray
 from analysis.chisq.results import NUISANCES, FitConfig
 from analysis.transport.disk import BandPixels, disk_radius_px, disk_transmittance
-from analysis.transport.templates import EmissionProfile, TemplateGrid
+from analysis.transport.source import HaloSource
+from analysis.transport.templates import EmissionProfile
 
 
 class OutsideTemplates(ValueError):
@@ -41,7 +42,7 @@ class Problem:
     def __init__(
         self,
         settings: Sequence[SettingProfiles],
-        grid: TemplateGrid,
+        grid: HaloSource,
         geometry: Geometry,
         ratio: EmissionRatio,
         config: FitConfig,

@@ -15,13 +15,13 @@ import numpy as np
 from analysis.chisq.data import SettingProfiles
 from analysis.chisq.results import NUISANCES, ChiSquareFit
 from analysis.chisq.wavelength import make_objective
-from analysis.transport.templates import TemplateGrid
+from analysis.transport.source import HaloSource
 
 
 class Refitter:
     """Refits of one wavelength's data from the nominal minimum, with some inputs replaced."""
 
-    def __init__(self, fit: ChiSquareFit, settings: Sequence[SettingProfiles], grid: TemplateGrid) -> None:
+    def __init__(self, fit: ChiSquareFit, settings: Sequence[SettingProfiles], grid: HaloSource) -> None:
         self.settings = settings
         self.inputs: dict[str, object] = {
             "grid": grid,
@@ -34,6 +34,8 @@ class Refitter:
         self.mask = np.array(
             [1.0 if fit.lambda_abs.measured else np.nan, 1.0 if fit.lambda_sca.measured else np.nan, 1.0, 1.0]
         )
+        # A fit that measured the phase function is refitted at the phase function it found.
+        self.phase = (fit.mie_g, fit.rayleigh_share) if fit.phase is not None else None
         self.n_refits = 0
         self.edge_hits = 0
         # Only a fit that strained a calibration asks how far each refit moves them (`max_pull`).
@@ -57,6 +59,8 @@ class Refitter:
             kw["config"],  # type: ignore[arg-type]
             self._disks,
         )
+        if self.phase is not None:
+            obj.prob.set_phase(*self.phase)
         p = obj.minimise(self.start, near=True)
         best = np.exp(p)
         self.n_refits += 1

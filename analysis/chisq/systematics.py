@@ -66,7 +66,8 @@ from analysis.chisq.results import (
     SystematicBudget,
     SystematicShift,
 )
-from analysis.transport.templates import TemplateGrid, TemplateSettings
+from analysis.transport.source import HaloSource
+from analysis.transport.templates import TemplateSettings
 
 
 @dataclass(frozen=True)
@@ -268,8 +269,8 @@ def phase_limits(fit: ChiSquareFit, refits: Sequence[np.ndarray]) -> tuple[float
 def systematic_budget(
     fit: ChiSquareFit,
     settings: Sequence[SettingProfiles],
-    grid: TemplateGrid,
-    variations: Mapping[str, TemplateGrid],
+    grid: HaloSource,
+    variations: Mapping[str, HaloSource],
     config: SystematicsConfig | None = None,
 ) -> SystematicBudget:
     """Refit with each variation and return the shifts of λ_abs, λ_sca and λ_att.
@@ -288,7 +289,9 @@ def systematic_budget(
     move = (0.0, 0.0, 0.0)
     g0, r0 = fit.mie_g, grid.settings.rayleigh_fraction
     gs, rs = config.mie_g_values(g0), config.rayleigh_values(r0)
-    if all(f"phase:rayleigh={r:g}" in variations for r in rs):
+    # A fit that measured the phase function has its spread inside its errors already (the lengths'
+    # envelope over the phase functions the data allow): no phase line then.
+    if fit.phase is None and all(f"phase:rayleigh={r:g}" in variations for r in rs):
         cases = [
             (f"{g:g}/{r:g}", {"grid": variations[f"phase:rayleigh={r:g}"], "config": replace(cfg, mie_g=g)})
             for r in rs
@@ -369,6 +372,13 @@ def systematic_budget(
             note = "error: √(mean shift²/2), two samples differing by √2 of one's error"
         note += EDGE_NOTE if refit.edge_hits > hits else ""
         items.append(_shift_item("template_sample", label, cases, d, sample_err, note=note))
+    cases = [(key, {"grid": variations[key]}) for key in ("higher=-1", "higher=+1") if key in variations]
+    if cases:
+        hits = refit.edge_hits
+        d = refit.shifts(cases)
+        label = "templates' small-angle orders (≥ 2) at their stated accuracy"
+        note = EDGE_NOTE if refit.edge_hits > hits else ""
+        items.append(_shift_item("higher_orders", label, cases, d, _largest(d), note=note))
     rel = cfg.lambda_sca_sys_rel
     acc = np.array(
         [[0.0, fit.lambda_sca_m * rel * refit.mask[1], fit.lambda_att_m**2 / fit.lambda_sca_m * rel, 0.0]]

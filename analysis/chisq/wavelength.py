@@ -26,12 +26,12 @@ from analysis.chisq.results import (
     Nuisance,
     SettingModel,
 )
-from analysis.transport.templates import TemplateGrid
+from analysis.transport.source import HaloSource
 
 
 def make_objective(
     settings: Sequence[SettingProfiles],
-    grid: TemplateGrid,
+    grid: HaloSource,
     geometry: Geometry,
     ratio: EmissionRatio,
     config: FitConfig,
@@ -48,7 +48,7 @@ def make_objective(
 def fit_wavelength(
     wavelength_nm: int,
     settings: Sequence[SettingProfiles],
-    grid: TemplateGrid,
+    grid: HaloSource,
     geometry: Geometry,
     ratio: EmissionRatio,
     config: FitConfig | None = None,

@@ -78,7 +78,7 @@ def test_errors_are_scaled_when_the_model_does_not_describe_the_data(
     honest = fit_wavelength(WAVELENGTH_NM, prof, grid, GEOMETRY, EMISSION_RATIO, QUICK)
     claimed = fit_wavelength(WAVELENGTH_NM, _shrink_errors(prof, 0.4), grid, GEOMETRY, EMISSION_RATIO, QUICK)
     assert honest.error_scale == pytest.approx(max(1.0, math.sqrt(honest.chi2_ndof)))
-    assert claimed.chi2_ndof > 1.8
+    assert claimed.chi2_ndof > 1.5
     assert claimed.error_scale == pytest.approx(math.sqrt(claimed.chi2_ndof))
     # The same data's intervals at Δχ² = 1 (unscaled), from the fit's own objective and minimum.
     obj = make_objective(_shrink_errors(prof, 0.4), grid, GEOMETRY, EMISSION_RATIO, QUICK)

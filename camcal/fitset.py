@@ -512,7 +512,9 @@ def _smooth_variations(
     stage: Callable[[str], Callable[[int, int], None] | None],
 ) -> dict[str, HaloSource]:
     """The budget's templates with smooth ones: the other emission shapes, the small-angle orders
-    scaled by their stated accuracy (cheap: tables of the same geometry, built once and cached)."""
+    scaled by their stated accuracy (cheap: tables of the same geometry, built once and cached),
+    and with the phase function held fixed the same templates at each Rayleigh share of the prior
+    (the share a template defaults to is its settings')."""
     assert options.systematics is not None
     cache = TemplateCache(options.cache_dir)
     out: dict[str, HaloSource] = {}
@@ -522,6 +524,10 @@ def _smooth_variations(
         out[f"emission={shape}"] = build_smooth_templates(settings, cache, executor=pool, progress=report)
     assert isinstance(grid, SmoothTemplates)
     out.update(higher_order_variants(grid))
+    if not options.float_phase:  # held fixed: the budget's phase line refits over the priors
+        for share in options.systematics.rayleigh_values(grid.settings.rayleigh_fraction):
+            held = replace(grid.settings, rayleigh_fraction=share)
+            out[f"phase:rayleigh={share:g}"] = replace(grid, settings=held)
     return out
 
 

@@ -71,7 +71,7 @@ class FitConfig:
     focal_rel_err: float = 0.003
     halo_scale_err: float = 0.005
     halo_shape_err: float = 0.01
-    halo_shape_step: float = 0.15
+    halo_shape_step: float = 0.06
     lambda_sca_sys_rel: float = 0.005
     model_rel_err: float = 0.002
     min_band_pixels: int = 16

@@ -86,8 +86,27 @@ def fit(
             "2448 px in water)."
         ),
     ] = None,
-    mie_g: Annotated[float, typer.Option(help="Mie <cos theta> of the templates (held fixed).")] = 0.93,
-    rayleigh_fraction: Annotated[float, typer.Option(help="Share of scattering that is Rayleigh.")] = 0.17,
+    mie_g: Annotated[
+        float, typer.Option(help="Mie <cos theta>: the phase map's start, or its value with --fix-phase.")
+    ] = 0.93,
+    rayleigh_fraction: Annotated[
+        float, typer.Option(help="Share of scattering that is Rayleigh (start, or value with --fix-phase).")
+    ] = 0.17,
+    templates: Annotated[
+        str,
+        typer.Option(
+            help="smooth: exact first order + small-angle orders, smooth in all four optical parameters "
+            "(measures the phase function); monte-carlo: the Monte Carlo grid of one phase function."
+        ),
+    ] = "smooth",
+    phase: Annotated[
+        bool,
+        typer.Option(
+            "--phase/--fix-phase",
+            help="Measure Mie <cos theta> and the Rayleigh share from the halo (smooth templates), or hold "
+            "them at --mie-g / --rayleigh-fraction (then the budget varies them over their priors).",
+        ),
+    ] = True,
     refractive_index: Annotated[
         float, typer.Option(help="Refractive index (recorded with the templates).")
     ] = 1.35,
@@ -153,6 +172,8 @@ def fit(
             lambda_sca_nodes_m=tuple(sorted(set(nodes))),
             mie_g=mie_g,
             rayleigh_fraction=rayleigh_fraction,
+            templates=templates,
+            float_phase=phase and templates == "smooth",
             refractive_index=refractive_index,
             n_photons=photons,
             seed=seed,

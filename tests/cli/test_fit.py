@@ -93,8 +93,44 @@ def fit_args(folder: Path, cache_dir: Path, *extra: str) -> list[str]:
         "--workers",
         "2",
         "--quiet",
+        "--templates",
+        "monte-carlo",
         *extra,
     ]
+
+
+def test_the_default_fit_measures_the_phase_function_or_says_why_it_cannot(
+    frameset: Path, tmp_path: Path
+) -> None:
+    """Smooth templates, Mie ⟨cos θ⟩ and the Rayleigh share floated: the JSON carries them (a value, a
+    limit or a degenerate case, never a bare number) with the Δχ² map, and the lengths' intervals
+    hold the truth whatever the data could say about the phase function."""
+    code, output = run(
+        "fit", str(frameset), "--cache-dir", str(tmp_path / "smooth"), "--workers", "2", "--quiet",
+        NO_BUDGET, "--json", str(tmp_path / "fit.json"),
+    )  # fmt: skip
+    assert code == 0, output
+    (res,) = json.loads((tmp_path / "fit.json").read_text())["fits"]
+    assert res["g_mie_fixed"] is False and res["rayleigh_share_fixed"] is False
+    assert res["phase_case"] in ("measured", "limit", "degenerate"), res["phase_case"]
+    assert res["phase_case_text"] and "phase function" in output
+    phase = res["phase"]
+    if res["phase_case"] == "measured":
+        assert res["g_mie"] is not None and res["g_mie_err"] > 0
+    else:  # a limit or nothing: no value to quote
+        assert res["g_mie"] is None and phase["g_mie"]["status"] != "measured"
+    grid = res["phase_map"]
+    assert len(grid["dchi2"]) == len(grid["rayleigh_share"]) and len(grid["dchi2"][0]) == len(grid["g_mie"])
+    assert min(min(row) for row in grid["dchi2"]) == pytest.approx(0.0, abs=0.5)
+    # The lengths: the truth (the default phase function of the simulator) inside the quoted intervals.
+    for key, truth in (("lambda_abs", TRUTH.lambda_abs_m), ("lambda_sca", TRUTH.lambda_sca_m)):
+        entry = res[key]
+        if entry["status"] == "measured":
+            lo, hi = entry["interval_m"]
+            assert lo - 2 * (hi - lo) < truth < hi + 2 * (hi - lo), (key, entry)
+        else:
+            assert entry["status"] == "lower_limit" and entry["limit_m"] < truth, (key, entry)
+    assert res["fit_quality_ok"] is True, res["fit_quality_reason"]
 
 
 #: The systematic budget refits every wavelength a dozen times: tested on its own (slow).

@@ -147,7 +147,8 @@ def test_the_dive_fit_takes_the_sets_focal_length(imported: dict[str, object], t
     setup = json.loads((Path(str(imported["folder"])) / "setup.json").read_text())
     done = camcal_cli(
         "fit", "--dive", str(imported["dive"]), "--data", str(data), "--wavelength", "460",
-        "--photons", "20000", "--sca-nodes", "40,70", "--cache-dir", str(tmp_path / "templates"),
+        "--photons", "20000", "--sca-nodes", "40,70", "--templates", "monte-carlo",
+        "--cache-dir", str(tmp_path / "templates"),
         "--workers", "2", "--quiet", "--no-systematics", "--no-store", "--json", str(tmp_path / "fit.json"),
         timeout=300,
     )  # fmt: skip

@@ -64,7 +64,8 @@ def reports(dive: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> d
     fit_json = out / "fit.json"
     code, fit_text = run(
         "fit", "--dive", name, "--data", data, "--wavelength", "460", "--photons", "20000",
-        "--sca-nodes", "55,90", "--cache-dir", out / "templates", "--workers", "2", "--quiet",
+        "--sca-nodes", "55,90", "--templates", "monte-carlo", "--cache-dir", out / "templates",
+        "--workers", "2", "--quiet",
         "--no-systematics", "--json", fit_json,
     )  # fmt: skip
     assert code == 0, fit_text

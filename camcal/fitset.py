@@ -28,8 +28,10 @@ from analysis.chisq import (
     collect_settings,
     fit_wavelength,
 )
-from analysis.chisq.phase_results import PhaseConfig
+from analysis.chisq.phase import combine_maps
+from analysis.chisq.phase_results import PhaseConfig, PhaseMap
 from analysis.chisq.systematics import SystematicsConfig, systematic_budget, variation_settings
+from analysis.chisq.wavelength import phase_map
 from analysis.transport.cache import TemplateCache
 from analysis.transport.disk import disk_radius_px
 from analysis.transport.scene import LEM_RADIUS_M
@@ -83,6 +85,7 @@ class FitOptions:
     systematics: SystematicsConfig | None = field(default_factory=SystematicsConfig)
     templates: str = SMOOTH
     float_phase: bool = True
+    joint_phase: bool = True
 
     def __post_init__(self) -> None:
         if self.focal_px is not None and not self.focal_px > 0:
@@ -277,8 +280,41 @@ def _check(fit: ChiSquareFit, att: AttenuationResult | None) -> AttenuationCheck
     )
 
 
-def _fit_job(
+def _phase_maps(
+    todo: dict[int, list[SettingProfiles]],
+    grid: HaloSource,
+    geometry: Geometry,
+    ratios: dict[int, EmissionRatio],
+    cfg: FitConfig,
+    options: FitOptions,
+    pool: ProcessPoolExecutor | None,
+    stage: Callable[[str], Callable[[int, int], None] | None],
+) -> dict[int, PhaseMap]:
+    """Each wavelength's phase map (in the pool), combined across wavelengths when asked: Mie
+    ⟨cos θ⟩ shared (`combine_maps`). Empty when the phase function is held fixed; a wavelength whose
+    map failed is fitted with its own map (its fit then says why it fails)."""
+    if cfg.phase is None:
+        return {}
+    jobs = [(wl, s, grid, geometry, ratios[wl], cfg) for wl, s in sorted(todo.items())]
+    maps = {
+        job[0]: res
+        for job, res in zip(jobs, _map(_map_job, jobs, pool, stage("phase maps")), strict=True)
+        if isinstance(res, PhaseMap)
+    }
+    return combine_maps(maps) if options.joint_phase and len(maps) > 1 else maps
+
+
+def _map_job(
     args: tuple[int, list[SettingProfiles], HaloSource, Geometry, EmissionRatio, FitConfig],
+) -> PhaseMap | str | None:
+    try:
+        return phase_map(*args)
+    except (FitInputError, ValueError) as exc:
+        return f"{args[0]} nm: no phase map: {exc}"
+
+
+def _fit_job(
+    args: tuple[int, list[SettingProfiles], HaloSource, Geometry, EmissionRatio, FitConfig, PhaseMap | None],
 ) -> ChiSquareFit | str:
     """One wavelength's fit, or why it failed (the other wavelengths go on)."""
     try:
@@ -440,7 +476,8 @@ def fit_analysis(
     try:
         grid = _templates(tsettings, options, pool, stage("templates"))
         cfg = options.fit_config()
-        jobs = [(wl, s, grid, geometry, ratios[wl], cfg) for wl, s in sorted(todo.items())]
+        maps = _phase_maps(todo, grid, geometry, ratios, cfg, options, pool, stage)
+        jobs = [(wl, s, grid, geometry, ratios[wl], cfg, maps.get(wl)) for wl, s in sorted(todo.items())]
         fits: dict[int, ChiSquareFit] = {}
         for job, res in zip(jobs, _map(_fit_job, jobs, pool, stage("fitting")), strict=True):
             if isinstance(res, str):

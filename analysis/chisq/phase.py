@@ -88,7 +88,7 @@ def scan_phase(obj: Objective, start: np.ndarray, config: PhaseConfig) -> PhaseM
         lnl[:, j, i] = best
         done.append((j, i))
     prob.set_phase(g0, f0)
-    return PhaseMap(gs, fs, chi2, lnl)
+    return PhaseMap(gs, fs, chi2, lnl, prob.n_bins() - prob.n_linear() - 4)
 
 
 def source_phase_ranges(source: object) -> tuple[tuple[float, float], tuple[float, float]] | None:
@@ -164,6 +164,8 @@ def phase_estimates(
         _weighted_corr(np.broadcast_to(fine.f[:, None], d.shape), fine.ln_lambda[1], post),
     )
     case, text = _case(g_par, f_par, m_par, fine)
+    if pmap.joint:
+        text += f"; Mie ⟨cos θ⟩ shared with {', '.join(f'{v} nm' for v in pmap.joint)}"
     fit = PhaseFit(
         case, text, g_par, f_par, m_par, best, corr, pmap, (pmap.chi2 - float(np.min(fine.chi2))) / s2, env
     )
@@ -268,3 +270,44 @@ def _words(p: PhaseParameter) -> str:
     if p.status == UPPER_LIMIT:
         return f"< {p.limit:.3f} (95 % CL)"
     return "not constrained"
+
+
+def profile_in_g(pmap: PhaseMap) -> np.ndarray:
+    """The map's χ² at each ⟨cos θ⟩ node, minimised over the Rayleigh share (on a fine spline)."""
+    g, f = pmap.mie_g, pmap.rayleigh_share
+    fine_f = np.linspace(f[0], f[-1], 81)
+    ky = min(3, len(f) - 1)
+    kx = min(3, len(g) - 1)
+    values = RectBivariateSpline(g, f, pmap.chi2.T, kx=kx, ky=ky, s=0)(g, fine_f)  # (n_g, n_fine)
+    return np.asarray(values.min(axis=1))
+
+
+def combine_maps(maps: dict[int, PhaseMap]) -> dict[int, PhaseMap]:
+    """Each wavelength's map with the other wavelengths' χ² profiles in ⟨cos θ⟩ added: Mie ⟨cos θ⟩
+    shared by all wavelengths (the particles' phase function barely changes from 405 to 525 nm),
+    each wavelength's Rayleigh share its own (pure water's grows as λ^-4.3, the particles' scattering
+    less steeply). Each profile enters in units of its own error scale², then the sum is put back
+    in the wavelength's own (`phase_estimates` divides by it). Maps on other ⟨cos θ⟩ nodes are left
+    alone."""
+    out = dict(maps)
+    for wl, own in maps.items():
+        others = [
+            (v, m)
+            for v, m in maps.items()
+            if v != wl and m.mie_g.shape == own.mie_g.shape and np.allclose(m.mie_g, own.mie_g)
+        ]
+        if not others:
+            continue
+        added = np.zeros(len(own.mie_g))
+        for _, m in others:
+            prof = profile_in_g(m)
+            added += (prof - prof.min()) / m.scale**2
+        out[wl] = PhaseMap(
+            own.mie_g,
+            own.rayleigh_share,
+            own.chi2 + own.scale**2 * added[None, :],
+            own.ln_lambda,
+            own.ndof,
+            tuple(sorted(v for v, _ in others)),
+        )
+    return out

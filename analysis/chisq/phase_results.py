@@ -69,6 +69,15 @@ class PhaseMap:
     rayleigh_share: np.ndarray = field(repr=False)  # (n_f,)
     chi2: np.ndarray = field(repr=False)  # (n_f, n_g)
     ln_lambda: np.ndarray = field(repr=False)  # (2, n_f, n_g): ln λ_abs, ln λ_sca at each node's minimum
+    ndof: int = 0  # of the fit at each node (for its error scale); 0: unknown
+    joint: tuple[int, ...] = ()  # other wavelengths [nm] whose profile in ⟨cos θ⟩ is added (`combine_maps`)
+
+    @property
+    def scale(self) -> float:
+        """√(χ²/ndof) at the map's minimum, at least 1 (1 when ndof is unknown)."""
+        if self.ndof <= 0:
+            return 1.0
+        return max(1.0, float(np.sqrt(np.nanmin(self.chi2) / self.ndof)))
 
 
 @dataclass(frozen=True)

@@ -45,6 +45,24 @@ def make_objective(
     return Objective(prob, np.log([list(config.lambda_abs_range_m), list(grid.lambda_sca_range_m)]))
 
 
+def phase_map(
+    wavelength_nm: int,
+    settings: Sequence[SettingProfiles],
+    grid: HaloSource,
+    geometry: Geometry,
+    ratio: EmissionRatio,
+    config: FitConfig,
+) -> PhaseMap | None:
+    """The χ² profiled over the lengths on the (Mie ⟨cos θ⟩, Rayleigh share) map, from the fit at
+    the configured phase function; None when the phase function is not floated (`scan_phase`)."""
+    if config.phase is None or not can_float(grid, config.phase):
+        return None
+    if not settings:
+        raise FitInputError(f"{wavelength_nm} nm: no setting with stacked profiles of both cameras")
+    obj = make_objective(settings, grid, geometry, ratio, config)
+    return scan_phase(obj, obj.minimise(), config.phase)
+
+
 def fit_wavelength(
     wavelength_nm: int,
     settings: Sequence[SettingProfiles],
@@ -52,6 +70,7 @@ def fit_wavelength(
     geometry: Geometry,
     ratio: EmissionRatio,
     config: FitConfig | None = None,
+    pmap: PhaseMap | None = None,
 ) -> ChiSquareFit:
     """Fit λ_abs and λ_sca to the profiles of one wavelength.
 
@@ -68,6 +87,12 @@ def fit_wavelength(
     4. the curvature of χ² at the minimum, times s², gives the covariance
        (hence λ_att's error and the correlation);
     5. Δχ²/s² is mapped on a grid around the minimum for the contour plot.
+
+    With ``config.phase`` (and templates that span phase functions) the
+    phase function is measured first (`phase_map`, or ``pmap`` when given:
+    one the caller combined across wavelengths, `combine_maps`), the lengths
+    refitted at its best point, and their intervals widened to the envelope
+    over the phase functions the data allow.
     """
     config = config or FitConfig()
     if not settings:
@@ -75,9 +100,11 @@ def fit_wavelength(
     obj = make_objective(settings, grid, geometry, ratio, config)
     prob = obj.prob
     best = obj.minimise()
-    pmap = None
-    if config.phase is not None and can_float(grid, config.phase):
+    if config.phase is None or not can_float(grid, config.phase):
+        pmap = None
+    elif pmap is None:
         pmap = scan_phase(obj, best, config.phase)
+    if pmap is not None and config.phase is not None:
         best = _refit_at_best_phase(obj, pmap, config.phase)
     chi2_min = obj(best)
     ndof = prob.n_bins() - prob.n_linear() - 2 - (2 if pmap is not None else 0)

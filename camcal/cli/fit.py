@@ -142,6 +142,14 @@ def fit(
             help="Count the templates' Monte Carlo errors (off for frames simulated from these templates)."
         ),
     ] = True,
+    joint_phase: Annotated[
+        bool,
+        typer.Option(
+            "--joint-phase/--phase-per-wavelength",
+            help="Mie <cos theta> shared by the wavelengths (each keeps its Rayleigh share), or measured "
+            "per wavelength.",
+        ),
+    ] = True,
     distance: DistanceOption = None,
     distance_err: DistanceErrOption = None,
     ratio: RatioOption = None,
@@ -174,6 +182,7 @@ def fit(
             rayleigh_fraction=rayleigh_fraction,
             templates=templates,
             float_phase=phase and templates == "smooth",
+            joint_phase=joint_phase,
             refractive_index=refractive_index,
             n_photons=photons,
             seed=seed,

@@ -117,3 +117,23 @@ def test_an_even_misfit_fails_on_chi2_alone_and_a_good_fit_passes() -> None:
     assert chi2 / 237 > CHI2_NDOF_FAIL and q.failed and not q.concentrated
     good = band_chi2([_setting(rng.normal(size=(2, 120)))], (40.0, 20.0))
     assert assess(sum(b.chi2 for b in good), 237, good).ok
+
+
+def test_wavelengths_that_share_the_mie_cosine_narrow_it_together() -> None:
+    """Three wavelengths each bounding ⟨cos θ⟩ loosely around 0.93 (and one of them skewed): the
+    combined maps measure it, each wavelength keeps its own Rayleigh share, and the text says so."""
+    from analysis.chisq.phase import combine_maps
+
+    def loose(centre: float, share: float) -> PhaseMap:
+        return _map(lambda g, f: ((g - centre) / 0.03) ** 2 + ((f - share) / 0.05) ** 2, valley_sca)
+
+    maps = {405: loose(0.92, 0.25), 460: loose(0.935, 0.17), 525: loose(0.94, 0.10)}
+    alone = {wl: phase_estimates(m, 1.0, (0.005, 0.01), CFG)[0] for wl, m in maps.items()}
+    joint = {wl: phase_estimates(m, 1.0, (0.005, 0.01), CFG)[0] for wl, m in combine_maps(maps).items()}
+    for wl in maps:
+        assert joint[wl].mie_g.err < 0.7 * alone[wl].mie_g.err  # type: ignore[operator]
+        assert joint[wl].mie_g.value == pytest.approx(0.932, abs=0.004)
+        assert joint[wl].rayleigh_share.value == pytest.approx(alone[wl].rayleigh_share.value, abs=0.01)
+        assert "shared with" in joint[wl].case_text
+    # The sum of three parabolas of width 0.03: width 0.03/√3.
+    assert joint[460].mie_g.err == pytest.approx(0.03 / math.sqrt(3), rel=0.25)

@@ -306,29 +306,42 @@ class Problem:
             x[:, cols, c] = self.edge_basis[:, c] * (mod["amp"][c] / norm)[:, None, None]
         y = self.data
         prior = 1.0 / self.prior_sigma[self.active] ** 2
-        a = np.einsum("sicb,scb,sjcb->sij", x, wgt, x)
+        # Flattened over (camera, band), as matrix products: the settings' blocks are small, the
+        # bands many (einsum over five indices cost most of a refit).
+        n_loc, n_k = x.shape[1], len(self.active)
+        xf = x.reshape(n_set, n_loc, -1)
+        wf = wgt.reshape(n_set, -1)
+        yf = y.reshape(n_set, -1)
+        g0 = g.reshape(n_k, n_set, -1).transpose(1, 0, 2)  # (set, k, n)
+        xw = xf * wf[:, None, :]
+        a = xw @ xf.transpose(0, 2, 1)
         # A weak prior on the edge's mixture weights (±1, a whole disk's worth of blur) keeps the local
         # problem regular where a camera's edge holds few bands; it adds Σ w² to χ² below.
-        ridge = np.zeros(x.shape[1])
+        ridge = np.zeros(n_loc)
         ridge[3:] = 1.0 / EDGE_WEIGHT_PRIOR**2
         a = a + np.diag(ridge)[None]
         a_inv = np.linalg.inv(a)
-        cvec = np.einsum("sicb,scb,scb->si", x, wgt, y)
+        cvec = (xw @ yf[:, :, None])[:, :, 0]
+        b0 = xw @ g0.transpose(0, 2, 1)  # (set, loc, k)
+        gw = g0 * wf[:, None, :]
+        c0 = gw @ g0.transpose(0, 2, 1)  # (set, k, k)
+        d0 = (gw @ yf[:, :, None])[:, :, 0]  # (set, k)
         # The nuisances act on s·T: solve with s = 1, rescale their columns by the fitted s, solve again.
         scale = np.ones(n_set)
         for _ in range(3):
-            gs = g * scale[None, :, None, None]
-            b = np.einsum("sicb,scb,kscb->sik", x, wgt, gs)
-            cmat = np.einsum("kscb,scb,lscb->kl", gs, wgt, gs) + np.diag(prior)
-            dvec = np.einsum("kscb,scb,scb->k", gs, wgt, y) - prior * self.work[self.active]
-            schur = cmat - np.einsum("sik,sij,sjl->kl", b, a_inv, b)
-            rhs = dvec - np.einsum("sik,sij,sj->k", b, a_inv, cvec)
-            eps = np.linalg.solve(schur, rhs) if len(self.active) else np.zeros(0)
-            loc = np.einsum("sij,sj->si", a_inv, cvec - np.einsum("sik,k->si", b, eps))
+            b = b0 * scale[:, None, None]
+            cmat = np.tensordot(scale**2, c0, axes=(0, 0)) + np.diag(prior)
+            dvec = scale @ d0 - prior * self.work[self.active]
+            bt = b.transpose(0, 2, 1)
+            schur = cmat - (bt @ (a_inv @ b)).sum(axis=0)
+            rhs = dvec - (bt @ (a_inv @ cvec[:, :, None]))[:, :, 0].sum(axis=0)
+            eps = np.linalg.solve(schur, rhs) if n_k else np.zeros(0)
+            loc = (a_inv @ (cvec - b @ eps)[:, :, None])[:, :, 0]
             if np.allclose(loc[:, 0], scale, rtol=1e-6, atol=0.0):
                 break
             scale = loc[:, 0].copy()
-        fit = np.einsum("si,sicb->scb", loc, x) + np.einsum("k,kscb->scb", eps, gs)
+        local = (loc[:, None, :] @ xf)[:, 0]
+        fit = (local + scale[:, None] * (eps @ g0)).reshape(y.shape)
         resid = y - fit
         chi2 = float(
             np.sum(wgt * resid**2)

@@ -20,16 +20,20 @@ class OutsideTemplates(ValueError):
 
 
 def shape_basis(radius_px: np.ndarray, disk_px: float, step: float) -> np.ndarray:
-    """Hat functions ``step`` apart in ln ρ from the disk's edge to the last band (rows), at ``radius_px``.
+    """The halo's shape functions at ``radius_px`` (rows): first the halo under the disk (1 inside,
+    0 outside), then hat functions ``step`` apart in ln ρ from the disk's edge to the last band.
 
-    They sum to one everywhere; inside the disk the first takes all (the halo under the disk moves
-    with the edge's).
+    Outside the disk the hats sum to one; the halo under the disk is its own (it sits under the
+    direct light, where no other engine's halo is better known than to a few per cent).
     """
+    inside = radius_px < disk_px
     u = np.log(np.maximum(radius_px, disk_px) / disk_px)
     n_knots = max(math.ceil(float(u.max()) / step) + 1, 2)
     knots = np.linspace(0.0, float(u.max()), n_knots)
     width = knots[1] - knots[0] if n_knots > 1 else 1.0
-    return np.clip(1.0 - np.abs(u[None, :] - knots[:, None]) / max(width, 1e-9), 0.0, 1.0)
+    hats = np.clip(1.0 - np.abs(u[None, :] - knots[:, None]) / max(width, 1e-9), 0.0, 1.0)
+    hats[:, inside] = 0.0
+    return np.vstack([inside.astype(np.float64)[None, :], hats])
 
 
 #: Prior width of the edge's mixture weights (per setting and camera; see `Problem.chi2`).
@@ -83,14 +87,15 @@ class Problem:
         # `FitConfig.halo_shape_err`), after the six above.
         self.shape = []
         names = list(NUISANCES)
+        widths: list[float] = []
         for c, (cam, d) in enumerate((("near", geometry.distance_near_m), ("far", geometry.distance_far_m))):
             rd = disk_radius_px(d, self.lem_radius_m, self.focal_px)
             basis = shape_basis(np.arange(n) + 0.5, rd, config.halo_shape_step)
             self.shape.append((c, basis))
-            names += [f"halo_shape_{cam}_{j + 1}" for j in range(len(basis))]
+            names += [f"halo_under_disk_{cam}"] + [f"halo_shape_{cam}_{j}" for j in range(1, len(basis))]
+            widths += [config.halo_disk_err] + [config.halo_shape_err] * (len(basis) - 1)
         self.nuisance_names = tuple(names)
-        n_shape = len(names) - len(NUISANCES)
-        sig = np.concatenate([sig, np.full(n_shape, config.halo_shape_err)])
+        sig = np.concatenate([sig, widths])
         self.active = np.flatnonzero(sig > 0)
         self.prior_sigma = sig
         self.work = np.zeros(len(sig))  # working point: shifts from nominal of the nuisances

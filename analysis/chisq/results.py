@@ -40,7 +40,9 @@ class FitConfig:
     tenth of the radius (or the truth of a test, tabulated by another
     engine with its own noise) then costs χ² once, as it should, instead of
     once per band, as independent per-band errors would, which average down
-    and let the shape's misfit pass for another water or phase function; ``lambda_sca_sys_rel`` the relative
+    and let the shape's misfit pass for another water or phase function;
+    ``halo_disk_err`` that of the halo under the disk per camera (on its
+    own: it sits under the direct light, and sets the disks' brightness); ``lambda_sca_sys_rel`` the relative
     systematic error quoted on λ_sca for the templates' accuracy (the halo's
     radial shape fixes λ_sca to ~0.1 % statistically, finer than the first
     order's quadrature is exact near the LEM's limb, 0.1-0.4 %);
@@ -71,6 +73,7 @@ class FitConfig:
     focal_rel_err: float = 0.003
     halo_scale_err: float = 0.005
     halo_shape_err: float = 0.01
+    halo_disk_err: float = 0.05
     halo_shape_step: float = 0.06
     lambda_sca_sys_rel: float = 0.005
     model_rel_err: float = 0.002
@@ -85,11 +88,17 @@ class FitConfig:
     def __post_init__(self) -> None:
         if not self.psf_sigma_px > 0 or self.psf_sigma_err_px < 0:
             raise ValueError(f"psf_sigma_px must be > 0 and psf_sigma_err_px >= 0, got {self.psf_sigma_px}")
-        errs = (self.focal_rel_err, self.model_rel_err, self.halo_scale_err, self.halo_shape_err)
+        errs = (
+            self.focal_rel_err,
+            self.model_rel_err,
+            self.halo_scale_err,
+            self.halo_shape_err,
+            self.halo_disk_err,
+        )
         if min(*errs, self.lambda_sca_sys_rel) < 0:
             raise ValueError(
-                "focal_rel_err, halo_scale_err, halo_shape_err, lambda_sca_sys_rel and model_rel_err "
-                "must be >= 0"
+                "focal_rel_err, halo_scale_err, halo_shape_err, halo_disk_err, lambda_sca_sys_rel and "
+                "model_rel_err must be >= 0"
             )
         if not self.halo_shape_step > 0:
             raise ValueError(f"halo_shape_step must be > 0, got {self.halo_shape_step}")

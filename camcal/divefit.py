@@ -24,7 +24,7 @@ from camcal.core.frameset import FrameSetError, ManifestRow, Setup
 from camcal.fitdoc import to_json
 from camcal.fitset import FitOptions, FolderFit, fit_analysis
 from camcal.pipeline import Overrides, analyze_rows
-from ingest.derived import Span
+from ingest.spans import Span
 from storage import queries
 from storage.files import UnsafePath
 from storage.store import Store
@@ -41,7 +41,7 @@ class DiveInputs:
     ``run`` is the analysis run whose frames and calibration are used (as
     `storage.queries.runs` lists it), ``calibration`` the calibration
     record in force (None: the run's own setup, or T-REX values), ``span``
-    the span as applied (`ingest.derived.Span.select`).
+    the span as applied (`ingest.spans.Span.select`).
     """
 
     dive: dict[str, Any]

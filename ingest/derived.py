@@ -1,4 +1,5 @@
-"""Results derived from many frames: linearity per module, λ_att over a span, re-analysis.
+"""Results derived from many frames: linearity per module, the dive phase, predictions of settings
+(λ_att over a span: `ingest.spans`).
 
 Used by the live ingest, by re-analyses and by the API, so that all three
 compute these the same way.
@@ -8,13 +9,13 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from analysis import AttenuationResult, EmissionRatio, Geometry, combine_pairs, linearity_fit, pair_result
+from analysis import EmissionRatio, Geometry, linearity_fit
 from analysis.linearity import gain_factor
 from camcal.core.frameset import Setup
 
@@ -102,139 +103,9 @@ def mean_gray_by_setting(
     return {k: {s: float(np.mean(v)) for s, v in d.items()} for k, d in acc.items()}
 
 
-def span_attenuation(rows: Iterable[ResultRow], setup: Setup) -> dict[int, AttenuationResult]:
-    """λ_att per wavelength over a span of frames: stacks per setting, pairs, combination."""
-    gr = geometry_and_ratios(setup)
-    if gr is None:
-        return {}
-    geometry, ratios = gr
-    stacks: dict[tuple[str, int, float, float], list[tuple[float, float]]] = defaultdict(list)
-    for r in rows:
-        if r.status == "ok" and r.i_center_gray is not None and r.i_center_err_gray is not None:
-            stacks[(r.module, r.wavelength_nm, r.exposure_s, r.gain_db)].append(
-                (r.i_center_gray, r.i_center_err_gray)
-            )
-    pairs: dict[int, list[Any]] = defaultdict(list)
-    for (cam, wl, exp, gain), near in stacks.items():
-        if cam != geometry.near_camera or wl not in ratios:
-            continue
-        far = stacks.get((geometry.far_camera, wl, exp, gain))
-        if not far:
-            continue
-        pairs[wl].append(pair_result(wl, exp, gain, _stack(near), _stack(far), geometry, ratios[wl]))
-    out = {}
-    for wl, plist in pairs.items():
-        usable = [p for p in plist if math.isfinite(p.log_ratio) and p.log_ratio_err > 0]
-        if usable:
-            out[wl] = combine_pairs(usable, geometry, ratios[wl])
-    return out
-
-
-#: The station: frames within this many metres of the deepest frame of a dive.
-STATION_SPAN_M = 50.0
-
-
-@dataclass(frozen=True)
-class Span:
-    """A part of a dive: frames between two depths and two times (each bound optional).
-
-    `select` fills a missing lower depth with the station's: the deepest
-    frame's depth minus `STATION_SPAN_M`.
-    """
-
-    depth_min_m: float | None = None
-    depth_max_m: float | None = None
-    t_from: float | None = None
-    t_to: float | None = None
-
-    def select(self, rows: Sequence[Mapping[str, Any]]) -> tuple[list[Mapping[str, Any]], dict[str, Any]]:
-        """The rows (``depth_m``, ``captured_unix_s``) inside the span, and the span as applied."""
-        depths = [r["depth_m"] for r in rows if r["depth_m"] is not None]
-        lo = self.depth_min_m
-        if lo is None and depths:
-            lo = max(depths) - STATION_SPAN_M
-        hi = self.depth_max_m
-        sel = [
-            r
-            for r in rows
-            if (lo is None or (r["depth_m"] is not None and r["depth_m"] >= lo))
-            and (hi is None or (r["depth_m"] is not None and r["depth_m"] <= hi))
-            and (self.t_from is None or r["captured_unix_s"] >= self.t_from)
-            and (self.t_to is None or r["captured_unix_s"] <= self.t_to)
-        ]
-        info = {
-            "depth_min_m": lo,
-            "depth_max_m": hi,
-            "t_from": self.t_from,
-            "t_to": self.t_to,
-            "n_frames": len(sel),
-        }
-        return sel, info
-
-
 def result_row(r: Mapping[str, Any]) -> ResultRow:
     """A `ResultRow` from a `storage.queries.result_rows` dict."""
     return ResultRow(*(r[k] for k in ResultRow.__dataclass_fields__))
-
-
-def attenuation_over_span(
-    rows: Sequence[Mapping[str, Any]], setup: Setup, span: Span | None = None
-) -> tuple[dict[str, Any], dict[int, AttenuationResult]]:
-    """λ_att per wavelength over a span of a run's results (default: the station), and the span applied.
-
-    ``rows`` are `storage.queries.result_rows` dicts. The API's λ_att
-    table, ``camcal report`` and ``camcal fit --dive`` all take their span here.
-    """
-    sel, info = (span or Span()).select(rows)
-    gr = geometry_and_ratios(setup)
-    if gr is not None and sel:
-        near, far = gr[0].near_camera, gr[0].far_camera
-        present = sorted({r["module"] for r in sel})
-        if near not in present or far not in present:  # the modules hang apart: a depth range can cut one
-            info["note"] = (
-                f"the span holds frames of {', '.join(present)} only: λ_att needs both {near} and {far} "
-                f"({gr[0].baseline_m:.0f} m apart along the cable): widen it"
-            )
-    return info, span_attenuation([result_row(r) for r in sel], setup)
-
-
-def _stack(values: list[tuple[float, float]]) -> tuple[float, float, int]:
-    v = np.array([x for x, _ in values])
-    e = np.array([x for _, x in values])
-    n = len(v)
-    propagated = float(np.sqrt(np.sum(e**2)) / n)
-    scatter = float(v.std(ddof=1) / math.sqrt(n)) if n >= 3 else 0.0
-    return float(v.mean()), max(scatter, propagated), n
-
-
-def attenuation_dict(res: AttenuationResult) -> dict[str, Any]:
-    return {
-        "wavelength_nm": res.wavelength_nm,
-        "lambda_att_m": res.lambda_att_m,
-        "stat_err_m": res.stat_err_m,
-        "sys_err_m": res.sys_err_m,
-        "total_err_m": res.total_err_m,
-        "n_pairs": res.n_pairs,
-        "chi2_ndof": res.chi2_ndof,
-        "emission_ratio": res.emission_ratio.value,
-        "emission_ratio_err": res.emission_ratio.err,
-        "note": res.note,
-        "pairs": [
-            {
-                "exposure_s": p.exposure_s,
-                "gain_db": p.gain_db,
-                "i_near_gray": p.i_near_gray,
-                "i_near_err_gray": p.i_near_err_gray,
-                "i_far_gray": p.i_far_gray,
-                "i_far_err_gray": p.i_far_err_gray,
-                "n_near": p.n_near,
-                "n_far": p.n_far,
-                "lambda_att_m": p.lambda_att_m,
-                "stat_err_m": p.stat_err_m,
-            }
-            for p in res.pairs
-        ],
-    }
 
 
 #: A stop within this of the station depth (planned, or the deepest so far) is the station.

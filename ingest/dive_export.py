@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from ingest.derived import attenuation_dict, attenuation_over_span
+from ingest.spans import attenuation_dict, attenuation_over_span
 from storage import queries
 from storage.export import FORMATS, export_dive
 from storage.store import Store
@@ -21,8 +21,8 @@ def station_rows(store: Store, dive_id: int, run_id: int) -> list[dict[str, Any]
         rows = queries.result_rows(s, run_id, dive_id)
     span, table = attenuation_over_span(rows, setup)
     out = []
-    for wl in sorted(table):
-        row = {k: v for k, v in attenuation_dict(table[wl]).items() if k != "pairs"}
+    for wl in sorted(table.overall):
+        row = {k: v for k, v in attenuation_dict(table.overall[wl]).items() if k != "pairs"}
         out.append(
             {
                 "run_id": run_id,

@@ -21,7 +21,18 @@ class DivePublic(BaseModel):
     n_frames: int = 0
     first_frame_unix_s: float | None = None
     last_frame_unix_s: float | None = None
+    #: When the ship received the dive's first and last frame (its own clock).
+    first_received_unix_s: float | None = None
+    last_received_unix_s: float | None = None
     max_depth_m: float | None = None
+    #: ``open`` or ``ended``, and why (`storage.queries.divestate`): an operator ended it, its modules
+    #: came back on deck and signed off or sent nothing for the quiet time; or where it stands.
+    state: Literal["open", "ended"] = "open"
+    state_reason: str = ""
+    #: When it ended (ship's clock); None while open.
+    state_ended_unix_s: float | None = None
+    #: The reason stored with its end (None: not recorded as ended yet).
+    end_reason: str | None = None
 
 
 class FramePublic(BaseModel):
@@ -219,11 +230,23 @@ class AttenuationRow(Open):
     pairs: list[dict[str, Any]]
 
 
+class AttenuationBand(BaseModel):
+    """λ_att of the frames of a span at one depth (the LEM's: a stop, the station, a slice)."""
+
+    depth_min_m: float | None
+    depth_max_m: float | None
+    depth_m: float | None
+    n_frames: int
+    rows: list[AttenuationRow]
+
+
 class AttenuationTable(BaseModel):
     run_id: int
     span: Stored
     calibration: dict[str, Any]
     rows: list[AttenuationRow]
+    #: A table per depth band when the span crosses depths (else empty: ``rows`` is the one band).
+    bands: list[AttenuationBand] = []
 
 
 class ChisqFitSummary(BaseModel):

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from camcal.core.schedule import CameraLimits
+from storage.queries.divestate import DiveRules
 
 
 @dataclass(frozen=True)
@@ -62,3 +63,5 @@ class ServerSettings:
     token_window_s: float = 60.0
     simulation_speed: float | None = None
     trusted_proxies: tuple[str, ...] = ()
+    #: When a dive has ended (`storage.queries.divestate`): the pages show it open or ended, and why.
+    dive_rules: DiveRules = field(default_factory=DiveRules)

@@ -42,6 +42,8 @@ class Dive(Base):
     name: Mapped[str] = mapped_column(String(120), unique=True)
     started_unix_s: Mapped[float] = mapped_column(Float)
     ended_unix_s: Mapped[float | None] = mapped_column(Float)
+    #: Why it ended (an operator, the modules back on deck...; `storage.queries.divestate`).
+    end_reason: Mapped[str | None] = mapped_column(String(300))
     notes: Mapped[str] = mapped_column(Text, default="")
     calibration_id: Mapped[int | None] = mapped_column(ForeignKey("calibrations.id"))
     setup: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)

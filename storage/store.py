@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
 
-from sqlalchemy import Table, and_, case, delete, insert, select, true, update
+from sqlalchemy import Table, and_, case, delete, func, insert, select, true, update
 from sqlalchemy.engine import make_url
 from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session
@@ -27,11 +27,14 @@ from storage.db import DataPaths, database_unusable, error_line, make_engine, mi
 from storage.files import FrameFiles
 from storage.models import Dive, Frame, Gap, IngestCounter, Module, SensorBatch, SensorSample
 from storage.operations_writes import COMMAND_STATES, OperationsWrites
+from storage.queries.divestate import DiveRules, DiveState, dive_state
 
 __all__ = [
     "COMMAND_STATES",
     "DIVE_LOCK_KEY",
     "BatchOutcome",
+    "DiveChoice",
+    "DiveRules",
     "FrameRow",
     "SensorBatchRow",
     "Store",
@@ -40,6 +43,34 @@ __all__ = [
 
 #: Key of the advisory lock that serialises choosing (or creating) the open dive.
 DIVE_LOCK_KEY = 0x63616D64697665  # "camdive"
+
+
+@dataclass(frozen=True)
+class DiveChoice:
+    """The dive a start records into, whether it holds no frame yet, and the dive that start recorded
+    as ended (its name and why) before beginning this one."""
+
+    dive: Dive
+    new: bool
+    ended: tuple[str, DiveState] | None = None
+    #: Why the named dive had ended, when a start named it and so opened it again.
+    reopened: str | None = None
+
+
+def _open_dive(s: Session) -> Dive | None:
+    return s.scalars(
+        select(Dive).where(Dive.ended_unix_s.is_(None)).order_by(Dive.id.desc()).limit(1)
+    ).first()
+
+
+def _new_dive_name(s: Session, t: float) -> str:
+    """``dive-YYYYMMDD-HHMMSS`` (UTC), with a suffix if a dive began in the same second."""
+    base = time.strftime("dive-%Y%m%d-%H%M%S", time.gmtime(t))
+    name, k = base, 1
+    while s.scalar(select(Dive.id).where(Dive.name == name)) is not None:
+        k += 1
+        name = f"{base}-{k}"
+    return name
 
 
 @dataclass
@@ -156,33 +187,70 @@ class Store(AnalysisWrites, OperationsWrites):
             return s.scalars(select(Dive).where(Dive.name == name)).one()
 
     def current_dive(
-        self, *, create: bool = True, name: str | None = None, setup: dict[str, Any] | None = None
+        self,
+        *,
+        create: bool = True,
+        name: str | None = None,
+        setup: dict[str, Any] | None = None,
+        rules: DiveRules | None = None,
     ) -> Dive | None:
         """The dive called ``name`` if one is given, else the open dive (not ended), the most recent first.
 
-        Created if missing and ``create``. Safe under concurrency: processes
-        asking at once for a named dive all get the same row (the name is
-        unique), and the choice of the open dive is serialised by a lock.
+        Created if missing and ``create``; then an open dive that is over (`dive_to_record`) is
+        recorded as ended and a new one begins. Safe under concurrency: processes asking at once
+        for a named dive all get the same row (the name is unique), and the choice of the open
+        dive is serialised by a lock.
         """
         if name is not None:
             return self.open_dive(name, setup) if create else self.call(queries.dive_by_name, name)
+        if create:
+            return self.dive_to_record(setup=setup, rules=rules).dive
         with self.session() as s:
-            if create:
-                self._serialise(s, DIVE_LOCK_KEY)
-            dive = s.scalars(
-                select(Dive).where(Dive.ended_unix_s.is_(None)).order_by(Dive.id.desc()).limit(1)
-            ).first()
-            if dive is None and create:
-                t = now_unix_s()
-                dive = Dive(
-                    name=time.strftime("dive-%Y%m%d-%H%M%S", time.gmtime(t)),
-                    started_unix_s=t,
-                    notes="",
-                    setup=setup or {},
-                )
-                s.add(dive)
-                s.flush()
-            return dive
+            return _open_dive(s)
+
+    def dive_to_record(
+        self, name: str | None = None, setup: dict[str, Any] | None = None, rules: DiveRules | None = None
+    ) -> DiveChoice:
+        """The dive a start records into: ``name`` (created if new), else the open dive, else a new one.
+
+        An open dive that is over by what its modules did (back on deck and signed off, or quiet
+        on deck: `storage.queries.divestate`) is recorded as ended, with its reason, and a new
+        dive begins; a dive still in the water is continued (a restart in the middle of a dive).
+        """
+        if name is not None:  # named: recorded into, an ended one opened again (it said why it ended)
+            dive = self.open_dive(name, setup)
+            reopened = dive.end_reason or ("ended" if dive.ended_unix_s else None)
+            if dive.ended_unix_s:
+                with self.session() as s:
+                    s.execute(
+                        update(Dive).where(Dive.id == dive.id).values(ended_unix_s=None, end_reason=None)
+                    )
+                dive.ended_unix_s, dive.end_reason = None, None
+            n = (self.call(queries.dive_record, dive.id) or {}).get("n_frames", 0)
+            return DiveChoice(dive, new=n == 0, reopened=reopened)
+        with self.session() as s:
+            self._serialise(s, DIVE_LOCK_KEY)
+            current = _open_dive(s)
+            ended = None
+            if current is not None:
+                state = dive_state(s, current, rules)
+                if state.state == "ended":
+                    current.ended_unix_s = state.ended_unix_s or now_unix_s()
+                    current.end_reason = state.reason
+                    ended = (current.name, state)
+                else:
+                    n = s.scalar(select(func.count(Frame.id)).where(Frame.dive_id == current.id)) or 0
+                    return DiveChoice(current, new=n == 0)
+            t = now_unix_s()
+            dive = Dive(
+                name=_new_dive_name(s, t),
+                started_unix_s=t,
+                notes="",
+                setup=setup or {},
+            )
+            s.add(dive)
+            s.flush()
+            return DiveChoice(dive, new=True, ended=ended)
 
     def create_dive(
         self, name: str, setup: dict[str, Any] | None = None, started_unix_s: float | None = None
@@ -200,9 +268,14 @@ class Store(AnalysisWrites, OperationsWrites):
             if dive is not None and not dive.setup:
                 dive.setup = setup
 
-    def end_dive(self, dive_id: int, t: float | None = None) -> None:
+    def end_dive(self, dive_id: int, t: float | None = None, reason: str | None = None) -> None:
+        """Record a dive as ended at ``t`` (now) and why."""
         with self.session() as s:
-            s.execute(update(Dive).where(Dive.id == dive_id).values(ended_unix_s=t or now_unix_s()))
+            s.execute(
+                update(Dive)
+                .where(Dive.id == dive_id)
+                .values(ended_unix_s=t or now_unix_s(), end_reason=(reason or "")[:300] or None)
+            )
 
     # ------------------------------------------------------------ modules
     def touch_module(self, module_id: str, *, seen_unix_s: float | None = None, **values: Any) -> None:

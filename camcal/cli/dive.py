@@ -1,8 +1,12 @@
 """``camcal dive``: the dives in the store, and ending one so that the next deployment is a new dive.
 
 An ingest (and ``camcal up``) without a dive name records into the open
-dive, the newest one not ended, and starts a new one only when there is
-none: without an end, the next deployment's frames join the last one's.
+dive, the newest one not ended, and starts a new one when there is none or
+when the open one is over by what its modules did: back on deck and signed
+off, or back on deck with no frame for ``dive_quiet_s``
+(`storage.queries.divestate`). A dive still in the water is continued, so a
+restart in the middle of a dive does not split it. `dive_for_start` is that
+choice, for ``camcal up`` and ``camcal ingest`` alike.
 """
 
 from __future__ import annotations
@@ -10,12 +14,16 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from camcal.cli.common import DataOption, DbUrlOption, console, fail
 from camcal.cli.data import open_store, store_location
+
+if TYPE_CHECKING:
+    from camcal.core.settings import Settings
+    from storage.queries.divestate import DiveRules
 
 app = typer.Typer(help="The dives in the store: list them, end one.", no_args_is_help=True)
 
@@ -43,6 +51,56 @@ def _recording_here(data: Path) -> list[str]:
     return out
 
 
+def dive_rules(settings: Settings) -> DiveRules:
+    """When a dive is over, as configured (``deck_depth_m``, ``dive_quiet_s``)."""
+    from storage.queries.divestate import DiveRules
+
+    return DiveRules(deck_depth_m=settings.deck_depth_m, quiet_s=settings.dive_quiet_s)
+
+
+def dive_for_start(settings: Settings) -> tuple[str, str]:
+    """The dive a start records into (the configured one, else the open one, else a new one) and a
+    line saying which: new, continued (with how long ago its last frame arrived), or new because the
+    open one is over (and why). Opens (creates or migrates) the store first."""
+    from storage import queries
+    from storage.store import Store
+
+    store = Store.open(settings.data_dir, settings.database_url)
+    try:
+        choice = store.dive_to_record(settings.dive, rules=dive_rules(settings))
+        received = store.call(queries.last_received_unix_s, choice.dive.id)
+    finally:
+        store.close()
+    name = choice.dive.name
+    before = ""
+    if choice.ended is not None:
+        old, state = choice.ended
+        before = f"dive {old} has ended ({state.reason}); "
+    if choice.reopened is not None:
+        before = f"dive {name} had ended ({choice.reopened}); recording into it again as configured; "
+    if choice.new:
+        return name, f"{before}dive {name}: new"
+    line = f"{before}dive {name}: continued"
+    if received is not None:
+        # the ship's own clock: never a negative age from a module's clock running ahead
+        line += f" (its last frame arrived {_ago(time.time() - received)} ago)"
+    if settings.dive is None:
+        line += (
+            "; it is still in the water by its modules' depths. A new deployment? stop, run "
+            "`camcal dive end`, start again"
+        )
+    return name, line
+
+
+def _ago(seconds: float) -> str:
+    seconds = max(0.0, seconds)
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
 def _span(t0: float | None, t1: float | None) -> str:
     """``2026-11-27 22:28–22:30`` (the end's date too when it is another day)."""
     if not t0 or not t1:
@@ -62,26 +120,28 @@ def list_cmd(
     as_json: Annotated[bool, typer.Option("--json", help="Print the dives as JSON.")] = False,
 ) -> None:
     """Every dive, newest first: frames, time span, deepest frame, open or ended."""
+    from camcal.cli.config import settings_or_fail
     from storage import queries
 
+    rules = dive_rules(settings_or_fail(None, data_dir=data, database_url=db_url))
     store = open_store(data, db_url)
     try:
-        dives = store.call(queries.dives)
+        dives = store.call(queries.dives, None, rules)
     finally:
         store.close()
     if as_json:
         print(json.dumps(dives, indent=1))
         return
-    rows = [("id", "name", "frames", "taken (UTC)", "deepest", "state")]
+    rows = [("id", "name", "frames", "received (UTC)", "deepest", "state")]
     for d in dives:
         rows.append(
             (
                 str(d["id"]),
                 d["name"],
                 str(d["n_frames"]),
-                _span(d["first_frame_unix_s"], d["last_frame_unix_s"]),
+                _span(d["first_received_unix_s"], d["last_received_unix_s"]),
                 f"{d['max_depth_m']:.0f} m" if d["max_depth_m"] is not None else "—",
-                f"ended {_utc(d['ended_unix_s'])[:16]}" if d["ended_unix_s"] else "open",
+                _state(d),
             )
         )
     widths = [max(len(r[k]) for r in rows) for k in range(len(rows[0]))]
@@ -91,6 +151,14 @@ def list_cmd(
             c.rjust(w) if k in right else c.ljust(w) for k, (c, w) in enumerate(zip(r, widths, strict=True))
         ]
         console.print("  ".join(cells).rstrip(), highlight=False, soft_wrap=True)
+
+
+def _state(d: dict[str, object]) -> str:
+    """``open: in the water (A at 3420 m)`` / ``ended 2026-11-28 02:10: back on deck and signed off``."""
+    if d["state"] == "ended":
+        t = d["state_ended_unix_s"]
+        return f"ended {_utc(t)[:16] if isinstance(t, float) else ''}: {d['state_reason']}"
+    return f"open: {d['state_reason']}"
 
 
 @app.command("end")
@@ -127,7 +195,7 @@ def end(
                 code=1,
             )
         received = store.call(queries.last_received_unix_s, dive.id)
-        store.end_dive(dive.id)
+        store.end_dive(dive.id, reason=f"ended by {actor} (camcal dive end)")
         store.audit(
             actor,
             "dive.end",

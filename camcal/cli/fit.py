@@ -248,7 +248,7 @@ def fit_stored_dive(
     """Fit a dive of the store over a span; keep the result there unless told not to."""
     from camcal.cli.data import open_store
     from camcal.divefit import dive_fit_json, dive_inputs, fit_dive, store_dive_fit
-    from ingest.derived import Span
+    from ingest.spans import Span
 
     store = open_store(data, db_url)
     try:

@@ -63,9 +63,13 @@ def parse_modules(text: str | None) -> tuple[str, ...]:
     return out
 
 
-def start_service(cfg: Any) -> Any:
-    """Check the ports, then start an `IngestService`; a failure is one line (and exit status 3),
-    told to a supervising `camcal up` too, with nothing left running."""
+def start_service(cfg: Any, settings: Settings | None = None) -> Any:
+    """Check the ports, choose the dive (with ``settings``: `camcal.cli.dive.dive_for_start`), then
+    start an `IngestService`; a failure is one line (and exit status 3), told to a supervising
+    `camcal up` too, with nothing left running."""
+    from dataclasses import replace
+
+    from camcal.cli.dive import dive_for_start
     from ingest.service import IngestService
 
     svc = None
@@ -75,6 +79,10 @@ def start_service(cfg: Any) -> Any:
             supervise.check_endpoint(
                 cfg.events_bind, part="ingest's event publisher", setting="--events (CAMCAL_EVENTS_BIND)"
             )
+        if settings is not None:  # the named dive, the open one still in the water, or a new one
+            name, line = dive_for_start(settings.model_copy(update={"dive": cfg.dive_name}))
+            console.print(line)
+            cfg = replace(cfg, dive_name=name)
         svc = IngestService(cfg)
         svc.start()
         return svc
@@ -191,7 +199,7 @@ def ingest(
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
-    svc = start_service(cfg)
+    svc = start_service(cfg, s)
     console.print(
         f"ingest: modules connect to {svc.endpoint}; events on {svc.events_endpoint}; "
         f"dive {svc.dive.name}; data in {s.data_dir}"

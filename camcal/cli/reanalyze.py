@@ -336,8 +336,9 @@ def _start(
 def _run(
     store: Any, job: dict[str, Any], started: Any, options: Any, runner: Any, cancel: threading.Event
 ) -> dict[str, Any]:
-    from ingest.derived import attenuation_dict, result_row, span_attenuation
+    from ingest.derived import result_row
     from ingest.reanalysis import ReanalysisInterrupted, reanalyse
+    from ingest.spans import span_attenuation_by_band, table_rows
     from storage import queries
 
     d = job["dive"]
@@ -360,7 +361,7 @@ def _run(
         raise fail(f"re-analysis of dive {d.name} failed (run {run_id}): {exc}", code=1) from None
     elapsed = time.perf_counter() - t0
     rows = [result_row(r) for r in store.call(queries.result_rows, run_id, d.id)]
-    table = span_attenuation(rows, setup)
+    table = table_rows(span_attenuation_by_band(rows, setup))  # the whole dive: per depth band
     return {
         "dive": d.name,
         "dive_id": d.id,
@@ -371,8 +372,17 @@ def _run(
         "frames_per_s": round(n / elapsed, 2) if elapsed > 0 else None,
         "calibration": setup.to_json(),
         "calibration_record": f"{record['name']}@{record['version']}" if record else None,
-        "attenuation": [attenuation_dict(table[wl]) for wl in sorted(table)],
+        "attenuation": table["rows"],
+        "attenuation_by_depth": table["bands"],
     }
+
+
+def _depth(band: dict[str, Any]) -> str:
+    """A depth band's label: ``3420 m`` (the LEM's), a range for a tall one."""
+    lo, hi = band["depth_min_m"], band["depth_max_m"]
+    if lo is None or hi is None:
+        return "depth unknown"
+    return f"{(lo + hi) / 2:.0f} m" if hi - lo < 30 else f"{lo:.0f}–{hi:.0f} m"
 
 
 def _print(summaries: list[dict[str, Any]]) -> None:
@@ -382,11 +392,22 @@ def _print(summaries: list[dict[str, Any]]) -> None:
             f"({s['frames_per_s'] or 0:.1f} frames/s), {s['ok_frames']} accepted",
             title_justify="left",
         )
-        for col in ("wavelength", "λ_att [m]", "stat [m]", "sys [m]", "pairs"):
+        bands = s.get("attenuation_by_depth") or []
+        for col in (("depth",) if bands else ()) + (
+            "wavelength",
+            "λ_att [m]",
+            "stat [m]",
+            "sys [m]",
+            "pairs",
+        ):
             t.add_column(col, justify="right")
-        for a in s["attenuation"]:
+        rows = [("whole dive", a) for a in s["attenuation"]] + [
+            (_depth(b), a) for b in bands for a in b["rows"]
+        ]
+        for where, a in rows:
             lam = a["lambda_att_m"]
             t.add_row(
+                *((where,) if bands else ()),
                 f"{a['wavelength_nm']} nm",
                 f"{lam:.2f}" if lam is not None else "—",
                 f"± {a['stat_err_m']:.2f}" if a["stat_err_m"] is not None else "—",
@@ -394,3 +415,6 @@ def _print(summaries: list[dict[str, Any]]) -> None:
                 str(a["n_pairs"]),
             )
         console.print(t)
+        for a in s["attenuation"] if bands else ():  # the whole dive crosses depths: say what that means
+            if a.get("note"):
+                console.print(f"{a['wavelength_nm']} nm over the whole dive: {a['note']}", soft_wrap=True)

@@ -47,6 +47,7 @@ class HttpServer:
 
         from camcal.core.eventport import port_keys, use_curve
         from camcal.core.settings import endpoint_list
+        from camcal.cli.dive import dive_rules
         from server.app import create_app
         from server.settings import ServerSettings
         from storage.store import Store
@@ -65,6 +66,7 @@ class HttpServer:
             trusted_proxies=tuple(settings.http_trusted_proxies),
             keys_dir=settings.keys_path(),
             events_curve=settings.events_curve,
+            dive_rules=dive_rules(settings),
         )
         for endpoint in endpoint_list(events):  # an events port beyond loopback needs the ship's keys
             if use_curve(endpoint, settings.events_curve):

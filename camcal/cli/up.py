@@ -25,6 +25,7 @@ import typer
 from camcal.cli.common import console, err_console, fail, labelled
 from camcal.cli.config import settings_or_fail
 from camcal.cli.credentials import child_environment, ship_key, simulated_link, tokens_or_generated
+from camcal.cli.dive import dive_for_start
 from camcal.cli.serve import HttpServer, bind_http, stop_signals
 from camcal.core import procinfo, runfile, supervise
 from camcal.core.logs import configure_logging
@@ -53,7 +54,10 @@ class Interrupted(Exception):
 
 
 def up(
-    data: Annotated[Path | None, typer.Option(help="Data folder; an open dive there is continued.")] = None,
+    data: Annotated[
+        Path | None,
+        typer.Option(help="Data folder; an open dive there still in the water is continued."),
+    ] = None,
     port: Annotated[int | None, typer.Option(help="Dashboard port [CAMCAL_HTTP_PORT].")] = None,
     host: Annotated[str | None, typer.Option(help="Dashboard address [CAMCAL_HTTP_HOST].")] = None,
     ingest_port: Annotated[int, typer.Option(help="Port modules connect to.")] = 5555,
@@ -113,7 +117,7 @@ def up(
     logs = data_dir / "logs"
     try:
         logs.mkdir(parents=True, exist_ok=True)
-        dive, dive_line = up_dive(s)  # creates or migrates the database before anyone uses it
+        dive, dive_line = dive_for_start(s)  # creates or migrates the database before anyone uses it
     except Exception as exc:
         http_sock.close()
         raise fail(f"cannot open the store in {data_dir}: {exc}", code=supervise.EXIT_NOT_STARTED) from None
@@ -225,30 +229,6 @@ def stop_budget_s() -> float:
 def ingest_args(data_dir: Path, bind: str, events: str, dive: str) -> list[str]:
     """The ``camcal`` arguments of the ingest ``camcal up`` runs."""
     return ["ingest", "--data", str(data_dir), "--bind", bind, "--events", events, "--dive", dive]
-
-
-def up_dive(settings: Settings) -> tuple[str, str]:
-    """The dive ``camcal up`` records into (the configured one, else the open one, else a new one),
-    named to the ingest and the simulated modules alike: a module refuses an ingest of another dive;
-    and a line saying whether it is new or continued (with how to start a new one)."""
-    from storage import queries
-    from storage.store import Store
-
-    store = Store.open(settings.data_dir, settings.database_url)  # also creates or migrates it
-    try:
-        dive = store.current_dive(create=True, name=settings.dive)
-        assert dive is not None
-        record = store.call(queries.dive_record, dive.id) or {}
-    finally:
-        store.close()
-    n, last = record.get("n_frames", 0), record.get("last_frame_unix_s")
-    if not n:
-        return dive.name, f"dive {dive.name}: new"
-    ago_h = (time.time() - last) / 3600.0 if last else 0.0
-    line = f"dive {dive.name}: continued ({n} frame{'s' if n != 1 else ''}, the last {ago_h:.1f} h ago)"
-    if settings.dive is None:
-        line += "; a new deployment? stop, run `camcal dive end`, start again"
-    return dive.name, line
 
 
 def module_args(

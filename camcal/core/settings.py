@@ -162,6 +162,20 @@ class Settings(BaseSettings):
         description="the dive plan's station depth: a stop within 50 m of it shows as the station, "
         "others as stops (unset: a stop near the deepest depth so far)",
     )
+    deck_depth_m: float = Field(
+        10.0,
+        gt=0,
+        le=1000,
+        description="a module shallower than this is on deck: a dive whose modules all came back there "
+        "and signed off (or sent no frame for dive_quiet_s) has ended [m]",
+    )
+    dive_quiet_s: float = Field(
+        1800.0,
+        gt=0,
+        le=30 * 86400,
+        description="every module back on deck and no frame received for this long: the dive has ended, "
+        "and the next start begins a new one [s]",
+    )
     retention_days: float | None = Field(
         None, gt=0, description="delete frame files older than this (None: keep)"
     )

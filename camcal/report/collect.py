@@ -12,7 +12,7 @@ from typing import Any
 from camcal.core import __version__
 from camcal.core.frameset import Setup
 from camcal.divefit import DiveLookupError, pick_run, run_calibration
-from ingest.derived import Span, attenuation_dict, attenuation_over_span
+from ingest.spans import Span, attenuation_over_span, table_rows
 from storage import queries
 from storage.store import Store
 
@@ -101,7 +101,7 @@ def collect(store: Store, dive_name: str, run_id: int | None = None) -> ReportDa
             attitude=attitude,
             series=queries.attenuation_series(s, run["id"]),
             span=span,
-            attenuation=[attenuation_dict(table[wl]) for wl in sorted(table)],
+            attenuation=table_rows(table)["rows"],
             fit=fit,
             data_dir=str(store.files.root),
             software=software_versions(),

@@ -16,7 +16,6 @@ from sqlalchemy.orm import Session
 from starlette.background import BackgroundTask
 
 from camcal.core.frameset import Setup, parse_setup
-from ingest.derived import Span, attenuation_dict, attenuation_over_span
 from ingest.dive_export import export_dive_with_results
 from ingest.reanalysis import (
     ReanalysisInputError,
@@ -25,6 +24,7 @@ from ingest.reanalysis import (
     reanalyse,
     start_reanalysis,
 )
+from ingest.spans import Span, attenuation_over_span, table_rows
 from server.deps import FloatQuery, IdPath, IdQuery, OperatorDep, SettingsDep, StoreDep
 from server.errors import Invalid, NotFound, Unavailable
 from server.openapi import BUSY, NOT_FOUND
@@ -53,14 +53,16 @@ def dive_or_404(store: Store, dive_id: IdPath) -> Dive:
 
 
 @router.get("/api/dives", response_model=list[DivePublic])
-def list_dives(store: StoreDep) -> list[dict[str, Any]]:
-    """Every dive, newest first, with its frame count, time range and deepest depth."""
-    return store.call(queries.dives)
+def list_dives(store: StoreDep, settings: SettingsDep) -> list[dict[str, Any]]:
+    """Every dive, newest first, with its frame count, time range and deepest depth, and whether it
+    is open or has ended and why."""
+    return store.call(queries.dives, None, settings.dive_rules)
 
 
 @router.get("/api/dives/{dive_id}", response_model=DivePublic)
-def get_dive(dive_id: IdPath, store: StoreDep) -> dict[str, Any]:
-    rows = store.call(queries.dives, dive_id)
+def get_dive(dive_id: IdPath, store: StoreDep, settings: SettingsDep) -> dict[str, Any]:
+    """One dive as the list has it: open or ended, and why."""
+    rows = store.call(queries.dives, dive_id, settings.dive_rules)
     if not rows:
         raise NotFound(f"no dive {dive_id}")
     return rows[0]
@@ -111,7 +113,10 @@ def attenuation_table(
     """λ_att per wavelength with statistical and systematic errors, over a span of the dive.
 
     Default span: the station (frames within 50 m of the deepest frame).
-    Each row lists the near/far setting pairs it combines.
+    Each row lists the near/far setting pairs it combines, with their LEM depth. A span that
+    crosses depths (the whole dive: 1200, 2021, 3420 m) is stacked and paired per depth band:
+    ``bands`` holds a table per band, and a row has no value (its note names each band's) when
+    the bands' water differs.
     """
     dive_or_404(store, dive_id)
     run_id, setup = run_setup(store, dive_id, run)
@@ -122,7 +127,7 @@ def attenuation_table(
         "run_id": run_id,
         "span": span,
         "calibration": setup.to_json(),
-        "rows": [attenuation_dict(table[wl]) for wl in sorted(table)],
+        **table_rows(table),
     }
 
 

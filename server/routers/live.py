@@ -35,7 +35,7 @@ CLOSE_TOO_BIG, CLOSE_POLICY = 1009, 1008
 
 def build_snapshot(store: Store, hub: LiveHub, settings: ServerSettings) -> dict[str, Any]:
     """Everything the live view shows, as of now."""
-    r = store.call(_snapshot_reads, settings.linear_range)  # one session: the snapshot is consistent
+    r = store.call(_snapshot_reads, settings)  # one session: the snapshot is consistent
     dive, run_id, latest, attenuation = r["dive"], r["run_id"], r["latest"], r["attenuation"]
     by_design = r["by_design"]
     ingest = hub.ingest_state(settings.stale_after_s)
@@ -81,26 +81,33 @@ def build_snapshot(store: Store, hub: LiveHub, settings: ServerSettings) -> dict
         "station_depth_m": settings.station_depth_m,
         "simulation_speed": settings.simulation_speed,
         "modules": out_modules,
-        "attenuation": {str(k): v[-300:] for k, v in attenuation.items()},
+        "attenuation": {str(k): _newest(v, 300) for k, v in attenuation.items()},
         "alarms": r["alarms"],
         "refused_connections": (hub.live_health(settings.stale_after_s) or {}).get("refused_connections"),
         "last_event_id": hub.last_event_id,
     }
 
 
-def _snapshot_reads(s: Session, linear_range: tuple[float, float]) -> dict[str, Any]:
+def _newest(points: list[dict[str, Any]], n: int) -> list[dict[str, Any]]:
+    """The ``n`` λ_att points stored last (a visit's point is numbered when the visit begins), in
+    time order: not the ``n`` of the latest times, which a module's clock decides."""
+    keep = {id(p) for p in sorted(points, key=lambda p: p["id"])[-n:]}
+    return [p for p in points if id(p) in keep]
+
+
+def _snapshot_reads(s: Session, settings: ServerSettings) -> dict[str, Any]:
     """The snapshot's reads, in one session."""
-    dives = queries.dives(s)
-    dive = dives[0] if dives else None
+    newest = queries.newest_dive_id(s)
+    dive = queries.dives(s, newest, settings.dive_rules)[0] if newest is not None else None
     run_id = queries.live_run_id(s, dive["id"]) if dive else None
     modules = queries.modules(s)
     latest = queries.latest_frames(s, dive["id"], run_id) if dive else {}
     sensors = queries.latest_sensors(s, dive["id"] if dive else None)
     attitude = queries.latest_attitude(s, dive["id"] if dive else None)
     quality = queries.quality_counts(s, run_id) if run_id else {}
-    t_last = max((f["captured_unix_s"] for f in latest.values()), default=None)
+    t_last = max((f["received_unix_s"] for f in latest.values()), default=None)  # the last 10 min
     recent_quality = queries.quality_counts(s, run_id, since=t_last - 600) if run_id and t_last else {}
-    by_design = saturated_by_design(newest_results(s), linear_range)
+    by_design = saturated_by_design(newest_results(s), settings.linear_range)
 
     def expected(module: str, wl: int, exposure_s: float, gain_db: float) -> bool:
         return setting_key(wl, exposure_s, gain_db) in by_design.get(module, frozenset())

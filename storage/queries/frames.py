@@ -139,7 +139,7 @@ def frame_with_result(
 def quality_counts(
     s: Session, run_id: int, module: str | None = None, since: float | None = None
 ) -> dict[str, dict[str, int]]:
-    """Frames by status/reason per module in a run."""
+    """Frames by status/reason per module in a run (``since``: of the frames received since then)."""
     q = (
         select(Frame.module_id, FrameResult.status, FrameResult.reason, func.count())
         .join(FrameResult, FrameResult.frame_id == Frame.id)
@@ -148,7 +148,7 @@ def quality_counts(
     if module:
         q = q.where(Frame.module_id == module)
     if since is not None:
-        q = q.where(Frame.captured_unix_s >= since)
+        q = q.where(Frame.received_unix_s >= since)
     out: dict[str, dict[str, int]] = {}
     for mod, status, reason, n in s.execute(
         q.group_by(Frame.module_id, FrameResult.status, FrameResult.reason)
@@ -174,7 +174,12 @@ def saturated_by_setting(s: Session, run_id: int) -> dict[str, dict[tuple[int, f
 
 
 def latest_frames(s: Session, dive_id: int, run_id: int | None) -> dict[str, dict[str, Any]]:
-    """Per module, the newest frame of a dive that has a result (else the newest frame)."""
+    """Per module, the frame of a dive received last that has a result (else the one received last).
+
+    Latest means received last (the store numbers frames as they arrive), never the largest capture
+    time: a module's clock decides that, and a simulated dive run before this one (its clock running
+    ahead, 10x) or a clock set wrong would keep an old frame "latest" while new ones arrive.
+    """
     out: dict[str, dict[str, Any]] = {}
     mods = [m for (m,) in s.execute(select(Frame.module_id).where(Frame.dive_id == dive_id).distinct())]
     for m in mods:
@@ -185,10 +190,8 @@ def latest_frames(s: Session, dive_id: int, run_id: int | None) -> dict[str, dic
             )
             .where(Frame.dive_id == dive_id, Frame.module_id == m)
         )
-        row = s.execute(
-            q.where(FrameResult.id.is_not(None)).order_by(Frame.captured_unix_s.desc()).limit(1)
-        ).first()
-        row = row or s.execute(q.order_by(Frame.captured_unix_s.desc()).limit(1)).first()
+        row = s.execute(q.where(FrameResult.id.is_not(None)).order_by(Frame.id.desc()).limit(1)).first()
+        row = row or s.execute(q.order_by(Frame.id.desc()).limit(1)).first()
         if row is not None:
             out[m] = frame_dict(*row)
     return out
@@ -201,9 +204,10 @@ ByDesign = Callable[[str, int, float, float], bool]
 def recent_outcomes(
     s: Session, dive_id: int, run_id: int, n: int = 40, by_design: ByDesign | None = None
 ) -> dict[str, list[str]]:
-    """Per module, the outcomes in a run of its ``n`` latest analysed frames, oldest first: ``ok`` or
-    the reason the frame was rejected (the live cards' strip of latest frames); ``saturated_by_design``
-    for a saturated frame at a setting ``by_design`` names."""
+    """Per module, the outcomes in a run of its ``n`` frames received last that were analysed, in the
+    order they arrived: ``ok`` or the reason the frame was rejected (the live cards' strip of latest
+    frames; latest as in `latest_frames`); ``saturated_by_design`` for a saturated frame at a
+    setting ``by_design`` names."""
     out: dict[str, list[str]] = {}
     mods = [m for (m,) in s.execute(select(Frame.module_id).where(Frame.dive_id == dive_id).distinct())]
     for m in mods:
@@ -213,7 +217,7 @@ def recent_outcomes(
             )
             .join(Frame, FrameResult.frame_id == Frame.id)
             .where(Frame.dive_id == dive_id, Frame.module_id == m, FrameResult.run_id == run_id)
-            .order_by(Frame.captured_unix_s.desc(), Frame.id.desc())
+            .order_by(Frame.id.desc())
             .limit(n)
         ).all()
         keys = []

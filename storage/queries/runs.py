@@ -20,6 +20,7 @@ from storage.models import (
     FrameResult,
     SensorSample,
 )
+from storage.queries.divestate import DiveRules, dive_state
 from storage.queries.operations import alarm_dict
 from storage.queries.series import downsampled
 
@@ -58,8 +59,9 @@ def live_run_id(s: Session, dive_id: int) -> int | None:
     return s.scalar(select(AnalysisRun.id).where(AnalysisRun.dive_id == dive_id, AnalysisRun.kind == "live"))
 
 
-def dives(s: Session, dive_id: int | None = None) -> list[dict[str, Any]]:
-    """Every dive (or only ``dive_id``) with its frame count and time range, newest first."""
+def dives(s: Session, dive_id: int | None = None, rules: DiveRules | None = None) -> list[dict[str, Any]]:
+    """Every dive (or only ``dive_id``) with its frame count, time range and deepest depth, newest
+    first, and whether it is open or ended and why (`storage.queries.divestate`, by ``rules``)."""
     counts = (
         select(
             Frame.dive_id,
@@ -67,11 +69,13 @@ def dives(s: Session, dive_id: int | None = None) -> list[dict[str, Any]]:
             func.min(Frame.captured_unix_s).label("t0"),
             func.max(Frame.captured_unix_s).label("t1"),
             func.max(Frame.depth_m).label("dmax"),
+            func.min(Frame.received_unix_s).label("r0"),
+            func.max(Frame.received_unix_s).label("r1"),
         )
         .group_by(Frame.dive_id)
         .subquery()
     )
-    q = select(Dive, counts.c.n, counts.c.t0, counts.c.t1, counts.c.dmax).outerjoin(
+    q = select(Dive, counts.c.n, counts.c.t0, counts.c.t1, counts.c.dmax, counts.c.r0, counts.c.r1).outerjoin(
         counts, counts.c.dive_id == Dive.id
     )
     if dive_id is not None:
@@ -83,15 +87,24 @@ def dives(s: Session, dive_id: int | None = None) -> list[dict[str, Any]]:
             "name": d.name,
             "started_unix_s": d.started_unix_s,
             "ended_unix_s": d.ended_unix_s,
+            "end_reason": d.end_reason,
             "notes": d.notes,
             "calibration_id": d.calibration_id,
             "n_frames": n or 0,
             "first_frame_unix_s": t0,
             "last_frame_unix_s": t1,
+            "first_received_unix_s": r0,
+            "last_received_unix_s": r1,
             "max_depth_m": dmax,
+            **dive_state(s, d, rules).as_dict(),
         }
-        for d, n, t0, t1, dmax in rows
+        for d, n, t0, t1, dmax, r0, r1 in rows
     ]
+
+
+def newest_dive_id(s: Session) -> int | None:
+    """The dive begun last (the live view's)."""
+    return s.scalar(select(func.max(Dive.id)))
 
 
 def last_received_unix_s(s: Session, dive_id: int) -> float | None:

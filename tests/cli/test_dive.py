@@ -14,7 +14,7 @@ import subprocess
 import time
 from pathlib import Path
 
-from camcal.cli.up import up_dive
+from camcal.cli.dive import dive_for_start
 from camcal.core.settings import Settings
 from storage import queries
 from storage.store import FrameRow, Store
@@ -80,9 +80,11 @@ def test_a_dive_ends_once_its_ingest_stopped_and_the_next_ingest_starts_a_new_on
     assert old["name"] == first["name"] and old["n_frames"] == d["n_frames"] >= first["n_frames"]
     assert new["name"] != first["name"] and new["ended_unix_s"] is None
     listed = camcal_cli("dive", "list", "--data", str(data)).stdout.splitlines()
-    assert listed[0].split() == ["id", "name", "frames", "taken", "(UTC)", "deepest", "state"]
-    assert listed[1].split()[1:3] == [str(new["name"]), "0"] and listed[1].endswith("open")
+    assert listed[0].split() == ["id", "name", "frames", "received", "(UTC)", "deepest", "state"]
+    assert listed[1].split()[1:3] == [str(new["name"]), "0"]
+    assert listed[1].endswith("open: no module has recorded into it yet")
     assert listed[2].split()[1:3] == [str(old["name"]), str(old["n_frames"])] and " ended " in listed[2]
+    assert listed[2].endswith("ended by cli (camcal dive end)")
 
 
 def test_ending_names_what_it_cannot_end(tmp_path: Path) -> None:
@@ -97,22 +99,24 @@ def test_ending_names_what_it_cannot_end(tmp_path: Path) -> None:
 
 def test_camcal_up_says_whether_it_continues_a_dive_and_how_to_start_a_new_one(tmp_path: Path) -> None:
     settings = Settings(data_dir=tmp_path / "data")
-    first, line = up_dive(settings)
+    first, line = dive_for_start(settings)
     assert line == f"dive {first}: new"
     store = Store.open(settings.data_dir)
     try:
         dive = store.current_dive(create=False)
         assert dive is not None and dive.name == first
+        # received 2 h ago, stamped by a module clock running ahead (a simulation at 10x): the age is
+        # the ship's, never negative ("the last -0.9 h ago" was the module's clock against the ship's)
         t = time.time() - 2 * 3600
-        row = FrameRow("A", "b1", 1, t, t, 460, 0.05, 6.0, 3420.0, 64, 64, "f.png", 10, "0" * 64)
+        row = FrameRow("A", "b1", 1, t + 5 * 3600, t, 460, 0.05, 6.0, 3420.0, 64, 64, "f.png", 10, "0" * 64)
         store.commit_batch(dive.id, [row])
     finally:
         store.close()
-    again, line = up_dive(settings)
+    again, line = dive_for_start(settings)
     assert again == first
-    assert line == f"dive {first}: continued (1 frame, the last 2.0 h ago); a new deployment? stop, run " \
-        "`camcal dive end`, start again"  # fmt: skip
+    assert line == f"dive {first}: continued (its last frame arrived 2.0 h ago); it is still in the water " \
+        "by its modules' depths. A new deployment? stop, run `camcal dive end`, start again"  # fmt: skip
     done = camcal_cli("dive", "end", "--data", str(settings.data_dir))
     assert done.returncode == 0, done.stderr
-    new, line = up_dive(settings)
+    new, line = dive_for_start(settings)
     assert new != first and line == f"dive {new}: new"

@@ -31,7 +31,11 @@ export function upsertVisit(series, p, { keep = 600 } = {}) {
   if (i >= 0) pts[i] = point;
   else pts.push(point);
   pts.sort((a, b) => a.t_unix_s - b.t_unix_s);
-  if (pts.length > keep) pts.splice(0, pts.length - keep);
+  if (pts.length > keep) {
+    // the points stored first go (numbered as their visits begin), not those of the earliest times
+    const cut = pts.map((q) => q.id ?? -1).sort((a, b) => a - b)[pts.length - keep];
+    series[wl] = pts.filter((q) => (q.id ?? -1) >= cut);
+  }
   return true;
 }
 

@@ -69,12 +69,22 @@ export function renderAlarms(list, alarms, { operator, onAck }) {
   list.replaceChildren(...items);
 }
 
+/**
+ * The point of a wavelength stored last: points are numbered as their visits begin, so this is the
+ * newest visit as the ship received it, not the one of the latest time (a module's clock sets that:
+ * an earlier simulated dive's clock ran ahead of this one's).
+ */
+export function newestPoint(pts) {
+  let best = null;
+  for (const p of pts) if (!best || (p.id ?? -1) >= (best.id ?? -1)) best = p;
+  return best;
+}
+
 /** The latest λ_att per wavelength in large type, with its errors, frames, depth, time and state. */
 export function renderLambdaNow(box, attenuation) {
   const items = [];
   for (const wl of WAVELENGTHS.map(String)) {
-    const pts = attenuation[wl] || [];
-    const p = pts[pts.length - 1];
+    const p = newestPoint(attenuation[wl] || []);
     const about = p
       ? `± ${fmt(p.stat_err_m, 2)} stat ± ${fmt(p.sys_err_m, 2)} sys · ${plural(p.n_frames ?? 0, "frame")} · ` +
         `${fmt(p.depth_m, 0)} m · ${utc(p.t_unix_s, { date: false })}` +

@@ -9,11 +9,13 @@ import { createCard, showThumbnail, updateCard, updateQuality } from "./live-car
 import { LiveSocket } from "./livesocket.js";
 import { upsertVisit } from "./lambda-profile.js";
 import { drawLambda, renderAlarms, renderLambdaNow, renderRefused } from "./live-panels.js";
-import { $, initTheme, lrm, mountOperator, setText, showSimulation, toast } from "./ui.js";
+import { $, initTheme, lrm, mountOperator, setText, showDiveState, showSimulation, toast } from "./ui.js";
 
 const RECENT = 40; // ticks in a card's strip of latest frames
 const PHASE_WINDOW_S = 30;
 const THUMB_EVERY_MS = 500;
+const DIVE_STATE_EVERY_MS = 10000; // how often the dive's state (open, ended and why) is read again
+const ENDED_HINT = "The next start of camcal up begins a new dive; this one stays on the review page.";
 
 const state = {
   dive: null,
@@ -196,7 +198,10 @@ function onEvent(msg) {
           hm.lastPacketAt = now - h.last_packet_age_s * 1000;
         }
       }
-      if (p.dive && (!state.dive || state.dive.id !== p.dive.id)) state.dive = { ...p.dive };
+      if (p.dive && (!state.dive || state.dive.id !== p.dive.id)) {
+        state.dive = { ...p.dive };
+        refreshDive(); // its state (open, ended and why) is the server's to say
+      }
       break;
     case "sensors":
       m.sensors = p;
@@ -478,6 +483,22 @@ function renderHeader(now) {
   setText($("#ingest-state"), `ingest ${ingestUp ? "up" : "down"}` + (state.linkSecurity === "plaintext" ? " · PLAINTEXT link" : ""));
   renderRefused($("#refused"), state.refused);
   setText($("#dive-name"), state.dive ? `${state.dive.name}` : "no dive yet");
+  showDiveState($("#dive-state"), state.dive, $("#dive-notice"), ENDED_HINT);
+}
+
+/** The dive's state as the server reads it now (open, or ended and why): it changes without an event. */
+async function refreshDive() {
+  const id = state.dive?.id;
+  if (!id) return;
+  try {
+    const d = await api(`/api/dives/${id}`);
+    if (state.dive?.id === d.id) {
+      state.dive = d;
+      requestRender();
+    }
+  } catch {
+    /* the next snapshot or round says it */
+  }
 }
 
 async function ack(alarm, button) {
@@ -526,4 +547,5 @@ window.addEventListener("camcal:theme", () => {
   render();
 });
 setInterval(render, 500); // ages tick and stale data fades even when nothing arrives
+setInterval(refreshDive, DIVE_STATE_EVERY_MS);
 new LiveSocket({ onSnapshot, onEvent, onMissed, onServerError, onState: onConn }).start();

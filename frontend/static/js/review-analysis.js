@@ -64,9 +64,20 @@ export function mountSpan(ctx, name, onChange) {
   sync();
 }
 
-/** The λ_att table of one run: rows per wavelength with stat, sys and total errors and their pairs. */
+/** A depth band's name: the LEM's depth at a stop, or the range of a slice of a profile. */
+function bandLabel(b) {
+  if (b.depth_min_m === null || b.depth_max_m === null) return "depth unknown";
+  return b.depth_max_m - b.depth_min_m < 30 ? `${fmt(b.depth_m, 0)} m` : `${fmt(b.depth_min_m, 0)}–${fmt(b.depth_max_m, 0)} m`;
+}
+
+/**
+ * The λ_att table of one run: rows per wavelength with stat, sys and total errors and their pairs
+ * (each with its LEM depth); a span that crosses depths gets a block of rows per depth band after
+ * the span's own rows, which have no value when the bands' water differs (their note says so).
+ */
 export function attenuationTable(table, { caption } = {}) {
   const rows = table.rows || [];
+  const bands = table.bands || [];
   const head = el(
     "thead",
     {},
@@ -79,40 +90,12 @@ export function attenuationTable(table, { caption } = {}) {
     ),
   );
   const body = el("tbody");
-  for (const r of rows) {
-    body.append(
-      el(
-        "tr",
-        { "data-wl": r.wavelength_nm },
-        el("td", { style: { color: wlColor(r.wavelength_nm), fontWeight: 700 } }, `${r.wavelength_nm} nm`),
-        el("td", { class: "r", style: { fontWeight: 700, fontSize: "1.15rem" } }, fmt(r.lambda_att_m, 2)),
-        el("td", { class: "r" }, fmt(r.stat_err_m, 2)),
-        el("td", { class: "r" }, fmt(r.sys_err_m, 2)),
-        el("td", { class: "r" }, fmt(r.total_err_m, 2)),
-        el("td", { class: "r" }, r.n_pairs),
-        el("td", { class: "r", title: r.n_pairs > 1 ? "" : "one pair: no degree of freedom" }, r.n_pairs > 1 ? fmt(r.chi2_ndof, 2) : "–"),
-        el("td", { class: "r" }, `${fmt(r.emission_ratio, 3)} ± ${fmt(r.emission_ratio_err, 3)}`),
-        el("td", { class: "muted" }, r.note || ""),
-      ),
-    );
-    if (r.pairs?.length) {
-      body.append(
-        el(
-          "tr",
-          { class: "pairs" },
-          el(
-            "td",
-            { colspan: 9, style: { whiteSpace: "normal" } },
-            el(
-              "details",
-              {},
-              el("summary", { class: "muted" }, `${plural(r.pairs.length, "near/far pair")} of ${r.wavelength_nm} nm`),
-              pairsTable(r.pairs),
-            ),
-          ),
-        ),
-      );
-    }
+  const heading = (text, attrs = {}) => el("tr", { class: "band", ...attrs }, el("th", { colspan: 9, style: { textAlign: "left" } }, text));
+  if (bands.length) body.append(heading(`the whole span, ${bands.length} depths`));
+  for (const r of rows) body.append(...attenuationRows(r));
+  for (const b of bands) {
+    body.append(heading(`LEM depth ${bandLabel(b)} · ${plural(b.n_frames, "frame")}`, { "data-band": bandLabel(b) }));
+    for (const r of b.rows) body.append(...attenuationRows(r, bandLabel(b)));
   }
   if (!rows.length) body.append(el("tr", {}, el("td", { colspan: 9, class: "empty" }, "No λ_att in this span: no near/far pairs of equal setting with frames in range.")));
   const t = el("table", {}, head, body);
@@ -120,11 +103,48 @@ export function attenuationTable(table, { caption } = {}) {
   return t;
 }
 
+function attenuationRows(r, depth = null) {
+  const out = [
+    el(
+      "tr",
+      { "data-wl": r.wavelength_nm, ...(depth ? { "data-depth": depth } : {}) },
+      el("td", { style: { color: wlColor(r.wavelength_nm), fontWeight: 700 } }, `${r.wavelength_nm} nm`),
+      el("td", { class: "r", style: { fontWeight: 700, fontSize: "1.15rem" } }, fmt(r.lambda_att_m, 2)),
+      el("td", { class: "r" }, fmt(r.stat_err_m, 2)),
+      el("td", { class: "r" }, fmt(r.sys_err_m, 2)),
+      el("td", { class: "r" }, fmt(r.total_err_m, 2)),
+      el("td", { class: "r" }, r.n_pairs),
+      el("td", { class: "r", title: r.n_pairs > 1 ? "" : "one pair: no degree of freedom" }, r.n_pairs > 1 ? fmt(r.chi2_ndof, 2) : "–"),
+      el("td", { class: "r" }, `${fmt(r.emission_ratio, 3)} ± ${fmt(r.emission_ratio_err, 3)}`),
+      el("td", { class: "muted", style: { whiteSpace: "normal", minWidth: "12rem" } }, r.note || ""),
+    ),
+  ];
+  if (r.pairs?.length) {
+    out.push(
+      el(
+        "tr",
+        { class: "pairs" },
+        el(
+          "td",
+          { colspan: 9, style: { whiteSpace: "normal" } },
+          el(
+            "details",
+            {},
+            el("summary", { class: "muted" }, `${plural(r.pairs.length, "near/far pair")} of ${r.wavelength_nm} nm${depth ? ` at ${depth}` : ""}`),
+            pairsTable(r.pairs),
+          ),
+        ),
+      ),
+    );
+  }
+  return out;
+}
+
 function pairsTable(pairs) {
   return el(
     "table",
     {},
-    el("thead", {}, el("tr", {}, ...["exposure", "gain", "I near (gray)", "I far (gray)", "frames near/far", "λ_att (m)", "stat (m)"].map((h) => el("th", { class: "r" }, h)))),
+    el("thead", {}, el("tr", {}, ...["LEM depth", "exposure", "gain", "I near (gray)", "I far (gray)", "frames near/far", "λ_att (m)", "stat (m)"].map((h) => el("th", { class: "r" }, h)))),
     el(
       "tbody",
       {},
@@ -132,6 +152,7 @@ function pairsTable(pairs) {
         el(
           "tr",
           {},
+          el("td", { class: "r" }, p.depth_m === null || p.depth_m === undefined ? "–" : `${fmt(p.depth_m, 0)} m`),
           el("td", { class: "r" }, fmtExposure(p.exposure_s)),
           el("td", { class: "r" }, `${fmt(p.gain_db, 0)} dB`),
           el("td", { class: "r" }, `${fmt(p.i_near_gray, 2)} ± ${fmt(p.i_near_err_gray, 2)}`),

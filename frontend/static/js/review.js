@@ -7,7 +7,7 @@ import { exportRun, showAttenuation, showAttitude, showLinearity } from "./revie
 import { openFrame, showFrames } from "./review-frames.js";
 import { showAudit } from "./review-audit.js";
 import { showReanalysis } from "./review-runs.js";
-import { $, el, initTheme, mountOperator, setText, showSimulation } from "./ui.js";
+import { $, el, initTheme, mountOperator, setText, showDiveState, showSimulation } from "./ui.js";
 
 const TABS = {
   frames: showFrames,
@@ -52,7 +52,11 @@ async function loadDives() {
   const select = $("#dive-select");
   select.replaceChildren(
     ...ctx.dives.map((d) =>
-      el("option", { value: d.id }, `${d.name} · ${d.n_frames} frames${d.max_depth_m ? ` · ${fmt(d.max_depth_m, 0)} m` : ""}`),
+      el(
+        "option",
+        { value: d.id, title: `${d.state}: ${d.state_reason}` },
+        `${d.name} · ${d.state} · ${d.n_frames} frames${d.max_depth_m ? ` · ${fmt(d.max_depth_m, 0)} m` : ""}`,
+      ),
     ),
   );
   if (!ctx.dives.length) {
@@ -71,10 +75,12 @@ async function selectDive(id) {
   ctx.dive = dive;
   ctx.loaded = new Set();
   setParams({ dive: id });
-  const span = dive.first_frame_unix_s
-    ? `${utc(dive.first_frame_unix_s, { date: false })}–${utc(dive.last_frame_unix_s, { date: false })} UTC`
+  // When the ship received its frames (its own clock): a simulated module's clock runs ahead of it.
+  const span = dive.first_received_unix_s
+    ? `frames received ${utc(dive.first_received_unix_s, { date: false })}–${utc(dive.last_received_unix_s, { date: false })} UTC`
     : "no frames";
-  setText($("#dive-summary"), `${span} · ${dive.ended_unix_s ? "ended" : "open"}`);
+  setText($("#dive-summary"), span);
+  showDiveState($("#dive-state"), dive, $("#dive-notice"));
   exportRun(id, null);
   try {
     const [settings, runs] = await Promise.all([

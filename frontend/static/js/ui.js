@@ -51,6 +51,29 @@ export function showSimulation(speed) {
     "log carry the ship's.";
 }
 
+/**
+ * A dive's state beside its name: a chip "open" or "ended" (its reason as the tooltip), and where a
+ * notice element is given, the ended dive's reason in words (null or an open dive: the notice hides).
+ */
+export function showDiveState(chip, dive, notice = null, hint = "") {
+  if (!chip) return;
+  const state = dive?.state ?? null;
+  chip.hidden = !state;
+  chip.dataset.state = state ?? "";
+  if (!state) return;
+  setText(chip, state === "ended" ? "dive ended" : "dive open");
+  chip.title = `${state}: ${dive.state_reason || ""}`;
+  if (!notice) return;
+  notice.hidden = state !== "ended";
+  if (state === "ended") {
+    const at = dive.state_ended_unix_s ? new Date(dive.state_ended_unix_s * 1000).toISOString().slice(0, 16).replace("T", " ") : "";
+    setText(
+      notice,
+      `Dive ${dive.name} has ended${at ? ` (${at} UTC)` : ""}: ${dive.state_reason}.${hint ? ` ${hint}` : ""}`,
+    );
+  }
+}
+
 /** Set text only when it changed (cheap to call on every render). */
 export function setText(node, text) {
   const s = String(text);

@@ -177,6 +177,25 @@ def _unusable_wavelengths(pred: dict[str, list[dict[str, Any]]]) -> list[str]:
     return out
 
 
+#: Commands of a module the ship delivers at once, at most: a burst beyond waits for the module's answers.
+UNANSWERED_MAX = 32
+#: How far past a module's schedule version a command may name its next one, and the largest version.
+VERSION_STEP_MAX = 1000
+VERSION_MAX = 2**31 - 1
+
+
+def _not_swamped(store: Store, module_id: str) -> None:
+    """409 while `UNANSWERED_MAX` commands of the module wait for its answer: thousands queued for a
+    module (a burst of clicks, a script) held up its frames for minutes while the ship delivered them."""
+    waiting = store.call(queries.commands_unanswered, module_id)
+    if waiting >= UNANSWERED_MAX:
+        raise Conflict(
+            f"module {module_id} has {waiting} commands it has not answered yet (it is offline or busy): "
+            f"wait for its answers (GET /api/modules/{module_id}/commands), then send again",
+            {"unanswered": waiting},
+        )
+
+
 def _module_or_404(store: Store, module_id: str) -> None:
     if not store.call(queries.module_exists, module_id):
         raise NotFound(f"no module {module_id!r} has connected to this ship")
@@ -199,6 +218,7 @@ def send_schedule(
     problems = _problems(limits, body.schedule)
     if problems:
         raise Invalid(f"{problems[0]['field']}: {problems[0]['reason']} (checked against {source})", problems)
+    _not_swamped(store, module_id)
     current = store.call(queries.schedule_version, module_id)
     version = body.version if body.version is not None else current + 1
     if version <= current:
@@ -206,7 +226,17 @@ def send_schedule(
             f"schedule version {version} is not newer than version {current} of module {module_id}",
             {"current_version": current},
         )
-    sched = body.schedule.model_copy(update={"version": version})
+    if version > current + VERSION_STEP_MAX or version > VERSION_MAX:
+        # A version past the wire's largest could never be sent (and held up every command after it);
+        # one at the largest would leave no newer version for the module's next schedule.
+        raise Conflict(
+            f"schedule version {version} jumps more than {VERSION_STEP_MAX} past version {current} of module "
+            f"{module_id}"
+            + (" (the largest there is)" if current + 1 > VERSION_MAX else "")
+            + ": leave the version out (the next is the module's plus one)",
+            {"current_version": current},
+        )
+    sched = Schedule.model_validate({**body.schedule.model_dump(), "version": version})
     return store.create_command(
         uuid.uuid4().hex,
         module_id,
@@ -229,6 +259,7 @@ def send_action(
     be refused because the new version is not running yet.
     """
     _module_or_404(store, module_id)
+    _not_swamped(store, module_id)
     return store.create_command(uuid.uuid4().hex, module_id, body.action, who, target_version=0)
 
 

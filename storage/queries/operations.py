@@ -164,6 +164,33 @@ def commands(
     return [command_dict(c) for c in s.scalars(q.order_by(CommandRecord.issued_unix_s.desc()).limit(limit))]
 
 
+#: The states of a command the module has not answered for good yet: the ship still delivers it.
+UNANSWERED = ("pending", "sent", "accepted")
+
+
+def commands_unanswered(s: Session, module_id: str) -> int:
+    """How many commands of a module wait for its answer (not yet applied or refused)."""
+    q = select(func.count()).where(CommandRecord.module_id == module_id, CommandRecord.state.in_(UNANSWERED))
+    return int(s.scalar(q) or 0)
+
+
+def commands_to_deliver(s: Session, per_module: int) -> list[dict[str, Any]]:
+    """The commands the ship still has to deliver, oldest first, at most ``per_module`` of each module.
+
+    Oldest first over all of them: taking the newest few and reversing them (as before) sent a
+    module's later commands before its earlier ones once more than a few waited, and a queued
+    ``pause`` then arrived after the operator's ``start``.
+    """
+    out: list[dict[str, Any]] = []
+    taken: dict[str, int] = {}
+    q = select(CommandRecord).where(CommandRecord.state.in_(UNANSWERED)).order_by(CommandRecord.issued_unix_s)
+    for c in s.scalars(q):
+        if taken.get(c.module_id, 0) < per_module:
+            taken[c.module_id] = taken.get(c.module_id, 0) + 1
+            out.append(command_dict(c))
+    return out
+
+
 def calibration_dict(c: Calibration) -> dict[str, Any]:
     return {
         "id": c.id,

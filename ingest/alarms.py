@@ -40,6 +40,14 @@ class AlarmLimits:
     analysis_crash_major: int = 3
     clock_minor_s: float = 2.0
     clock_major_s: float = 10.0
+    #: A running module's next frame may come this much later than the wait it says its schedule
+    #: allows (the LEM's colour, the pause between passes) before "no frames" is raised.
+    no_frame_grace_s: float = 120.0
+
+
+#: Messages of a module waiting on its card beyond which "no frames" says its frames do not reach
+#: the ship (a few are always under way: sensor batches, the frame being sent).
+NO_FRAMES_PENDING = 10
 
 
 @dataclass(frozen=True)
@@ -69,6 +77,10 @@ class _ModuleState:
     #: when that count last rose (`AlarmEvaluator.observe_failures`).
     failures: dict[str, tuple[str, int, str | None, float | None]] = field(default_factory=dict)
     clock_offset_s: float | None = None  # its clock minus the ship's, from its heartbeats
+    #: What it says it runs and why it waits (`observe_production`), and since when (the ship's
+    #: clock) a frame is due: its last frame, or when it began to run here.
+    production: tuple[dict[str, object], dict[str, object] | None, int] | None = None
+    frame_due_from: float | None = None
     clock_shown: tuple[str, float] | None = None  # the clock alarm's severity and the offset it names
 
 
@@ -87,6 +99,8 @@ class AlarmEvaluator:
     ) -> None:
         """``signed_off``: the module said ``bye`` (shown as INFO, not as a lost link)."""
         st = self._m[module]
+        if linked and not st.linked:
+            st.frame_due_from = None  # back from an outage: its next frame is due from now
         st.linked, st.last_seen_unix_s, st.signed_off = linked, last_seen_unix_s, signed_off and not linked
 
     def observe_conflict(self, module: str, boot: str, seq: int, t_unix_s: float) -> None:
@@ -142,6 +156,32 @@ class AlarmEvaluator:
     def observe_clock(self, module: str, offset_s: float | None) -> None:
         """The module's clock minus the ship's, as its heartbeats say (None: not known yet)."""
         self._m[module].clock_offset_s = offset_s
+
+    def observe_production(
+        self,
+        module: str,
+        schedule: dict[str, object],
+        waiting: dict[str, object] | None,
+        last_frame_unix_s: float | None,
+        outbox_pending: int,
+        now_unix_s: float,
+    ) -> None:
+        """What a linked module's heartbeat says it runs and why it waits, and when its last frame
+        came: a module that runs its schedule where captures are on owes a frame within the wait it
+        names plus `AlarmLimits.no_frame_grace_s`."""
+        st = self._m[module]
+        before = st.production[0] if st.production else None
+        running = schedule.get("state") == "running"
+        here = not (waiting and waiting.get("reason") == "not_here")
+        changed = before is None or (before.get("state"), before.get("version")) != (
+            schedule.get("state"),
+            schedule.get("version"),
+        )
+        if not running or not here or changed or st.frame_due_from is None:
+            st.frame_due_from = now_unix_s  # the wait starts (again) now
+        if last_frame_unix_s is not None:
+            st.frame_due_from = max(st.frame_due_from, last_frame_unix_s)
+        st.production = (dict(schedule), dict(waiting) if waiting else None, outbox_pending)
 
     def observe_gaps(self, module: str, gaps: list[tuple[int, int, float]]) -> None:
         self._m[module].open_gaps = gaps
@@ -278,6 +318,9 @@ class AlarmEvaluator:
             for device, (_, count, error, rose) in st.failures.items():
                 if rose is not None and now_unix_s - rose <= lim.card_hold_s:
                     add(device, module, "MAJOR", _failure_message(device, module, count, error, _hms(rose)))
+            silent = self._no_frames(module, st, now_unix_s)
+            if silent is not None:
+                add("no_frames", module, "MAJOR", silent)
             clock = self._clock(st)
             if clock is not None:
                 add("clock", module, clock[0], _clock_message(module, clock[0], clock[1], now_unix_s))
@@ -292,6 +335,38 @@ class AlarmEvaluator:
                     "they will arrive when the link recovers, or import the SD card",
                 )
         return out
+
+    def _no_frames(self, module: str, st: _ModuleState, now_unix_s: float) -> str | None:
+        """The "no frames" alarm's message: a linked module that runs its schedule where it takes
+        pictures and has sent no frame for longer than the wait it names allows; with the reason."""
+        if not st.linked or st.production is None or st.frame_due_from is None:
+            return None
+        schedule, waiting, pending = st.production
+        if schedule.get("state") != "running" or (waiting and waiting.get("reason") == "not_here"):
+            return None
+        allowed = float(waiting.get("for_s") or 0.0) if waiting else 0.0  # type: ignore[arg-type]
+        if now_unix_s - st.frame_due_from <= allowed + self.limits.no_frame_grace_s:
+            return None
+        runs = f"runs schedule {schedule.get('name') or '?'} (version {schedule.get('version')})"
+        since = _hms(st.frame_due_from)
+        if pending >= NO_FRAMES_PENDING:
+            why = (
+                f"{pending} of its messages wait on its SD card, unsent or not acknowledged: its frames "
+                "do not reach the ship (the link, or the ship's store: `camcal doctor`)"
+            )
+        elif waiting and waiting.get("reason") == "lem":
+            why = (
+                f"it keeps waiting for the LEM's {waiting.get('wavelength_nm')} nm: check the LEM and the "
+                "module's clock (its timetable says when the LEM shows which colour)"
+            )
+        elif waiting and waiting.get("reason") == "pause":
+            why = "it keeps pausing between passes: check the schedule's pause"
+        else:
+            why = (
+                "it takes no picture though its schedule calls for one (its camera or its schedule runner "
+                "hangs): restart the module; its SD card keeps everything"
+            )
+        return f"module {module} {runs} but has sent no frame since {since} UTC: {why}"
 
     def _clock(self, st: _ModuleState) -> tuple[str, float] | None:
         """The clock alarm of a linked module: its severity and the offset its message names (the

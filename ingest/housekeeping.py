@@ -17,6 +17,8 @@ import time
 from collections import defaultdict
 from typing import Any
 
+from pydantic import ValidationError
+
 from analysis.attitude import attitude_from_samples
 from camcal.core import wire
 from camcal.core.events import EventKind
@@ -30,6 +32,8 @@ log = logging.getLogger("camcal.ingest")
 
 #: Seconds of sensor samples the attitude (tilt, rotation, heave period) is estimated from.
 ATTITUDE_WINDOW_S = 120.0
+#: Commands of one module sent in one round of the store thread, at most (oldest first).
+COMMANDS_PER_TICK = 16
 
 
 class Housekeeping:
@@ -107,12 +111,16 @@ class Housekeeping:
         """Send queued commands to linked modules, oldest first; repeat until the module answers.
 
         Oldest first: commands queued while a module was offline (pause, then
-        resume) must reach it in the order the operator issued them.
+        resume) must reach it in the order the operator issued them; at most
+        `COMMANDS_PER_TICK` of a module a round. A command that cannot be put on
+        the wire is refused by the ship, saying why: before, one such command
+        (a schedule version past the largest) failed every round and held up
+        every command after it.
         """
         st = self.st
         now = time.time()
         links = st.links
-        for cmd in reversed(self.store.call(queries.commands, states=("pending", "sent", "accepted"))):
+        for cmd in self.store.call(queries.commands_to_deliver, COMMANDS_PER_TICK):
             link = links.get(cmd["module"])
             if link is None or not link.up:
                 continue  # stays pending: delivered when the module is back
@@ -120,32 +128,40 @@ class Housekeeping:
                 cmd["attempts"] and now - cmd["updated_unix_s"] < st.config.command_retry_s
             ):
                 continue
-            schedule = (cmd["payload"] or {}).get("schedule")
-            st.acknowledge.send(
-                cmd["module"],
-                wire.Command(
+            try:
+                msg = wire.Command(
                     module="ship",
                     command_id=cmd["id"],
                     action=cmd["action"],
                     target_version=cmd["target_version"],
-                    schedule=schedule,
+                    schedule=(cmd["payload"] or {}).get("schedule"),
                     apply=cmd["apply"],
                     issued_by=cmd["issued_by"],
-                ),
-            )
+                )
+            except ValidationError as exc:
+                e = exc.errors()[0]
+                why = f"the ship cannot send it ({'.'.join(map(str, e['loc']))}: {e['msg']})"
+                if self.store.update_command(cmd["id"], "rejected", why, actor="ship") is not None:
+                    self._command_event(cmd, "rejected", why)
+                continue
+            st.acknowledge.send(cmd["module"], msg)
             self.store.mark_command_sent(cmd["id"])
             if not cmd["attempts"]:
-                st.events.emit(
-                    EventKind.COMMAND,
-                    {
-                        "command_id": cmd["id"],
-                        "state": "sent",
-                        "action": cmd["action"],
-                        "target_version": cmd["target_version"],
-                    },
-                    module=cmd["module"],
-                    dive_id=st.dive_id,
-                )
+                self._command_event(cmd, "sent")
+
+    def _command_event(self, cmd: dict[str, Any], state: str, reason: str | None = None) -> None:
+        self.st.events.emit(
+            EventKind.COMMAND,
+            {
+                "command_id": cmd["id"],
+                "state": state,
+                **({"reason": reason} if reason else {}),
+                "action": cmd["action"],
+                "target_version": cmd["target_version"],
+            },
+            module=cmd["module"],
+            dive_id=self.st.dive_id,
+        )
 
     # -- once a second ---------------------------------------------------
     def tick(self) -> None:
@@ -212,6 +228,15 @@ class Housekeeping:
             alarms.observe_failures("camera", link.module, link.boot, link.capture_errors, link.camera_error)
             alarms.observe_failures("sensors", link.module, link.boot, link.sensor_errors, link.sensor_error)
             alarms.observe_clock(link.module, link.clock_offset_s)
+            if age_up:
+                alarms.observe_production(
+                    link.module,
+                    link.schedule,
+                    link.waiting,
+                    link.last_frame_unix_s,
+                    link.outbox_pending,
+                    time.time(),
+                )
 
     def _observe_gaps(self) -> None:
         st = self.st

@@ -35,6 +35,7 @@ class Link:
     sensor_errors: int = 0  # sensor reads that failed this boot
     sensor_error: str | None = None
     deferred_shots: int = 0  # shots its runner took at a later turn of their colour this boot
+    waiting: dict[str, Any] | None = None  # why it takes no picture now (`camcal.core.wire.Waiting`)
     frames: deque[float] = field(default_factory=lambda: deque(maxlen=2000))
     last_frame_unix_s: float | None = None
     last_heartbeat_sent: float = 0.0

@@ -236,6 +236,7 @@ class Receiver:
         link.capture_errors, link.camera_error = msg.capture_errors, msg.camera_error
         link.sensor_errors, link.sensor_error = msg.sensor_errors, msg.sensor_error
         link.deferred_shots = msg.deferred_shots
+        link.waiting = msg.waiting.model_dump() if msg.waiting else None
         if not link.welcomed:  # the ship restarted under a running module: greet it again
             self._welcome(link)
 

@@ -354,6 +354,7 @@ class Agent(CommandHandling, Producing):
                             sensor_error=self.device_errors.get("sensors"),
                             deferred_shots=self.runner.deferred_shots if self.runner is not None else 0,
                             camera=self._camera(),
+                            waiting=self._waiting(),
                             **dive,
                         ),
                     )
@@ -455,6 +456,11 @@ class Agent(CommandHandling, Producing):
         self._card_record("a refusal", self.outbox.refuse, msg.boot, msg.seq, msg.reason, msg.detail)
         self.counters["refused"] += 1
         retry_at.pop(key, None)
+
+    def _waiting(self) -> wire.Waiting | None:
+        """Why the schedule runner takes no picture now (None: it does, or it does not run)."""
+        w = self.runner.waiting() if self.runner is not None else None
+        return wire.Waiting(**w) if w else None
 
     def _send(self, sock: Any, msg: Any) -> None:
         if self.clock_error:  # (simulation only)

@@ -81,6 +81,8 @@ class ScheduleRunner:
         self._last_taken: int | None = None
         #: Shots deferred to their wavelength's next turn because the LEM moved on amid them.
         self.deferred_shots = 0
+        #: Why no shot is being taken now: (reason, until on the clock's monotonic scale, wavelength).
+        self._waiting: tuple[str, float, int | None] | None = None
 
     # ------------------------------------------------------------ status
     @property
@@ -94,6 +96,21 @@ class ScheduleRunner:
     def status(self) -> dict[str, Any]:
         with self._cv:
             return {"name": self._schedule.name, "version": self._schedule.version, "state": self._state}
+
+    def waiting(self) -> dict[str, Any] | None:
+        """Why the runner takes no picture now while it runs (`camcal.core.wire.Waiting`): captures
+        off here (``not_here``), the LEM's colour (``lem``) or the pause between passes (``pause``),
+        with the wait left in seconds of real time; None while it takes pictures (or does not run)."""
+        w = self._waiting
+        if w is None or self._state != "running":
+            return None
+        reason, until, wavelength = w
+        speed = float(getattr(self.clock, "speed", 1.0))  # a simulated clock runs faster than real time
+        left_s = max(0.0, (until - self.clock.monotonic()) / speed)
+        return {"reason": reason, "for_s": round(left_s, 3), "wavelength_nm": wavelength}
+
+    def _wait(self, reason: str, seconds: float, wavelength_nm: int | None = None) -> None:
+        self._waiting = (reason, self.clock.monotonic() + seconds, wavelength_nm)
 
     # ------------------------------------------------------------ control
     def set_schedule(self, schedule: Schedule, apply: str = "now") -> None:
@@ -153,9 +170,12 @@ class ScheduleRunner:
                     pause = 0.0
                 shot = self._shots[self._index]
                 version = self._schedule.version
-            if pause > 0 and self._sleep(pause, stop):
-                continue
+            if pause > 0:
+                self._wait("pause", pause)
+                if self._sleep(pause, stop):
+                    continue
             if self.gate is not None and not self.gate():
+                self._wait("not_here", 1.0)
                 self._sleep(1.0, stop)
                 continue
             if self.lem is not None:
@@ -164,8 +184,11 @@ class ScheduleRunner:
                     if self._defer_rest_of_run(version):
                         continue
                     start = self.lem.next_start_of(shot.wavelength_nm, now)
-                    self._sleep(max((start - now).total_seconds(), 0.0) + 1e-3, stop)
+                    wait_s = max((start - now).total_seconds(), 0.0) + 1e-3
+                    self._wait("lem", wait_s, shot.wavelength_nm)
+                    self._sleep(wait_s, stop)
                     continue
+            self._waiting = None
             frame = self.camera.capture(shot.exposure_s, shot.gain_db)
             wavelength = frame.wavelength_nm
             if wavelength is None:

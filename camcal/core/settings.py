@@ -56,6 +56,12 @@ class AlarmSettings(BaseModel):
     disk_min_free_gb: float = Field(
         5.0, ge=0, description="free disk below this in the data folder: MAJOR alarm"
     )
+    no_frame_grace_s: float = Field(
+        120.0,
+        gt=0,
+        description="a running module that takes pictures where it is and sends no frame for this long "
+        "beyond the wait it names (the LEM's colour, the pause between passes): MAJOR alarm",
+    )
 
 
 class ModuleSetting(BaseModel):

@@ -211,6 +211,21 @@ class SensorsMsg(_ModuleHeader):
     sha256: Annotated[str, Strict(), Field(pattern=r"^[0-9a-f]{64}$")]
 
 
+class Waiting(BaseModel):
+    """Why a running module takes no picture now, and how long it expects that to last (revision 1.10).
+
+    ``not_here``: captures are off where it is (on deck, on the way down or up: its schedule takes
+    pictures at the stops and on station only); ``lem``: it waits for the LEM to show
+    ``wavelength_nm``; ``pause``: the pause between two passes of its schedule. ``for_s`` is the
+    wait left, in seconds of real time.
+    """
+
+    model_config = ConfigDict(extra="ignore", frozen=True)
+    reason: Literal["not_here", "lem", "pause"]
+    for_s: Annotated[float, Field(ge=0, le=10**7, allow_inf_nan=False), _NUMBER] = 0.0
+    wavelength_nm: Annotated[int, Strict(), Field(ge=200, le=2000)] | None = None
+
+
 class ModuleHeartbeat(_ModuleHeader):
     """Sent every second or so; tells the ship the module lives and what it runs."""
 
@@ -237,6 +252,8 @@ class ModuleHeartbeat(_ModuleHeader):
     #: The module's camera and its ranges, as in ``hello`` (revision 1.8): a camera swapped or
     #: reconfigured while the link is up.
     camera: CameraInfo | None = None
+    #: Why it takes no picture now, while its schedule runs (revision 1.10; None: it is taking them).
+    waiting: Waiting | None = None
 
 
 class CommandStatus(_ModuleHeader):

@@ -19,7 +19,7 @@ from camcal.core.wire.reasons import REASONS
 from camcal.core.wire.sensors import SENSOR_SPEC
 
 #: Version of the schema document: the protocol version, then a revision for additions that keep it.
-SCHEMA_VERSION = "1.9"
+SCHEMA_VERSION = "1.10"
 
 
 def protocol_schema() -> dict[str, Any]:

@@ -99,7 +99,8 @@ class Checker:
         rows = len(payload) if msg.type == "sensors" else 0
         if rows <= PART_ROWS:
             self.outq.put(
-                item.module, Checked(msg, payload, item.received_unix_s, item.received_mono, item.nbytes)
+                item.module,
+                Checked(msg, payload, item.received_unix_s, item.received_mono, item.nbytes, item.clock),
             )
             return
         for first in range(0, rows, PART_ROWS):
@@ -110,6 +111,7 @@ class Checker:
                 item.received_unix_s,
                 item.received_mono,
                 item.nbytes * n // rows,
+                item.clock,
                 part=(first, n, rows),
             )
             self.outq.put(item.module, part)

@@ -159,6 +159,8 @@ class Committer:
                         boot=m.boot,
                         seq=m.seq,
                         captured_unix_s=m.captured_at.timestamp(),
+                        # on the ship's clock too: one axis for the dive's times (`camcal.core.clockmap`)
+                        captured_ship_unix_s=it.clock.ship(m.captured_at.timestamp()),
                         received_unix_s=it.received_unix_s,
                         wavelength_nm=m.wavelength_nm,
                         exposure_s=m.exposure_s,
@@ -186,6 +188,7 @@ class Committer:
                         m.sha256,
                         part=it.part,
                         content_sha256=content,
+                        clock=it.clock,
                     )
                 )
         files.write_many(list(payloads.values()), fsync=self.fsync)  # every file durable before its row
@@ -236,7 +239,7 @@ class Committer:
             self.answered_early.add(it.key)
         if same:
             if it.part is not None and not it.last_part:  # acknowledged now, its other parts dropped
-                it = Checked(it.msg, it.payload, it.received_unix_s, it.received_mono, it.nbytes)
+                it = Checked(it.msg, it.payload, it.received_unix_s, it.received_mono, it.nbytes, it.clock)
             ok.append(it)
         else:
             self._conflict(it)
@@ -356,6 +359,7 @@ def _frame_meta(f: FrameRow) -> dict[str, Any]:
         "gain_db": f.gain_db,
         "depth_m": f.depth_m,
         "captured_unix_s": f.captured_unix_s,
+        "captured_ship_unix_s": f.captured_ship_unix_s,
         "width_px": f.width_px,
         "height_px": f.height_px,
     }
@@ -379,6 +383,7 @@ def frame_meta_from_row(f: Any) -> dict[str, Any]:
             path=f.path,
             size_bytes=f.size_bytes,
             sha256=f.sha256,
+            captured_ship_unix_s=f.captured_ship_unix_s,
         )
     )
     return {**meta, "received_mono": None}

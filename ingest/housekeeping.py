@@ -32,6 +32,8 @@ log = logging.getLogger("camcal.ingest")
 
 #: Seconds of sensor samples the attitude (tilt, rotation, heave period) is estimated from.
 ATTITUDE_WINDOW_S = 120.0
+#: A module clock's offset is stored again after it moved, at most this often [s].
+CLOCK_KEEP_S = 10.0
 #: Commands of one module sent in one round of the store thread, at most (oldest first).
 COMMANDS_PER_TICK = 16
 
@@ -49,6 +51,8 @@ class Housekeeping:
             if a.module_id is None or cfg.serves(a.module_id)
         }
         self.attitude_t: dict[str, float] = {}
+        #: Per module, the clock stored last: (boot, offset, when).
+        self.clocks_kept: dict[str, tuple[str, float, float]] = {}
         self.last_housekeeping = -1e18
         self.last_purge = -1e18
 
@@ -203,6 +207,9 @@ class Housekeeping:
                 "module_id": module,
                 "dive_id": st.dive_id,
                 "t_unix_s": float(recent[-1, 0]),
+                "t_ship_unix_s": link.clock_map().ship(float(recent[-1, 0]))
+                if (link := st.links.get(module)) is not None
+                else None,
                 "tilt_deg": est.tilt_deg,
                 "tilt_x_deg": est.tilt_x_deg,
                 "tilt_y_deg": est.tilt_y_deg,
@@ -228,6 +235,7 @@ class Housekeeping:
             alarms.observe_failures("camera", link.module, link.boot, link.capture_errors, link.camera_error)
             alarms.observe_failures("sensors", link.module, link.boot, link.sensor_errors, link.sensor_error)
             alarms.observe_clock(link.module, link.clock_offset_s)
+            self._keep_clock(link)
             if age_up:
                 alarms.observe_production(
                     link.module,
@@ -237,6 +245,23 @@ class Housekeeping:
                     link.outbox_pending,
                     time.time(),
                 )
+
+    def _keep_clock(self, link: Any) -> None:
+        """Store a module's clock as mapped now (`camcal.core.clockmap`): at a new boot at once, then
+        when its offset moved (at most every `CLOCK_KEEP_S`), so that the dive keeps how each of its
+        module times relates to the ship's."""
+        if not link.clock_boot or not link.clock_readings:
+            return
+        clock, n, now = link.clock_map(), len(link.clock_readings), time.time()
+        kept = self.clocks_kept.get(link.module)
+        if (
+            kept is not None
+            and kept[0] == link.clock_boot
+            and (abs(kept[1] - clock.offset_s) < 0.01 or now - kept[2] < CLOCK_KEEP_S)
+        ):
+            return
+        self.store.record_module_clock(self.st.dive_id, link.module, link.clock_boot, clock, n, now)
+        self.clocks_kept[link.module] = (link.clock_boot, clock.offset_s, now)
 
     def _observe_gaps(self) -> None:
         st = self.st

@@ -6,6 +6,8 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
+from camcal.core.clockmap import ModuleClock
+
 #: Heartbeats the module's clock offset is estimated over (`Link.clock_offset_s`), and how many
 #: it needs before it says anything.
 CLOCK_BEATS = 30
@@ -41,11 +43,30 @@ class Link:
     last_heartbeat_sent: float = 0.0
     clock_offset_s: float | None = None
     clock_readings: deque[float] = field(default_factory=lambda: deque(maxlen=CLOCK_BEATS))
+    #: Its clock as its hello described it (a simulated one's rate and anchor; `camcal.core.clockmap`).
+    clock: ModuleClock = field(default_factory=ModuleClock)
+    #: The boot that ``clock`` and ``clock_readings`` are of.
+    clock_boot: str = ""
     #: Data messages taken in and not answered yet, (boot, seq) -> payload bytes: the module's
     #: window as the ship sees it, and what it holds of the module.
     unanswered: dict[tuple[str, int], int] = field(default_factory=dict)
     unanswered_bytes: int = 0
     busy_refused: int = 0  # data messages refused as ``busy`` (the module held too much on the ship)
+
+    def clock_map(self) -> ModuleClock:
+        """Its clock mapped onto the ship's with the offset measured so far (from its first reading:
+        before five beats the estimate is rough, and `clock_offset_s` stays None)."""
+        return self.clock.with_offset(max(self.clock_readings)) if self.clock_readings else self.clock
+
+    def clock_reading(self, boot: str, sent_unix_s: float, arrived_unix_s: float) -> None:
+        """One message's offset reading (a hello's or a heartbeat's); a new boot starts afresh."""
+        if boot != self.clock_boot:
+            self.clock_boot = boot
+            self.clock_readings.clear()
+            self.clock_offset_s = None
+        self.clock_readings.append(self.clock.reading(sent_unix_s, arrived_unix_s))
+        if len(self.clock_readings) >= CLOCK_MIN_BEATS:  # (before: not known yet)
+            self.clock_offset_s = max(self.clock_readings)
 
     def settle(self, boot: str, seq: int) -> None:
         """A data message of the module was answered."""

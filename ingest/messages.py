@@ -21,10 +21,11 @@ below it, never one above (`lint-imports` checks the order, pyproject.toml).
 from __future__ import annotations
 
 from concurrent.futures import Future
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from camcal.core import wire
+from camcal.core.clockmap import ModuleClock
 from camcal.core.wire.reasons import REASONS
 
 Key = tuple[str, str, int]  # module, boot, seq: a data message's identity forever
@@ -41,6 +42,8 @@ class DataIn:
     received_unix_s: float
     received_mono: float
     nbytes: int
+    #: The module's clock mapped onto the ship's when it arrived (`camcal.core.clockmap`).
+    clock: ModuleClock = field(default_factory=ModuleClock)
 
     @property
     def module(self) -> str:

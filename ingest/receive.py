@@ -31,11 +31,12 @@ from typing import TYPE_CHECKING, Any
 import zmq
 
 from camcal.core import wire
+from camcal.core.clockmap import handshake_clock
 from camcal.core.ratelog import RateLimitedLog
 from camcal.core.wire.sockets import route_is_safe, route_module
 from ingest.counters import Counters
 from ingest.fairness import FairQueue
-from ingest.links import CLOCK_MIN_BEATS, Link
+from ingest.links import Link
 from ingest.messages import DataIn, Note, nack
 
 if TYPE_CHECKING:
@@ -201,6 +202,10 @@ class Receiver:
             self._take_data(link, identity, msg, payload, t_unix, t_mono)
             return
         if kind == "hello":
+            if msg.boot != link.clock_boot:  # a new boot: its clock as it describes it
+                c = msg.clock
+                link.clock = handshake_clock(c and c.rate, c and c.reads.timestamp(), c and c.at.timestamp())
+            link.clock_reading(msg.boot, msg.sent_at.timestamp(), t_unix)
             link.boot, link.welcomed = msg.boot, True
             link.schedule = msg.schedule.model_dump()
             link.outbox_pending, link.last_seq = msg.outbox_pending, msg.last_seq
@@ -223,12 +228,11 @@ class Receiver:
         self._note(Note(kind, module, msg, received_unix_s=t_unix, received_mono=t_mono))
 
     def _heartbeat(self, link: Link, msg: Any, t_unix: float) -> None:
-        # Module clock minus ship clock. A heartbeat queued behind frames on a busy link (a catch-up
-        # after an outage) arrives late and reads as a clock behind, never ahead: the least delayed
-        # of the recent beats (the largest reading) is the estimate, as NTP's minimum-delay filter does.
-        link.clock_readings.append(msg.sent_at.timestamp() - t_unix)
-        if len(link.clock_readings) >= CLOCK_MIN_BEATS:  # (before: not known yet)
-            link.clock_offset_s = max(link.clock_readings)
+        # Module clock minus what the ship expects of it (`camcal.core.clockmap`). A heartbeat queued
+        # behind frames on a busy link (a catch-up after an outage) arrives late and reads as a clock
+        # behind, never ahead: the least delayed of the recent beats (the largest reading) is the
+        # estimate, as NTP's minimum-delay filter does.
+        link.clock_reading(msg.boot, msg.sent_at.timestamp(), t_unix)
         link.schedule = msg.schedule.model_dump()
         link.outbox_pending, link.in_flight, link.boot = msg.outbox_pending, msg.in_flight, msg.boot
         link.last_seq = msg.last_seq
@@ -285,7 +289,7 @@ class Receiver:
         if key not in link.unanswered:
             link.unanswered[key] = nbytes
             link.unanswered_bytes += nbytes
-        self.checkq.put(link.module, DataIn(msg, payload, t_unix, t_mono, nbytes))
+        self.checkq.put(link.module, DataIn(msg, payload, t_unix, t_mono, nbytes, link.clock_map()))
 
     def _note(self, note: Note) -> None:
         self.checkq.put(note.module, note)  # behind the module's data received before it

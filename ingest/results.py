@@ -128,6 +128,7 @@ class Results:
             "gain_db": meta["gain_db"],
             "depth_m": meta["depth_m"],
             "captured_unix_s": meta["captured_unix_s"],
+            "captured_ship_unix_s": meta.get("captured_ship_unix_s"),
             "status": row["status"],
             "reason": row.get("reason"),
             "centroid_px": list(centroid) if centroid else None,

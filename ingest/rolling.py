@@ -68,6 +68,8 @@ class Sample:
     ok: bool = False
     i_center_gray: float | None = None
     i_center_err_gray: float | None = None
+    #: ``t_unix_s`` on the ship's clock (`camcal.core.clockmap`; None: not known).
+    t_ship_unix_s: float | None = None
 
     @property
     def order(self) -> tuple[float, str, int]:
@@ -88,6 +90,7 @@ class Sample:
             ok,
             r["i_center_gray"] if ok else None,
             r["i_center_err_gray"] if ok else None,
+            r.get("captured_ship_unix_s"),
         )
 
 
@@ -373,6 +376,7 @@ class VisitSeries:
             "visit_key": v.key,
             "wavelength_nm": res.wavelength_nm,
             "t_unix_s": res.t_s,
+            "t_ship_unix_s": _on_ship(v.samples, res.t_s),
             "t_first_unix_s": res.t_first_s,
             "t_last_unix_s": res.t_last_s,
             "depth_m": res.lem_depth_m,
@@ -414,6 +418,20 @@ def visit_details(res: VisitResult) -> dict[str, Any]:
         ],
         "note": res.note,
     }
+
+
+def _on_ship(samples: Sequence[Sample], t_unix_s: float) -> float | None:
+    """A time of the visit's frames (their modules' clocks) on the ship's: interpolated between its
+    frames' two times (the mapping is linear per module boot), None where they have no ship's time."""
+    known = sorted((s.t_unix_s, s.t_ship_unix_s) for s in samples if s.t_ship_unix_s is not None)
+    if not known:
+        return None
+    if len(known) == 1:
+        t, ship = known[0]
+        return ship + (t_unix_s - t)  # (one frame: its rate is not known here; the shift is)
+    i = min(max(bisect.bisect_left([t for t, _ in known], t_unix_s), 1), len(known) - 1)
+    (t0, s0), (t1, s1) = known[i - 1], known[i]
+    return s0 if t1 == t0 else s0 + (s1 - s0) * (t_unix_s - t0) / (t1 - t0)
 
 
 def _same_depth(a: float | None, b: float | None, jump_m: float) -> bool:

@@ -117,6 +117,9 @@ class Agent(CommandHandling, Producing):
         #: Simulation only: a module clock (its real-time clock) this far off, in what the module
         #: stamps and sends (capture and sample times, `sent_at`); the simulated world is not moved.
         self.clock_error = timedelta(seconds=simulated_clock_error_s)
+        #: Module-clock seconds per real second: a simulated clock's speed (its hello says so and
+        #: what its real-time clock read, so that the ship maps its times onto the ship's own).
+        self.clock_rate = float(getattr(clock, "speed", 1.0))
         self.warn = RateLimitedLog(log)
         self.boot = new_boot_id()
         self.outbox = Outbox(config.outbox, config.module, fsync=config.fsync)
@@ -463,8 +466,12 @@ class Agent(CommandHandling, Producing):
         return wire.Waiting(**w) if w else None
 
     def _send(self, sock: Any, msg: Any) -> None:
-        if self.clock_error:  # (simulation only)
-            msg = msg.model_copy(update={"sent_at": wire.utc_now() + self.clock_error})
+        if self.clock_rate != 1.0 or self.clock_error:  # (simulation only) its own clock, not the host's
+            update: dict[str, Any] = {"sent_at": self.clock.now() + self.clock_error}
+            if msg.type == "hello" and self.clock_rate != 1.0:  # its clock and real time at one instant
+                clock = wire.SimulatedClock(rate=self.clock_rate, reads=self.clock.now(), at=wire.utc_now())
+                update["clock"] = clock
+            msg = msg.model_copy(update=update)
         try:
             sock.send_multipart(wire.encode(msg), zmq.NOBLOCK)
         except zmq.Again:

@@ -43,6 +43,9 @@ class FramePublic(BaseModel):
     boot: str
     seq: int
     captured_unix_s: float
+    captured_ship_unix_s: float | None = Field(
+        None, description="when it was captured, on the ship's clock (its module's time mapped onto it)"
+    )
     wavelength_nm: int
     exposure_s: float
     gain_db: float
@@ -90,6 +93,8 @@ class AttenuationPointPublic(BaseModel):
     run_id: int
     wavelength_nm: int
     t_unix_s: float
+    #: ``t_unix_s`` on the ship's clock, the dive's one axis (None: not known; ``t_unix_s`` stands).
+    t_ship_unix_s: float | None = None
     depth_m: float | None
     lambda_att_m: float | None
     stat_err_m: float | None
@@ -202,10 +207,25 @@ class DepthSeries(BaseModel):
 
 
 class FrameMark(BaseModel):
-    t_unix_s: float
+    t_unix_s: float = Field(description="when it was captured, on the ship's clock")
     depth_m: float | None
     module: str
     id: int
+    captured_unix_s: float | None = Field(None, description="when it was captured, on its module's clock")
+
+
+class ModuleClockPublic(BaseModel):
+    """A module's clock during one boot, mapped onto the ship's (`camcal.core.clockmap`)."""
+
+    module: str
+    boot: str
+    rate: float = Field(description="seconds of its clock per real second: 1 real, 10 a simulation at 10x")
+    module_at_unix_s: float
+    real_at_unix_s: float
+    offset_s: float | None = Field(description="its clock against the mapping, newest (module seconds)")
+    n_readings: int
+    first_unix_s: float
+    updated_unix_s: float
 
 
 class Timeline(BaseModel):
@@ -216,6 +236,9 @@ class Timeline(BaseModel):
     frames: list[FrameMark]
     frame_step: int = Field(description="every n-th frame is marked (at most ~2000 marks)")
     alarms: list[AlarmPublic]
+    clocks: list[ModuleClockPublic] = Field(
+        default_factory=list, description="each module's clock per boot: every time here is the ship's"
+    )
 
 
 class AttenuationRow(Open):

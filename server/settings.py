@@ -21,7 +21,7 @@ class ServerSettings:
     can change anything (watching needs no token). ``station_depth_m``, the
     dive plan's station depth, tells the live view's station from test stops.
     ``simulation_speed``: the modules are `camcal up`'s simulated ones, at that
-    speed; their frames' and sensors' times run on the simulation's clock, and
+    speed; their clock is mapped onto the ship's (`camcal.core.clockmap`), and
     the pages say so (None: real modules).
 
     The bounds (`server.guard`, `server.jobs`, the live WebSocket): request

@@ -58,7 +58,9 @@ def dive_tables(store: Store, dive_id: int, run_id: int | None = None) -> dict[s
             q = select(*fcols).select_from(Frame)
             rcols = []
         names = [c.name for c in fcols] + [c.name for c in rcols]
-        rows = s.execute(q.where(Frame.dive_id == dive_id).order_by(Frame.captured_unix_s)).all()
+        # in the order they were taken, on the ship's clock (`captured_ship_unix_s`: the dive's one axis)
+        taken = queries.ship_time(Frame)
+        rows = s.execute(q.where(Frame.dive_id == dive_id).order_by(taken, Frame.id)).all()
         out["frames"] = _table(names, rows)
         tables: tuple[tuple[str, Any, Any], ...] = (
             ("sensor_samples", SensorSample, SensorSample.dive_id == dive_id),

@@ -75,6 +75,7 @@ class Frame(Base):
     __table_args__ = (
         UniqueConstraint("module_id", "boot", "seq", name="uq_frames_module_boot_seq"),
         Index("ix_frames_dive_time", "dive_id", "captured_unix_s"),
+        Index("ix_frames_dive_ship_time", "dive_id", "captured_ship_unix_s"),
         Index("ix_frames_dive_setting", "dive_id", "module_id", "wavelength_nm", "exposure_s", "gain_db"),
     )
     id: Mapped[int] = mapped_column(BigId, primary_key=True, autoincrement=True)
@@ -84,6 +85,10 @@ class Frame(Base):
     seq: Mapped[int] = mapped_column(BigInteger)
     captured_unix_s: Mapped[float] = mapped_column(Float)
     received_unix_s: Mapped[float] = mapped_column(Float)
+    #: The capture time on the ship's clock (the module's mapped onto it, `camcal.core.clockmap`): the
+    #: dive's one axis. Where no mapping is known (an import, a frame stored before migration 0008)
+    #: the capture time stands for it.
+    captured_ship_unix_s: Mapped[float | None] = mapped_column(Float)
     wavelength_nm: Mapped[int] = mapped_column(Integer)
     exposure_s: Mapped[float] = mapped_column(Float)
     gain_db: Mapped[float] = mapped_column(Float)
@@ -182,6 +187,8 @@ class AttenuationPoint(Base):
     dive_id: Mapped[int] = mapped_column(ForeignKey("dives.id"))
     wavelength_nm: Mapped[int] = mapped_column(Integer)
     t_unix_s: Mapped[float] = mapped_column(Float)
+    #: ``t_unix_s`` on the ship's clock (from its frames' mapped times; None: not known).
+    t_ship_unix_s: Mapped[float | None] = mapped_column(Float)
     depth_m: Mapped[float | None] = mapped_column(Float)
     lambda_att_m: Mapped[float | None] = mapped_column(Float)
     stat_err_m: Mapped[float | None] = mapped_column(Float)
@@ -218,6 +225,27 @@ class ChiSquareFitRecord(Base):
     result: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
 
 
+class ModuleClockRecord(Base):
+    """A module's clock during one boot, mapped onto the ship's (`camcal.core.clockmap`): its rate
+    and anchor from its handshake, the newest offset measured at its heartbeats, and when those
+    arrived. Its frames, samples and λ_att points carry both times; this says how they relate."""
+
+    __tablename__ = "module_clocks"
+    __table_args__ = (UniqueConstraint("module_id", "boot", name="uq_module_clocks"),)
+    id: Mapped[int] = mapped_column(BigId, primary_key=True, autoincrement=True)
+    dive_id: Mapped[int | None] = mapped_column(ForeignKey("dives.id"))
+    module_id: Mapped[str] = mapped_column(String(64))
+    boot: Mapped[str] = mapped_column(String(64))
+    rate: Mapped[float] = mapped_column(Float, default=1.0)
+    module_at_unix_s: Mapped[float] = mapped_column(Float, default=0.0)
+    real_at_unix_s: Mapped[float] = mapped_column(Float, default=0.0)
+    offset_s: Mapped[float | None] = mapped_column(Float)
+    n_readings: Mapped[int] = mapped_column(Integer, default=0)
+    #: When (the ship's clock) the boot's first reading and its newest arrived.
+    first_unix_s: Mapped[float] = mapped_column(Float)
+    updated_unix_s: Mapped[float] = mapped_column(Float)
+
+
 class SensorBatch(Base):
     """A received ``sensors`` message (for de-duplication of resends)."""
 
@@ -245,6 +273,7 @@ class SensorSample(Base):
     module_id: Mapped[str] = mapped_column(ForeignKey("modules.id"))
     dive_id: Mapped[int | None] = mapped_column(ForeignKey("dives.id"))
     t_unix_s: Mapped[float] = mapped_column(Float)
+    t_ship_unix_s: Mapped[float | None] = mapped_column(Float)  # on the ship's clock (None: not known)
     #: The `SensorBatch` (row id) the sample came in (None before migration 0007).
     batch_id: Mapped[int | None] = mapped_column(BigInteger, index=True)
     # One nullable column per sensor of the wire's definition (`camcal.core.wire.sensors.SENSOR_SPEC`):
@@ -263,6 +292,7 @@ class AttitudeSample(Base):
     module_id: Mapped[str] = mapped_column(ForeignKey("modules.id"))
     dive_id: Mapped[int | None] = mapped_column(ForeignKey("dives.id"))
     t_unix_s: Mapped[float] = mapped_column(Float)
+    t_ship_unix_s: Mapped[float | None] = mapped_column(Float)  # on the ship's clock (None: not known)
     tilt_deg: Mapped[float] = mapped_column(Float)
     tilt_x_deg: Mapped[float] = mapped_column(Float)
     tilt_y_deg: Mapped[float] = mapped_column(Float)

@@ -19,13 +19,23 @@ from sqlalchemy.engine import make_url
 from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session
 
+from camcal.core.clockmap import ModuleClock
 from camcal.core.events import Event
 from storage import queries
 from storage.analysis_writes import AnalysisWrites
 from storage.base import now_unix_s
 from storage.db import DataPaths, database_unusable, error_line, make_engine, migrate
 from storage.files import FrameFiles
-from storage.models import Dive, Frame, Gap, IngestCounter, Module, SensorBatch, SensorSample
+from storage.models import (
+    Dive,
+    Frame,
+    Gap,
+    IngestCounter,
+    Module,
+    ModuleClockRecord,
+    SensorBatch,
+    SensorSample,
+)
 from storage.operations_writes import COMMAND_STATES, OperationsWrites
 from storage.queries.divestate import DiveRules, DiveState, dive_state
 
@@ -55,6 +65,10 @@ class DiveChoice:
     ended: tuple[str, DiveState] | None = None
     #: Why the named dive had ended, when a start named it and so opened it again.
     reopened: str | None = None
+
+
+def _on_ship(clock: ModuleClock | None, t_unix_s: float | None) -> float | None:
+    return None if clock is None or t_unix_s is None else clock.ship(t_unix_s)
 
 
 def _open_dive(s: Session) -> Dive | None:
@@ -95,6 +109,9 @@ class FrameRow:
     source: str = "live"
     dive_id: int | None = None
     content_sha256: str | None = None  # `camcal.core.wire.content_sha256` of a received message
+    #: The capture time on the ship's clock (the module's mapped onto it: `camcal.core.clockmap`);
+    #: None where no mapping was known (an import): the capture time stands for it.
+    captured_ship_unix_s: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
@@ -114,6 +131,8 @@ class SensorBatchRow:
     #: batch is complete (acknowledged) with its last part. None: the whole batch.
     part: tuple[int, int, int] | None = None
     content_sha256: str | None = None  # `camcal.core.wire.content_sha256` of the message
+    #: The module's clock mapped onto the ship's: each sample's time on the ship's clock too.
+    clock: ModuleClock | None = None
 
 
 @dataclass
@@ -288,6 +307,26 @@ class Store(AnalysisWrites, OperationsWrites):
             self._ensure_modules(s, [module_id], t)
             s.execute(update(cast(Table, Module.__table__)).where(Module.id == module_id).values(**changes))
 
+    def record_module_clock(
+        self, dive_id: int, module_id: str, boot: str, clock: ModuleClock, n_readings: int, t: float
+    ) -> None:
+        """Keep a module's clock of one boot as the ship maps it (its newest offset; one row a boot)."""
+        values = {
+            "dive_id": dive_id,
+            "rate": clock.rate,
+            "module_at_unix_s": clock.module_at_unix_s,
+            "real_at_unix_s": clock.real_at_unix_s,
+            "offset_s": clock.offset_s if n_readings else None,
+            "n_readings": n_readings,
+            "updated_unix_s": t,
+        }
+        stmt = self._insert(ModuleClockRecord.__table__).values(
+            module_id=module_id, boot=boot, first_unix_s=t, **values
+        )
+        stmt = stmt.on_conflict_do_update(index_elements=["module_id", "boot"], set_=values)
+        with self.session() as s:
+            s.execute(stmt)
+
     def _ensure_modules(self, s: Session, module_ids: Iterable[str], t: float) -> None:
         """Module rows for ``module_ids`` (one statement; a row another process just added is kept)."""
         ids = sorted(set(module_ids))
@@ -328,6 +367,8 @@ class Store(AnalysisWrites, OperationsWrites):
                 for f in frames:
                     d = f.as_dict()
                     d["dive_id"] = f.dive_id or dive_id
+                    if d["captured_ship_unix_s"] is None:  # no mapping known: its own time stands
+                        d["captured_ship_unix_s"] = d["captured_unix_s"]
                     rows.append(d)
                 stmt = (  # executemany with RETURNING: a skipped duplicate returns no row
                     self._insert(Frame.__table__)
@@ -345,7 +386,13 @@ class Store(AnalysisWrites, OperationsWrites):
                     s.execute(
                         insert(SensorSample),
                         [
-                            {**smp, "module_id": b.module_id, "dive_id": dive_id, "batch_id": batch_id}
+                            {
+                                **smp,
+                                "module_id": b.module_id,
+                                "dive_id": dive_id,
+                                "batch_id": batch_id,
+                                "t_ship_unix_s": _on_ship(b.clock, smp.get("t_unix_s")),
+                            }
                             for smp in b.samples
                         ],
                     )

@@ -67,6 +67,7 @@ class ResultPayload(TypedDict, total=False):
     gain_db: float
     depth_m: float | None
     captured_unix_s: float
+    captured_ship_unix_s: float | None  # on the ship's clock (`camcal.core.clockmap`)
     status: str
     reason: str | None
     centroid_px: list[float] | None

@@ -178,7 +178,12 @@ def attitude(series: dict[str, dict[str, Any]]) -> str:
 def _att_points(series: dict[int, list[dict[str, Any]]]) -> dict[int, dict[str, np.ndarray]]:
     out = {}
     for wl, pts in sorted(series.items()):
-        ok = [p for p in pts if p["lambda_att_m"] is not None]
+        # the time on the ship's clock, the dive's one axis (the timeline's too)
+        ok = [
+            {**p, "t_unix_s": p.get("t_ship_unix_s") or p["t_unix_s"]}
+            for p in pts
+            if p["lambda_att_m"] is not None
+        ]
         if ok:
             out[wl] = {
                 k: np.array([np.nan if p[k] is None else p[k] for p in ok], dtype=float)

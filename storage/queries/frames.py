@@ -49,10 +49,11 @@ def frames_page(
         conds.append(func.abs(Frame.exposure_s - f.exposure_s) < 1e-9)
     if f.gain_db is not None:
         conds.append(func.abs(Frame.gain_db - f.gain_db) < 1e-9)
+    # Times are the ship's clock (the dive's one axis, as on the timeline): `captured_ship_unix_s`.
     if f.t_from is not None:
-        conds.append(Frame.captured_unix_s >= f.t_from)
+        conds.append(Frame.captured_ship_unix_s >= f.t_from)
     if f.t_to is not None:
-        conds.append(Frame.captured_unix_s <= f.t_to)
+        conds.append(Frame.captured_ship_unix_s <= f.t_to)
     if f.depth_min_m is not None:
         conds.append(Frame.depth_m >= f.depth_min_m)
     if f.depth_max_m is not None:
@@ -66,7 +67,8 @@ def frames_page(
         conds.append(FrameResult.reason == f.reason)
     base = select(Frame, FrameResult).outerjoin(FrameResult, join).where(*conds)
     total = s.scalar(select(func.count()).select_from(base.subquery())) or 0
-    ordering = Frame.captured_unix_s.desc() if order == "newest" else Frame.captured_unix_s
+    taken = Frame.captured_ship_unix_s
+    ordering = taken.desc() if order == "newest" else taken
     rows = s.execute(base.order_by(ordering, Frame.id).limit(limit).offset(offset)).all()
     return [frame_dict(fr, res) for fr, res in rows], int(total)
 
@@ -79,6 +81,8 @@ def frame_dict(fr: Frame, res: FrameResult | None, *, full: bool = False) -> dic
         "boot": fr.boot,
         "seq": fr.seq,
         "captured_unix_s": fr.captured_unix_s,
+        # on the ship's clock (the module's mapped onto it, `camcal.core.clockmap`)
+        "captured_ship_unix_s": fr.captured_ship_unix_s,
         "received_unix_s": fr.received_unix_s,
         "wavelength_nm": fr.wavelength_nm,
         "exposure_s": fr.exposure_s,

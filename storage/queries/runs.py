@@ -18,6 +18,7 @@ from storage.models import (
     Dive,
     Frame,
     FrameResult,
+    ModuleClockRecord,
     SensorSample,
 )
 from storage.queries.divestate import DiveRules, dive_state
@@ -272,8 +273,18 @@ def frame_settings(s: Session, dive_id: int) -> dict[str, list[Any]]:
     return out
 
 
+def ship_time(model: Any) -> Any:
+    """A table's module time on the ship's clock where it has one (`camcal.core.clockmap`)."""
+    if model is Frame:  # (always set: the capture time stands where no mapping is known)
+        return Frame.captured_ship_unix_s
+    return func.coalesce(model.t_ship_unix_s, model.t_unix_s)
+
+
 def timeline(s: Session, dive_id: int, max_points: int = 600) -> dict[str, Any]:
-    """Depth over the dive (from the frames and the sensors), frame marks and alarms."""
+    """Depth over the dive (from the frames and the sensors), frame marks, alarms and each module's
+    clock, all on the ship's clock: the dive's one axis (the modules' times mapped onto it, at the
+    handshake and every heartbeat: `camcal.core.clockmap`), so that what happened is drawn in the
+    order it happened. A frame mark keeps its module's time as ``captured_unix_s``."""
     depth = downsampled(
         s,
         SensorSample,
@@ -284,15 +295,19 @@ def timeline(s: Session, dive_id: int, max_points: int = 600) -> dict[str, Any]:
         t_to=None,
         max_points=max_points,
     )
+    t_ship = ship_time(Frame)
     frames = s.execute(
-        select(Frame.captured_unix_s, Frame.depth_m, Frame.module_id, Frame.id)
+        select(t_ship, Frame.depth_m, Frame.module_id, Frame.id, Frame.captured_unix_s)
         .where(Frame.dive_id == dive_id)
-        .order_by(Frame.captured_unix_s)
+        .order_by(t_ship, Frame.id)
     ).all()
     step = max(1, len(frames) // 2000)
-    marks = [{"t_unix_s": t, "depth_m": d, "module": m, "id": i} for t, d, m, i in frames[::step]]
+    marks = [
+        {"t_unix_s": c if t is None else t, "depth_m": d, "module": m, "id": i, "captured_unix_s": c}
+        for t, d, m, i, c in frames[::step]
+    ]
     # Each module's own depth: the two hang ~20 m apart, and one series of both zigzags between them.
-    modules = sorted({m for _, _, m, _ in frames})
+    modules = sorted({m for _, _, m, _, _ in frames})
     by_module = {}
     for m in modules:
         d = downsampled(
@@ -308,8 +323,9 @@ def timeline(s: Session, dive_id: int, max_points: int = 600) -> dict[str, Any]:
         if d["t_unix_s"]:
             by_module[m] = {"t_unix_s": d["t_unix_s"], "depth_m": d["depth_m"]}
     dive = s.get(Dive, dive_id)
-    t_lo = frames[0][0] if frames else (dive.started_unix_s if dive else None)
-    t_hi = max(frames[-1][0] if frames else 0.0, (dive.ended_unix_s or now_unix_s()) if dive else 0.0)
+    times = [t for t, *_ in frames if t is not None]  # (a row written by hand may have none)
+    t_lo = times[0] if times else (dive.started_unix_s if dive else None)
+    t_hi = max(times[-1] if times else 0.0, (dive.ended_unix_s or now_unix_s()) if dive else 0.0)
     alarm_rows = s.scalars(  # the dive's time (its frames', or the ship's while it is open), an hour around
         select(Alarm).where(Alarm.raised_unix_s.between((t_lo or 0) - 3600, t_hi + 3600))
     ).all()
@@ -319,15 +335,42 @@ def timeline(s: Session, dive_id: int, max_points: int = 600) -> dict[str, Any]:
         "frames": marks,
         "frame_step": step,
         "alarms": [alarm_dict(a) for a in alarm_rows],
+        "clocks": module_clocks(s, dive_id),
     }
 
 
+def module_clocks(s: Session, dive_id: int) -> list[dict[str, Any]]:
+    """Each module's clock of each boot in the dive, as the ship mapped it onto its own: the rate
+    (1: a real clock; 10: a simulation at 10x), the anchor and the newest offset measured."""
+    rows = s.scalars(
+        select(ModuleClockRecord)
+        .where(ModuleClockRecord.dive_id == dive_id)
+        .order_by(ModuleClockRecord.module_id, ModuleClockRecord.first_unix_s)
+    )
+    return [
+        {
+            "module": c.module_id,
+            "boot": c.boot,
+            "rate": c.rate,
+            "module_at_unix_s": c.module_at_unix_s,
+            "real_at_unix_s": c.real_at_unix_s,
+            "offset_s": c.offset_s,
+            "n_readings": c.n_readings,
+            "first_unix_s": c.first_unix_s,
+            "updated_unix_s": c.updated_unix_s,
+        }
+        for c in rows
+    ]
+
+
 def frame_outcomes(s: Session, dive_id: int, run_id: int | None) -> list[dict[str, Any]]:
-    """Every frame of a dive in capture order with its outcome in a run (``pending`` without one)."""
+    """Every frame of a dive in capture order with its outcome in a run (``pending`` without one);
+    ``t_unix_s`` on the ship's clock (`ship_time`)."""
     join = and_(FrameResult.frame_id == Frame.id, FrameResult.run_id == (run_id or -1))
+    t = ship_time(Frame)
     rows = s.execute(
         select(
-            Frame.captured_unix_s,
+            t,
             Frame.depth_m,
             Frame.module_id,
             Frame.wavelength_nm,
@@ -336,7 +379,7 @@ def frame_outcomes(s: Session, dive_id: int, run_id: int | None) -> list[dict[st
         )
         .outerjoin(FrameResult, join)
         .where(Frame.dive_id == dive_id)
-        .order_by(Frame.captured_unix_s, Frame.id)
+        .order_by(t, Frame.id)
     ).all()
     return [
         {
@@ -358,8 +401,9 @@ def result_rows(s: Session, run_id: int, dive_id: int) -> list[dict[str, Any]]:
 
 
 def newest_result_rows(s: Session, run_id: int, dive_id: int, n: int) -> list[dict[str, Any]]:
-    """`result_rows` of the ``n`` newest frames (by capture time), in capture order."""
-    q = _result_rows_query(run_id, dive_id).order_by(Frame.captured_unix_s.desc(), Frame.id.desc()).limit(n)
+    """`result_rows` of the ``n`` frames received last (the store numbers frames as they arrive: not
+    the latest capture times, which a module's clock writes), in the order they arrived."""
+    q = _result_rows_query(run_id, dive_id).order_by(Frame.id.desc()).limit(n)
     return [dict(zip(_RESULT_KEYS, r, strict=True)) for r in reversed(s.execute(q).all())]
 
 
@@ -370,6 +414,7 @@ _RESULT_KEYS = (
     "exposure_s",
     "gain_db",
     "captured_unix_s",
+    "captured_ship_unix_s",
     "depth_m",
     "path",
     "status",
@@ -388,6 +433,7 @@ def _result_rows_query(run_id: int, dive_id: int) -> Any:
             Frame.exposure_s,
             Frame.gain_db,
             Frame.captured_unix_s,
+            Frame.captured_ship_unix_s,
             Frame.depth_m,
             Frame.path,
             FrameResult.status,

@@ -35,9 +35,15 @@ def downsampled(
     The bucketing runs in the database (integer division of the time by the
     bucket width), so a whole dive of 10 Hz samples costs one aggregate query.
     Each bucket also carries the min and max of the first column, so peaks
-    survive downsampling.
+    survive downsampling. The times are the ship's clock where the samples
+    have one (``t_ship_unix_s``, `camcal.core.clockmap`), the module's
+    elsewhere: the dive's one axis, on which alarms and commands lie too.
     """
-    t = model.t_unix_s
+    t = (
+        func.coalesce(model.t_ship_unix_s, model.t_unix_s)
+        if hasattr(model, "t_ship_unix_s")
+        else model.t_unix_s
+    )
     conds = []
     if module:
         conds.append(model.module_id == module)
@@ -139,6 +145,7 @@ def attenuation_dict(p: AttenuationPoint) -> dict[str, Any]:
         "run_id": p.run_id,
         "wavelength_nm": p.wavelength_nm,
         "t_unix_s": p.t_unix_s,
+        "t_ship_unix_s": p.t_ship_unix_s,
         "depth_m": p.depth_m,
         "lambda_att_m": p.lambda_att_m,
         "stat_err_m": p.stat_err_m,
@@ -183,13 +190,14 @@ def linearity(s: Session, run_id: int, module: str | None = None) -> list[dict[s
 
 
 def latest_sensors(s: Session, dive_id: int | None = None) -> dict[str, dict[str, Any]]:
-    """Per module, its most recent sensor sample."""
+    """Per module, the sensor sample received last (not the one of the latest time: a module's clock
+    writes that, and a restarted simulation's ran behind the previous run's)."""
     out: dict[str, dict[str, Any]] = {}
     for (m,) in s.execute(select(Module.id)):
         q = select(SensorSample).where(SensorSample.module_id == m)
         if dive_id is not None:
             q = q.where(SensorSample.dive_id == dive_id)
-        row = s.scalars(q.order_by(SensorSample.t_unix_s.desc()).limit(1)).first()
+        row = s.scalars(q.order_by(SensorSample.id.desc()).limit(1)).first()  # received last
         if row is not None:
             out[m] = {"t_unix_s": row.t_unix_s, **{c: getattr(row, c) for c in SENSOR_COLUMNS}}
     return out
@@ -201,7 +209,7 @@ def latest_attitude(s: Session, dive_id: int | None = None) -> dict[str, dict[st
         q = select(AttitudeSample).where(AttitudeSample.module_id == m)
         if dive_id is not None:
             q = q.where(AttitudeSample.dive_id == dive_id)
-        row = s.scalars(q.order_by(AttitudeSample.t_unix_s.desc()).limit(1)).first()
+        row = s.scalars(q.order_by(AttitudeSample.id.desc()).limit(1)).first()  # stored last
         if row is not None:
             out[m] = {"t_unix_s": row.t_unix_s, **{c: getattr(row, c) for c in ATTITUDE_COLUMNS}}
     return out

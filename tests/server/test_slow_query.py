@@ -158,5 +158,12 @@ def test_a_websocket_keeps_its_heartbeat_while_a_query_hangs(tmp_path: Path, blo
             requester.join(15)
             response = answer["response"]
             assert response.status_code == 200
-            assert set(response.json()) == {"depth", "depth_by_module", "frames", "frame_step", "alarms"}
+            assert set(response.json()) == {
+                "depth",
+                "depth_by_module",
+                "frames",
+                "frame_step",
+                "alarms",
+                "clocks",
+            }
     store.close()

@@ -157,11 +157,26 @@ class CameraInfo(BaseModel):
             if lo > hi:
                 raise ValueError(f"{name}: the minimum {lo} exceeds the maximum {hi}")
         return self
+class SimulatedClock(BaseModel):
+    """A simulated module's clock (revision 1.10): it runs ``rate`` times as fast as real time and
+    reads ``reads`` at real time ``at`` (the simulation's own definition, not its clock's readings:
+    a simulated clock error shows as an offset, as a real one does)."""
+
+    model_config = ConfigDict(extra="ignore", frozen=True)
+    rate: Annotated[float, Field(gt=0, le=10000, allow_inf_nan=False), _NUMBER]
+    reads: SentAt
+    at: SentAt
 
 
 # ------------------------------------------------------------ module -> ship
 class Hello(_ModuleHeader):
-    """First message after (re)connecting; repeated until the ship answers ``welcome``."""
+    """First message after (re)connecting; repeated until the ship answers ``welcome``.
+
+    ``clock`` (revision 1.10): a simulated module's clock, which stamps ``sent_at``, its captures and
+    samples, runs faster than real time; a real module leaves it out (its clock runs at the ship's
+    rate). The ship maps the module's times onto its own from this and the offset it measures at
+    each heartbeat (`camcal.core.clockmap`).
+    """
 
     type: Literal["hello"] = "hello"
     boot: Id
@@ -171,6 +186,7 @@ class Hello(_ModuleHeader):
     last_seq: Count = 0
     #: The module's camera and its ranges (revision 1.8; absent: a module that does not say).
     camera: CameraInfo | None = None
+    clock: SimulatedClock | None = None
 
 
 class FrameMsg(_ModuleHeader):

@@ -7,6 +7,8 @@ import { fmt, plotDate, utc, wlColor } from "./format.js";
 import { draw, emptyPlot, timeAxis } from "./plots.js";
 
 const hasValue = (p) => p.lambda_att_m !== null && p.lambda_att_m !== undefined;
+/** A point's time on the ship's clock, the dive's one axis (its frames' module times mapped onto it). */
+export const shipT = (p) => p.t_ship_unix_s ?? p.t_unix_s;
 
 /**
  * Put a live `attenuation` event into a series {"405": [points]}: a visit's newer point replaces
@@ -30,7 +32,7 @@ export function upsertVisit(series, p, { keep = 600 } = {}) {
   const i = key ? pts.findIndex((q) => q.visit_key === key) : -1;
   if (i >= 0) pts[i] = point;
   else pts.push(point);
-  pts.sort((a, b) => a.t_unix_s - b.t_unix_s);
+  pts.sort((a, b) => shipT(a) - shipT(b));
   if (pts.length > keep) {
     // the points stored first go (numbered as their visits begin), not those of the earliest times
     const cut = pts.map((q) => q.id ?? -1).sort((a, b) => a - b)[pts.length - keep];
@@ -43,7 +45,7 @@ function hover(p) {
   const state = p.final === false ? "provisional (visit running)" : "final";
   return (
     `λ ${fmt(p.lambda_att_m, 2)} m ± ${fmt(p.stat_err_m, 2)} stat ± ${fmt(p.sys_err_m, 2)} sys<br>` +
-    `LEM depth ${fmt(p.depth_m, 0)} m · ${utc(p.t_unix_s)}<br>` +
+    `LEM depth ${fmt(p.depth_m, 0)} m · ${utc(shipT(p))}<br>` +
     `${p.n_frames ?? "?"} frames, ${p.n_pairs} pairs · ${state}`
   );
 }
@@ -52,7 +54,7 @@ function hover(p) {
 function pointTraces(wl, pts, against) {
   const color = wlColor(wl);
   const lam = pts.map((p) => p.lambda_att_m);
-  const other = against === "time" ? pts.map((p) => plotDate(p.t_unix_s)) : pts.map((p) => p.depth_m);
+  const other = against === "time" ? pts.map((p) => plotDate(shipT(p))) : pts.map((p) => p.depth_m);
   const xy = (vals) => (against === "time" ? { x: other, y: vals } : { x: vals, y: other });
   const errKey = against === "time" ? "error_y" : "error_x";
   const bars = (arr, thickness, width) => ({ type: "data", array: arr, visible: true, color, thickness, width });
@@ -104,9 +106,9 @@ export function smoothed(pts, n) {
     const w = win.map((p) => 1 / Math.max(p.stat_err_m, 1e-6) ** 2);
     const sw = w.reduce((a, b) => a + b, 0);
     out.push({
-      t_unix_s: win.reduce((a, p, k) => a + w[k] * p.t_unix_s, 0) / sw,
+      t_unix_s: win.reduce((a, p, k) => a + w[k] * shipT(p), 0) / sw,
       lambda_att_m: win.reduce((a, p, k) => a + w[k] * p.lambda_att_m, 0) / sw,
-      span_s: win[win.length - 1].t_unix_s - win[0].t_unix_s,
+      span_s: shipT(win[win.length - 1]) - shipT(win[0]),
     });
   }
   return out;

@@ -143,7 +143,9 @@ export function showThumbnail(card, img, frame) {
   const label = f(card, "frame-label");
   label.hidden = false;
   const st = frame.status === "rejected" && frame.reason ? qualityLabel(qualityKey(frame), { bare: true }) : frame.status;
-  setText(label, `#${frame.id} · ${utc(frame.captured_unix_s, { date: false })} · ${st}`);
+  // when it was taken on the ship's clock (a simulated module's own runs 10x ahead)
+  const taken = frame.captured_ship_unix_s ?? frame.captured_unix_s;
+  setText(label, `#${frame.id} · ${utc(taken, { date: false })} · ${st}`);
 }
 
 /** Refresh every number of a card from the module's state (cheap: text is set only when it changes). */

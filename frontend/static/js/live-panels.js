@@ -87,7 +87,7 @@ export function renderLambdaNow(box, attenuation) {
     const p = newestPoint(attenuation[wl] || []);
     const about = p
       ? `± ${fmt(p.stat_err_m, 2)} stat ± ${fmt(p.sys_err_m, 2)} sys · ${plural(p.n_frames ?? 0, "frame")} · ` +
-        `${fmt(p.depth_m, 0)} m · ${utc(p.t_unix_s, { date: false })}` +
+        `${fmt(p.depth_m, 0)} m · ${utc(p.t_ship_unix_s ?? p.t_unix_s, { date: false })}` +
         (p.final === false ? " · provisional" : "")
       : "no point yet";
     items.push(

@@ -119,9 +119,14 @@ async function load() {
         },
         el("td", {}, el("img", { class: "mini", src: fr.thumbnail_url, alt: "", loading: "lazy", width: 62, height: 52 })),
         el("td", { class: "r" }, fr.id),
-        ((stamp) => el("td", { title: stamp }, el("span", { class: "date" }, `${stamp.slice(0, 10)} `), stamp.slice(11)))(
-          utc(fr.captured_unix_s),
-        ),
+        // when it was taken on the ship's clock (the dive's one axis); its module's own in the tooltip
+        ((stamp) =>
+          el(
+            "td",
+            { title: `${stamp} on the ship's clock; ${utc(fr.captured_unix_s)} on module ${fr.module}'s` },
+            el("span", { class: "date" }, `${stamp.slice(0, 10)} `),
+            stamp.slice(11),
+          ))(utc(shipTime(fr))),
         el("td", {}, fr.module),
         el("td", { class: "r" }, `${fr.wavelength_nm} nm`),
         el("td", { class: "r" }, fmtExposure(fr.exposure_s)),
@@ -146,12 +151,15 @@ async function load() {
   if (marked >= 0) tbody.children[marked].scrollIntoView({ block: "nearest" });
 }
 
+/** When a frame was taken on the ship's clock (its module's, mapped: `camcal.core.clockmap`). */
+const shipTime = (fr) => fr.captured_ship_unix_s ?? fr.captured_unix_s;
+
 /** The row nearest the time picked on the timeline. */
 function markedIndex(items) {
   if (view.markT === null || !items.length) return -1;
   let best = 0;
   items.forEach((fr, i) => {
-    if (Math.abs(fr.captured_unix_s - view.markT) < Math.abs(items[best].captured_unix_s - view.markT)) best = i;
+    if (Math.abs(shipTime(fr) - view.markT) < Math.abs(shipTime(items[best]) - view.markT)) best = i;
   });
   return best;
 }
@@ -187,6 +195,7 @@ async function drawTimeline() {
     return;
   }
   view.timeline = tl;
+  setText($("#timeline-clocks"), clocksNote(tl.clocks || []));
   const traces = [];
   const modules = [...new Set(tl.frames.map((f) => f.module))].sort();
   // each module's own depth (they hang ~20 m apart: one line of both zigzagged between them)
@@ -257,6 +266,21 @@ async function drawTimeline() {
   }
 }
 
+/**
+ * How each module's clock lies on the ship's, the axis every time of the page is drawn on: a
+ * simulated clock's rate and when it was mapped, a real one's offset as measured at its heartbeats.
+ */
+export function clocksNote(clocks) {
+  if (!clocks.length) return "Times on the ship's clock.";
+  const off = (c) => (c.offset_s === null ? "offset not measured yet" : `${c.offset_s >= 0 ? "+" : "−"}${fmt(Math.abs(c.offset_s), 2)} s`);
+  const parts = clocks.map((c) =>
+    c.rate !== 1
+      ? `${lrm(c.module)}: a simulated clock at ${fmt(c.rate, 0)}×, mapped onto the ship's from ${utc(c.first_unix_s, { date: false })} UTC (offset ${off(c)})`
+      : `${lrm(c.module)}: clock ${off(c)} against the ship's (at ${utc(c.updated_unix_s, { date: false })} UTC)`,
+  );
+  return `Times on the ship's clock; the modules' mapped onto it at the handshake and every heartbeat. ${parts.join("; ")}.`;
+}
+
 function markTimeline(t) {
   const div = $("#timeline");
   if (!window.Plotly || !div.dataset.drawn) return;
@@ -301,7 +325,7 @@ export async function openFrame(id) {
     el(
       "div",
       { class: "card-head" },
-      el("h2", { style: { margin: 0 } }, `Frame #${fr.id} · ${lrm(fr.module)} · ${utc(fr.captured_unix_s, { ms: true })}`),
+      el("h2", { style: { margin: 0 } }, `Frame #${fr.id} · ${lrm(fr.module)} · ${utc(shipTime(fr), { ms: true })}`),
       el("span", { class: "spacer", style: { flex: 1 } }),
       el("button", { type: "button", disabled: idx <= 0, onclick: () => nav(-1) }, "← Previous frame"),
       el("button", { type: "button", disabled: idx < 0 || idx >= view.items.length - 1, onclick: () => nav(1) }, "Next frame →"),
@@ -346,6 +370,10 @@ function numbers(fr) {
     ["detail", fr.detail || "–"],
     ["setting", `${fr.wavelength_nm} nm · ${fmtExposure(fr.exposure_s)} · ${fmt(fr.gain_db, 0)} dB`],
     ["depth", fr.depth_m === null ? "–" : `${fmt(fr.depth_m, 1)} m`],
+    // the dive's one clock (the ship's), and the module's own as it stamped the frame
+    ["taken", `${utc(shipTime(fr), { ms: true })} UTC, ship's clock`],
+    ["module's clock", `${utc(fr.captured_unix_s, { ms: true })} UTC`],
+    ["received", fr.received_unix_s ? `${utc(fr.received_unix_s, { ms: true })} UTC` : "–"],
     ["size", `${fr.width_px} × ${fr.height_px} px`],
     ["centroid (x, y)", fr.centroid_px ? `${fmt(fr.centroid_px[0], 2)}, ${fmt(fr.centroid_px[1], 2)} px` : "–"],
     ["LEM radius", fr.radius_px === null ? "–" : `${fmt(fr.radius_px, 1)} px`],

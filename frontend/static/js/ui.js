@@ -46,9 +46,9 @@ export function showSimulation(speed) {
   if (!speed) return;
   setText(chip, `simulated dive ${speed}×`);
   chip.title =
-    `The modules are simulated, their dive running ${speed} times faster than the clock: frame, sensor ` +
-    "and λ_att times are the simulation's (ahead of the ship's clock); alarms, commands and the audit " +
-    "log carry the ship's.";
+    `The modules are simulated, their dive running ${speed} times faster than the clock. Their clock is ` +
+    "mapped onto the ship's at the handshake and at every heartbeat: frames, sensors, λ_att, alarms and " +
+    "commands are all drawn on the ship's clock, in the order they happened.";
 }
 
 /**
@@ -69,7 +69,9 @@ export function showDiveState(chip, dive, notice = null, hint = "") {
     const at = dive.state_ended_unix_s ? new Date(dive.state_ended_unix_s * 1000).toISOString().slice(0, 16).replace("T", " ") : "";
     setText(
       notice,
-      `Dive ${dive.name} has ended${at ? ` (${at} UTC)` : ""}: ${dive.state_reason}.${hint ? ` ${hint}` : ""}`,
+      // (a reason read from the modules names its time already; an operator's end does not)
+      `Dive ${dive.name} has ended${at && !/UTC/.test(dive.state_reason) ? ` (${at} UTC)` : ""}: ` +
+        `${dive.state_reason}.${hint ? ` ${hint}` : ""}`,
     );
   }
 }

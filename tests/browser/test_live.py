@@ -56,11 +56,11 @@ def test_live_view_shows_both_modules_thumbnails_and_lambda_att(
         assert re.search(r"\d", card.locator('[data-field="temperature"]').inner_text())
         assert card.locator('[data-field="qlegend"] [data-quality]').count() >= 1
     assert page.locator("#overall").inner_text() in ("OK", "MINOR", "MAJOR")
-    # `camcal up`'s modules are simulated at 20x: the top bar says so (frame times run ahead of the
-    # ship's clock, which the alarms keep), and its tooltip says why the two clocks differ
+    # `camcal up`'s modules are simulated at 20x: the top bar says so, and its tooltip that their
+    # clock is mapped onto the ship's (every time drawn on the ship's clock, as the alarms')
     sim = page.locator("#sim-note")
     assert sim.is_visible() and sim.inner_text() == "simulated dive 20×"
-    assert "ahead of the ship's clock" in sim.get_attribute("title")
+    assert "mapped onto the ship's" in sim.get_attribute("title")
     page.screenshot(path=artifacts / "live-desktop.png", full_page=True)
 
     stats = page.evaluate("window.camcal.stats")

@@ -86,7 +86,7 @@ class Frame(Base):
     captured_unix_s: Mapped[float] = mapped_column(Float)
     received_unix_s: Mapped[float] = mapped_column(Float)
     #: The capture time on the ship's clock (the module's mapped onto it, `camcal.core.clockmap`): the
-    #: dive's one axis. Where no mapping is known (an import, a frame stored before migration 0008)
+    #: dive's one axis. Where no mapping is known (an import, a frame stored before migration 0010)
     #: the capture time stands for it.
     captured_ship_unix_s: Mapped[float | None] = mapped_column(Float)
     wavelength_nm: Mapped[int] = mapped_column(Integer)

@@ -1,8 +1,8 @@
 """A dive says why it ended; one clock per dive: the ship's times of the modules' frames, samples and
 λ_att points, and each module's clock (rate, anchor, offset) per boot
 
-Revision ID: 0008
-Revises: 0007
+Revision ID: 0010
+Revises: 0009
 Create Date: 2026-11-28 15:30:00
 """
 
@@ -11,8 +11,8 @@ from __future__ import annotations
 import sqlalchemy as sa
 from alembic import op
 
-revision = "0008"
-down_revision = "0007"
+revision = "0010"
+down_revision = "0009"
 branch_labels = None
 depends_on = None
 

@@ -9,6 +9,7 @@ frames arrived; the whole-dive λ_att pooled three depths without showing them.
 
 from __future__ import annotations
 
+import itertools
 import time
 from pathlib import Path
 from types import SimpleNamespace
@@ -79,12 +80,45 @@ def receive_late(data: Path) -> tuple[int, float, dict[str, Any]]:
         store.close()
 
 
+def receipts(data: Path) -> dict[int, tuple[str, float]]:
+    """Each frame's module and when the ship received it (on the ship's clock, as alarms are)."""
+    store = Store.open(data)
+    try:
+        with store.read() as s:
+            rows = s.execute(select(Frame.id, Frame.module_id, Frame.received_unix_s))
+            return {i: (m, r) for i, m, r in rows}
+    finally:
+        store.close()
+
+
+def assert_in_the_order_received(page: Any, received: dict[int, tuple[str, float]]) -> None:
+    """The timeline's events are ordered on the ship's clock: each frame mark lies at or before the
+    moment the ship received that frame (captured, then received), and each module's marks come
+    in the order its frames arrived (within 2 s: the mapping's offset is measured anew at every
+    heartbeat). On the modules' 10x clocks the marks ran ahead of their receipt, so an alarm,
+    raised on the ship's clock, was drawn among the wrong frames."""
+    marks = page.evaluate(
+        """() => document.querySelector('#timeline').data
+            .filter((t) => t.name.startsWith('frames'))
+            .flatMap((t) => t.x.map((x, i) => [t.customdata[i], Date.parse(x.replace(' ', 'T') + 'Z')]))"""
+    )
+    marks = [(i, ms / 1e3) for i, ms in marks]
+    assert len(marks) >= 30, marks
+    late = [(i, x, received[i][1]) for i, x in marks if x > received[i][1] + 1.0]  # (ms rounding)
+    assert not late, f"frames drawn after they were received: {late[:5]}"
+    for module in {m for m, _ in received.values()}:
+        arrived = [received[i][1] for _, i in sorted((x, i) for i, x in marks if received[i][0] == module)]
+        back = [(a, b) for a, b in itertools.pairwise(arrived) if b < a - 2.0]
+        assert not back, f"LRM-{module}: marks drawn before frames that arrived earlier: {back[:5]}"
+
+
 def test_the_pages_show_the_dive_state_the_latest_received_and_the_depths_of_a_span(
     browser: Any, dive_data: tuple[Path, dict[str, object]], tmp_path: Path, artifacts: Path
 ) -> None:
     data = copy_data(dive_data[0], tmp_path / "data")
     frame_id, value, dive = receive_late(data)
     received_last = time.time()  # (the late frame's; the dive's others arrived before)
+    received = receipts(data)
     assert dive["state"] == "ended" and "back on deck and signed off" in dive["state_reason"], dive
     with (
         camcal_serve(data) as (url, _),
@@ -133,4 +167,5 @@ def test_the_pages_show_the_dive_state_the_latest_received_and_the_depths_of_a_s
             )
             assert frames_x and min(frames_x) >= dive["first_received_unix_s"] - 60
             assert max(frames_x) <= received_last + 1, (max(frames_x), received_last)
+            assert_in_the_order_received(page, received)
             page.screenshot(path=str(artifacts / f"review-timeline-clock-{name}.png"), full_page=True)

@@ -45,9 +45,9 @@ class HttpServer:
 
         import uvicorn
 
+        from camcal.cli.dive import dive_rules
         from camcal.core.eventport import port_keys, use_curve
         from camcal.core.settings import endpoint_list
-        from camcal.cli.dive import dive_rules
         from server.app import create_app
         from server.settings import ServerSettings
         from storage.store import Store

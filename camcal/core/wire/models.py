@@ -157,6 +157,8 @@ class CameraInfo(BaseModel):
             if lo > hi:
                 raise ValueError(f"{name}: the minimum {lo} exceeds the maximum {hi}")
         return self
+
+
 class SimulatedClock(BaseModel):
     """A simulated module's clock (revision 1.10): it runs ``rate`` times as fast as real time and
     reads ``reads`` at real time ``at`` (the simulation's own definition, not its clock's readings:

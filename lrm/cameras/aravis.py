@@ -77,6 +77,11 @@ class AravisCamera:
         The region read out, centred on the sensor (default: the whole sensor).
     frame_timeout_s
         How long past the exposure a frame may take to arrive.
+    packet_size_b
+        GigE Vision only: the GVSP packet size in bytes (8000 or so with jumbo frames on the
+        link; default: the camera's own). Set before the stream is made: Aravis places each
+        packet's bytes by the size it was told, so a size changed under a running stream gives
+        frames that read complete but hold their bytes in the wrong places.
     retries
         Shots taken again after an incomplete frame or a timeout before `CaptureFailed`.
     wait
@@ -98,12 +103,15 @@ class AravisCamera:
         frame_timeout_s: float = 3.0,
         retries: int = 2,
         buffers: int = 3,
+        packet_size_b: int | None = None,
         wait: bool = False,
     ) -> None:
         if pixel_format not in PIXEL_FORMATS:
             raise ValueError(f"pixel_format must be one of {', '.join(PIXEL_FORMATS)}, got {pixel_format!r}")
         if not (frame_timeout_s > 0 and math.isfinite(frame_timeout_s)) or retries < 0 or buffers < 1:
             raise ValueError("frame_timeout_s must be > 0, retries >= 0 and buffers >= 1")
+        if packet_size_b is not None and packet_size_b <= 0:
+            raise ValueError(f"packet_size_b must be > 0, got {packet_size_b}")
         self.device = device
         self.camera_id = camera_id
         self.clock: Clock = clock or SystemClock()
@@ -113,6 +121,7 @@ class AravisCamera:
         self.frame_timeout_s = float(frame_timeout_s)
         self.retries = int(retries)
         self.n_buffers = int(buffers)
+        self.packet_size_b = packet_size_b
         self.device_clock = DeviceClock()
         self.counters: dict[str, int] = {"incomplete": 0, "timeouts": 0, "stale": 0, "reopened": 0}
         self.temperature_c: float | None = None
@@ -203,6 +212,11 @@ class AravisCamera:
         self.gain_step_db = self._gain_step(cam)
         self.has_temperature = has_feature(cam, "DeviceTemperature")
         self.triggered = bool(cam.is_software_trigger_supported())
+        if self.packet_size_b is not None:
+            if not cam.is_gv_device():
+                raise ValueError(f"camera {self.camera_id} ({device_id}) is no GigE camera: no packet size")
+            cam.gv_set_packet_size(self.packet_size_b)
+            self.packet_size_b = int(cam.gv_get_packet_size())
         if self.triggered:  # the camera waits for our trigger; one stream for the camera's life
             cam.set_trigger("Software")
             cam.set_acquisition_mode(ar.AcquisitionMode.CONTINUOUS)

@@ -11,7 +11,7 @@ import pytest
 from camcal.core import wire
 from camcal.core.images import decode_frame_scaled, encode_png
 from lrm.camera import CameraBackend, CameraUnavailable, CaptureFailed
-from tests.utils.aravis import FakeGigECamera
+from tests.utils.aravis import FakeGigECamera, whole_ramp
 
 
 @pytest.fixture
@@ -93,7 +93,8 @@ def test_incomplete_frames_are_taken_again_or_refused_never_returned() -> None:
         returned = failed = 0
         for _ in range(8):
             try:
-                cam.capture(0.005, 0.0)
+                f = cam.capture(0.01, 0.0)
+                assert whole_ramp(f.pixels, f.extra["frame_id"]), "an incomplete frame was returned"
                 returned += 1
             except CaptureFailed as exc:
                 assert "incomplete frame" in str(exc) and "nothing stored" in str(exc)
@@ -107,3 +108,18 @@ def test_incomplete_frames_are_taken_again_or_refused_never_returned() -> None:
     delivered = stats["n_completed_buffers"] + stats["n_failures"]
     assert returned <= stats["n_completed_buffers"] and c["incomplete"] <= stats["n_failures"], (c, stats)
     assert returned + c["incomplete"] + c["stale"] <= delivered <= returned + c["incomplete"] + c["stale"] + 1
+
+
+def test_a_gige_camera_s_packet_size_is_set_before_its_stream_and_its_frames_arrive_whole(
+    gige: FakeGigECamera,
+) -> None:
+    """Jumbo packets (8000 B, not the emulator's 1400): Aravis places each packet's bytes by the size
+    it knew when the stream was made; set afterwards, frames read complete with their bytes shifted."""
+    from lrm.cameras.aravis import AravisCamera
+
+    with AravisCamera(gige.serial, width_px=1024, height_px=512, packet_size_b=8000) as cam:
+        assert cam.packet_size_b == 8000
+        frames = [cam.capture(0.01, 0.0) for _ in range(2)]
+    assert all(whole_ramp(f.pixels, f.extra["frame_id"]) for f in frames)
+    with pytest.raises(ValueError, match="packet_size_b must be > 0"):
+        AravisCamera(gige.serial, packet_size_b=0)

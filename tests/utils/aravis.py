@@ -26,6 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 EMULATOR = "arv-fake-gv-camera-0.8"
@@ -45,6 +46,18 @@ def require_aravis() -> None:
         pytest.skip(f"no Aravis here: {exc}")
     if shutil.which(EMULATOR) is None:
         pytest.skip(f"{EMULATOR} is not installed (apt install aravis-tools)")
+
+
+def whole_ramp(pixels: np.ndarray, frame_id: int | None = None) -> bool:
+    """Whether a frame is the emulator's picture in every pixel, at 10 ms and 0 dB (its scale 1): a
+    diagonal ramp, (x + y + frame id) mod 255 in Mono8, 256 (x + y + frame id) mod 65535 in Mono16
+    (Aravis' arvfakecamera.c); without ``frame_id``, the ramp that starts at the first pixel's
+    value. A frame with a packet missing or misplaced (a buffer's old bytes left) is no ramp."""
+    h, w = pixels.shape
+    step, period = (256, 65535) if pixels.dtype == np.uint16 else (1, 255)
+    first = int(pixels[0, 0]) if frame_id is None else step * frame_id % period
+    ramp = (first + step * np.add.outer(np.arange(h), np.arange(w))) % period
+    return bool(np.array_equal(pixels, ramp))
 
 
 def _port_bound() -> bool:

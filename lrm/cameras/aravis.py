@@ -350,6 +350,7 @@ class AravisCamera:
             extra={
                 "device": self.device_id,
                 "device_timestamp_ns": int(buf.get_timestamp()),
+                "host_timestamp_ns": int(buf.get_system_timestamp()),  # (its first packet here, UTC)
                 "frame_id": int(buf.get_frame_id()),
                 "timestamp_source": "device" if captured is stamped else "host",
                 "requested_exposure_s": a.asked[0] if a.asked else None,

@@ -6,8 +6,8 @@
   real cameras are in `lrm.cameras`: `lrm.cameras.aravis.AravisCamera` (any
   GenICam camera: USB3 Vision, GigE Vision) and `lrm.cameras.v4l2.V4L2Camera`
   (a UVC camera through OpenCV).
-* `SensorBackend`: ``read() -> SensorSample``. `SimulatedSensors` reads a
-  simulated module's housing sensors.
+* `SensorBackend`: ``read() -> SensorSample | None`` (None: nothing to say yet, no sample sent).
+  `SimulatedSensors` reads a simulated module's housing sensors.
 
 Errors are typed: `CameraUnavailable` when there is no camera to open,
 `CaptureFailed` when a capture does not deliver a frame, `CameraClosed` after
@@ -120,9 +120,10 @@ class CameraBackend(Protocol):
 
 @runtime_checkable
 class SensorBackend(Protocol):
-    """What the agent needs from the housing sensors."""
+    """What the agent needs from the housing sensors: a sample, or None when there is nothing to
+    read yet (a camera's temperature before its first frame): no sample is sent then."""
 
-    def read(self) -> SensorSample: ...
+    def read(self) -> SensorSample | None: ...
 
 
 def check_setting(

@@ -188,6 +188,9 @@ class Producing:
                 next_t = self.clock.monotonic()
                 continue
             self._device_works("sensors")
+            if s is None:  # nothing to read yet: no sample
+                next_t = self._sensor_wait(next_t + period)
+                continue
             acc, gyro = s.acc_m_s2 or (None, None, None), s.gyro_dps or (None, None, None)
             rows.append(
                 [
@@ -206,9 +209,12 @@ class Producing:
             if self.clock.monotonic() - batch_start >= self.config.sensor_batch_s:
                 self._keep("sensors", "sensor_batches", self.outbox.add_sensors, rows)
                 rows, batch_start = [], self.clock.monotonic()
-            next_t += period
-            wait = next_t - self.clock.monotonic()
-            if wait > 0:
-                self.clock.sleep(wait)
-            else:
-                next_t = self.clock.monotonic()
+            next_t = self._sensor_wait(next_t + period)
+
+    def _sensor_wait(self, next_t: float) -> float:
+        """Sleep until the next sample is due (the next due time; now, when it is late)."""
+        wait = next_t - self.clock.monotonic()
+        if wait > 0:
+            self.clock.sleep(wait)
+            return next_t
+        return self.clock.monotonic()

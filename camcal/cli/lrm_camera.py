@@ -304,7 +304,7 @@ def run(
         cam.close()
         raise
     sensors = None
-    if getattr(cam, "has_temperature", False):  # (a camera away at the start: known when it is back)
+    if hasattr(cam, "temperature_c"):  # a GenICam camera's DeviceTemperature, from its first frame
         from lrm.cameras import CameraTemperature
 
         sensors = CameraTemperature(cam, module)

@@ -21,16 +21,20 @@ class CameraTemperature:
 
     The camera reads its ``DeviceTemperature`` after each frame (a register read beside the
     capture, never from this thread: a capture holds the camera for up to its exposure). A
-    sample carries that value, or null before the first frame; the housing's humidity and
-    motion stay null (no such sensor on this module).
+    sample carries that value; the housing's humidity and motion stay null (no such sensor on
+    this module). Before the camera's first frame, and for a camera without a temperature,
+    there is no sample (None): a module started before its camera sends the temperature once
+    the camera is there.
     """
 
     def __init__(self, camera: Any, module: str) -> None:
         self.camera = camera
         self.module = module
 
-    def read(self) -> SensorSample:
+    def read(self) -> SensorSample | None:
         t = getattr(self.camera, "temperature_c", None)
+        if t is None:
+            return None
         return SensorSample(datetime.now(UTC), self.module, t, None, None, None)
 
     def close(self) -> None:

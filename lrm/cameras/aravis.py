@@ -339,7 +339,11 @@ class AravisCamera:
         captured = stamped if stamped is not None and began - slack <= stamped <= received + slack else began
         a = self._applied
         if self.has_temperature:
-            self.temperature_c = float(self._cam.get_float("DeviceTemperature"))
+            try:
+                self.temperature_c = float(self._cam.get_float("DeviceTemperature"))
+            except self._glib_error as exc:  # the frame is good: only its temperature is unknown
+                log.warning("camera %s: DeviceTemperature unread (%s)", self.camera_id, error_text(exc))
+                self.temperature_c = None
         return CapturedFrame(
             pixels=pixels,
             captured_at=captured,

@@ -1,7 +1,8 @@
 """`camcal lrm run` as systemd runs it (deploy/camcal-lrm.service): configured from its environment
 file's variables, it says READY=1, feeds the watchdog while its agent works, streams its camera's
-frames to the ship, and stops cleanly on SIGTERM. systemd's notify socket is a real datagram socket
-of the test; the camera is the GigE Vision emulator, the ship a real ingest.
+frames and its camera's DeviceTemperature (as the housing temperature) to the ship, and stops
+cleanly on SIGTERM. systemd's notify socket is a real datagram socket of the test; the camera is the
+GigE Vision emulator (given a DeviceTemperature: `genicam_with_temperature`), the ship a real ingest.
 """
 
 from __future__ import annotations
@@ -16,10 +17,18 @@ import sys
 import time
 from pathlib import Path
 
+from sqlalchemy import select
+
 from camcal.core.schedule import Schedule
 from ingest.service import IngestService
+from storage.models import SensorSample
 from tests.live.conftest import ingest_config
-from tests.utils.aravis import FakeGigECamera
+from tests.utils.aravis import (
+    TEMPERATURE_AT_0_DB_C,
+    TEMPERATURE_PER_GAIN_C,
+    FakeGigECamera,
+    genicam_with_temperature,
+)
 from tests.utils.live import wait_for
 
 
@@ -38,7 +47,12 @@ def test_the_module_service_is_ready_feeds_its_watchdog_streams_and_stops(tmp_pa
             with contextlib.suppress(TimeoutError):
                 said.append((time.monotonic(), notify.recv(4096).decode()))
 
-    with FakeGigECamera() as gige, (tmp_path / "module.log").open("wb") as log:
+    def housing_c() -> list[float | None]:
+        with svc.store.read() as s:
+            return list(s.scalars(select(SensorSample.temperature_c).where(SensorSample.module_id == "A")))
+
+    camera = FakeGigECamera(genicam=genicam_with_temperature(tmp_path))
+    with camera as gige, (tmp_path / "module.log").open("wb") as log:
         env = {  # what /etc/camcal/lrm.env and systemd give it
             **os.environ,
             "PYTHONPATH": ".",
@@ -58,6 +72,9 @@ def test_the_module_service_is_ready_feeds_its_watchdog_streams_and_stops(tmp_pa
             assert wait_for(lambda: svc.counters["frames_stored"] >= 3, 60), (
                 tmp_path / "module.log"
             ).read_text()
+            # the camera's temperature as the housing's, from its first frame (none sent before):
+            # the module sends its sensors every 10 s
+            assert wait_for(lambda: len(housing_c()) >= 3, 60), (tmp_path / "module.log").read_text()
             hear(time.monotonic() + 2.0)
             proc.send_signal(signal.SIGTERM)
             assert proc.wait(30) == 0, (tmp_path / "module.log").read_text()[-2000:]
@@ -74,3 +91,4 @@ def test_the_module_service_is_ready_feeds_its_watchdog_streams_and_stops(tmp_pa
     assert states[-1] == "STOPPING=1"
     status = [m for _, m in said if "STATUS=" in m][-1]
     assert "frames" in status and "linked" in status, status
+    assert set(housing_c()) == {TEMPERATURE_AT_0_DB_C + 2.0 * TEMPERATURE_PER_GAIN_C}  # at 2 dB

@@ -48,6 +48,48 @@ def require_aravis() -> None:
         pytest.skip(f"{EMULATOR} is not installed (apt install aravis-tools)")
 
 
+#: The emulator's DeviceTemperature (it has none: `genicam_with_temperature` adds one) in °C: this
+#: plus `TEMPERATURE_PER_GAIN_C` per dB of its gain, so that a reading follows the frame it came with.
+TEMPERATURE_AT_0_DB_C = 30.5
+TEMPERATURE_PER_GAIN_C = 0.25
+
+
+def genicam_with_temperature(folder: Path) -> Path:
+    """The emulator's own GenICam description with a ``DeviceTemperature`` added, written into
+    ``folder`` for ``FakeGigECamera(genicam=...)``.
+
+    The description comes from Aravis itself (its in-process fake camera, the same file the
+    emulator serves); the temperature is a formula on the gain register, since the emulator keeps
+    no other register that a test could move (its declared features must match its registers).
+    """
+    from lrm.cameras.genicam import DISCOVERY, load_aravis
+
+    ar = load_aravis()
+    with DISCOVERY:
+        ar.enable_interface("Fake")
+        try:
+            ar.update_device_list()
+            xml = ar.Camera.new("Fake_1").get_device().get_genicam_xml()[0]
+        finally:
+            ar.disable_interface("Fake")
+            ar.update_device_list()
+    node = (
+        '<Float Name="DeviceTemperature" NameSpace="Standard"><pValue>DeviceTemperatureFormula</pValue>'
+        "<Unit>C</Unit></Float>"
+        '<SwissKnife Name="DeviceTemperatureFormula" NameSpace="Custom">'
+        '<pVariable Name="GAIN">GainRaw</pVariable>'
+        f"<Formula>{TEMPERATURE_AT_0_DB_C} + {TEMPERATURE_PER_GAIN_C} * GAIN</Formula></SwissKnife>"
+    )
+    assert xml.count("</RegisterDescription>") == 1 and "<pFeature>DeviceVendorName</pFeature>" in xml
+    xml = xml.replace("</RegisterDescription>", node + "</RegisterDescription>").replace(
+        "<pFeature>DeviceVendorName</pFeature>",
+        "<pFeature>DeviceVendorName</pFeature><pFeature>DeviceTemperature</pFeature>",
+    )
+    path = folder / "fake-camera-with-temperature.xml"
+    path.write_text(xml)
+    return path
+
+
 def whole_ramp(pixels: np.ndarray, frame_id: int | None = None) -> bool:
     """Whether a frame is the emulator's picture in every pixel, at 10 ms and 0 dB (its scale 1): a
     diagonal ramp, (x + y + frame id) mod 255 in Mono8, 256 (x + y + frame id) mod 65535 in Mono16
@@ -75,10 +117,13 @@ def _port_bound() -> bool:
 class FakeGigECamera:
     """The emulator as a process of the test: start, kill (a camera unplugged), start again."""
 
-    def __init__(self, lost_per_thousand: int = 0, serial: str | None = None) -> None:
+    def __init__(
+        self, lost_per_thousand: int = 0, serial: str | None = None, genicam: Path | None = None
+    ) -> None:
         require_aravis()
         self.serial = serial or f"T{secrets.token_hex(3).upper()}"
         self.lost_per_thousand = lost_per_thousand
+        self.genicam = genicam  # a GenICam description of its own (`genicam_with_temperature`)
         self.proc: subprocess.Popen[bytes] | None = None
         self._lock_fd: int | None = None
 
@@ -113,6 +158,8 @@ class FakeGigECamera:
         args = [EMULATOR, "-i", "127.0.0.1", "-s", self.serial]
         if self.lost_per_thousand:
             args += ["-r", str(self.lost_per_thousand)]
+        if self.genicam is not None:
+            args += ["-g", str(self.genicam)]
         self.proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         while not _port_bound():
             if self.proc.poll() is not None:

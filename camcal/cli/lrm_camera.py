@@ -47,6 +47,14 @@ WidthOption = Annotated[int | None, typer.Option(help="Region width [px], centre
 HeightOption = Annotated[
     int | None, typer.Option(help="Region height [px], centred (default: the sensor's).")
 ]
+PacketSizeOption = Annotated[
+    int | None,
+    typer.Option(
+        envvar="CAMCAL_LRM_PACKET_SIZE_B",
+        help="GigE Vision only: GVSP packet size [bytes], e.g. 8000 with jumbo frames on the link "
+        "(default: the camera's).",
+    ),
+]
 
 
 def _aravis_missing(exc: Exception) -> typer.Exit:
@@ -62,6 +70,7 @@ def open_camera(
     height_px: int | None = None,
     wait: bool = False,
     frame_timeout_s: float = 3.0,
+    packet_size_b: int | None = None,
     v4l2: dict[str, Any] | None = None,
 ) -> Any:
     """The camera ``spec`` names (``aravis:ID`` or ``v4l2:DEVICE``), opened; a one-line error else."""
@@ -82,6 +91,7 @@ def open_camera(
                 height_px=height_px,
                 wait=wait,
                 frame_timeout_s=frame_timeout_s,
+                packet_size_b=packet_size_b,
             )
         from lrm.cameras.v4l2 import V4L2Camera
 
@@ -144,6 +154,7 @@ def snap(
     pixel_format: PixelFormatOption = "Mono8",
     width_px: WidthOption = None,
     height_px: HeightOption = None,
+    packet_size_b: PacketSizeOption = None,
 ) -> None:
     """Take one frame with a GenICam camera and say what the camera applied (read back)."""
     import numpy as np
@@ -153,7 +164,12 @@ def snap(
     from lrm.camera import CameraError
 
     cam = open_camera(
-        f"aravis:{device}", "snap", pixel_format=pixel_format, width_px=width_px, height_px=height_px
+        f"aravis:{device}",
+        "snap",
+        pixel_format=pixel_format,
+        width_px=width_px,
+        height_px=height_px,
+        packet_size_b=packet_size_b,
     )
     try:
         frame = cam.capture(exposure_s, gain_db)
@@ -222,6 +238,7 @@ def run(
     frame_timeout_s: Annotated[
         float, typer.Option(help="How long past the exposure a frame may take to arrive [s].")
     ] = 3.0,
+    packet_size_b: PacketSizeOption = None,
     exposure_range_s: Annotated[
         str, typer.Option(help="v4l2 only: the camera's exposure range MIN,MAX [s].")
     ] = "0.0001,1.0",
@@ -282,6 +299,7 @@ def run(
         height_px=height_px,
         wait=True,
         frame_timeout_s=frame_timeout_s,
+        packet_size_b=packet_size_b,
         v4l2={
             "clock": clock,
             "exposure_range_s": (exp[0], exp[1]),

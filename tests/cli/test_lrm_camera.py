@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from camcal.cli import app
 from camcal.core.images import decode_frame_scaled
-from tests.utils.aravis import FakeGigECamera
+from tests.utils.aravis import FakeGigECamera, whole_ramp
 
 
 @pytest.fixture
@@ -44,6 +44,12 @@ def test_cameras_lists_the_emulator_and_snap_says_what_the_camera_applied(gige, 
     assert res.exit_code == 0, res.output
     frame, top = decode_frame_scaled(deep.read_bytes())
     assert frame.dtype == np.uint16 and frame.shape == (2048, 64) and top == 65535
+
+    jumbo = tmp_path / "jumbo.png"  # 8000 B packets (a GigE link with jumbo frames): the frame whole
+    base = ["lrm", "snap", "--device", gige.serial, "--exposure-s", "0.01", "--gain-db", "0"]
+    res = runner.invoke(app, [*base, "--out", str(jumbo), "--packet-size-b", "8000", "--height-px", "256"])
+    assert res.exit_code == 0, res.output
+    assert whole_ramp(decode_frame_scaled(jumbo.read_bytes())[0])
 
     bad = runner.invoke(
         app,

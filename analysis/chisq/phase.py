@@ -151,6 +151,8 @@ def phase_estimates(
     d = (fine.chi2 - float(np.min(fine.chi2))) / s2
     j, i = np.unravel_index(int(np.argmin(d)), d.shape)
     best = (float(fine.g[i]), float(fine.f[j]))
+    d_seen = d  # the data's own Δχ²/s²: the best point, the posterior's correlations
+    d = np.clip(d - config.model_dchi2, 0.0, None)  # what the templates cannot yet tell apart
     g_par = _parameter("mie_g", fine.g, d.min(axis=0), best[0])
     f_par = _parameter("rayleigh_share", fine.f, d.min(axis=1), best[1])
     m_par = _mean_cosine(fine, d, best)
@@ -158,7 +160,7 @@ def phase_estimates(
         _envelope(fine.ln_lambda[0], d, ln_sigma[0], pmap.ln_lambda[0]),
         _envelope(fine.ln_lambda[1], d, ln_sigma[1], pmap.ln_lambda[1]),
     )
-    post = np.exp(-0.5 * d)
+    post = np.exp(-0.5 * d_seen)
     corr = (
         _weighted_corr(np.broadcast_to(fine.g[None, :], d.shape), fine.ln_lambda[1], post),
         _weighted_corr(np.broadcast_to(fine.f[:, None], d.shape), fine.ln_lambda[1], post),
@@ -166,6 +168,8 @@ def phase_estimates(
     case, text = _case(g_par, f_par, m_par, fine)
     if pmap.joint:
         text += f"; Mie ⟨cos θ⟩ shared with {', '.join(f'{v} nm' for v in pmap.joint)}"
+    if config.model_dchi2 > 0:
+        text += f"; intervals allow Δχ²/s² {config.model_dchi2:g} for the templates' accuracy"
     fit = PhaseFit(
         case, text, g_par, f_par, m_par, best, corr, pmap, (pmap.chi2 - float(np.min(fine.chi2))) / s2, env
     )

@@ -21,6 +21,14 @@ class PhaseConfig:
     The defaults span what ocean water holds (the particles' ⟨cos θ⟩
     0.85-0.97, a Rayleigh share of 0.05-0.35 from turbid to clear blue water)
     with a margin.
+
+    ``model_dchi2`` is the map's tolerance for what the templates cannot yet
+    tell apart, in Δχ²/s²: the intervals of the phase function and the
+    lengths' envelopes are read from max(0, Δχ²/s² − model_dchi2), the best
+    point from the map itself. Measured on frames of an independent
+    transport (Mitsuba 3, HG 0.96 + 5 % and 0.87 + 30 % Rayleigh,
+    docs/transport.md): the map's minimum sat 10-20 above the truth's own
+    phase function, whose lengths were right; 0 trusts the templates fully.
     """
 
     mie_g_range: tuple[float, float] = (0.84, 0.98)
@@ -28,12 +36,15 @@ class PhaseConfig:
     mie_g_points: int = 8
     rayleigh_points: int = 5
     fine_points: int = 141
+    model_dchi2: float = 20.0
 
     def __post_init__(self) -> None:
         if not -1 < self.mie_g_range[0] < self.mie_g_range[1] < 1:
             raise ValueError(f"mie_g_range must increase inside (-1, 1), got {self.mie_g_range}")
         if not 0 <= self.rayleigh_range[0] < self.rayleigh_range[1] <= 1:
             raise ValueError(f"rayleigh_range must increase inside [0, 1], got {self.rayleigh_range}")
+        if not self.model_dchi2 >= 0:
+            raise ValueError(f"model_dchi2 must be >= 0, got {self.model_dchi2}")
         if self.mie_g_points < 4 or self.rayleigh_points < 2:
             raise ValueError("mie_g_points must be >= 4 and rayleigh_points >= 2")
 

@@ -26,7 +26,7 @@ from analysis.chisq.results import LOWER_LIMIT, MEASURED, UNCONSTRAINED, Setting
 
 G = np.linspace(0.84, 0.98, 8)
 F = np.linspace(0.0, 0.40, 5)
-CFG = PhaseConfig()
+CFG = PhaseConfig(model_dchi2=0.0)  # the reading itself; the templates' tolerance is tested apart
 
 
 def _map(chi2_of, ln_sca_of) -> PhaseMap:
@@ -137,3 +137,21 @@ def test_wavelengths_that_share_the_mie_cosine_narrow_it_together() -> None:
         assert "shared with" in joint[wl].case_text
     # The sum of three parabolas of width 0.03: width 0.03/√3.
     assert joint[460].mie_g.err == pytest.approx(0.03 / math.sqrt(3), rel=0.25)
+
+
+def test_the_templates_tolerance_widens_what_the_map_allows_but_keeps_its_best_point() -> None:
+    """A bowl 60 deep at the range's ends: read as the data say, a measurement; with the templates'
+    tolerance (Δχ²/s² 20 by default) a wider interval around the same best point, and the lengths'
+    envelope wider too (every phase function within the tolerance is allowed)."""
+    pmap = _map(lambda gg, ff: 60.0 * ((gg - 0.91) / 0.07) ** 2 + 40.0 * ((ff - 0.2) / 0.2) ** 2, valley_sca)
+    tight, _ = phase_estimates(pmap, 1.0, (0.01, 0.01), CFG)
+    wide, _ = phase_estimates(pmap, 1.0, (0.01, 0.01), PhaseConfig())
+    assert PhaseConfig().model_dchi2 == 20.0
+    assert tight.best == pytest.approx(wide.best, abs=1e-3)
+    assert tight.mie_g.status == MEASURED and wide.mie_g.status == MEASURED
+    assert wide.mie_g.err > 3 * tight.mie_g.err
+    (t_lo, t_hi), (w_lo, w_hi) = tight.lambda_envelope_m[1], wide.lambda_envelope_m[1]
+    assert w_lo < t_lo and w_hi > t_hi
+    assert "templates' accuracy" in wide.case_text and "templates' accuracy" not in tight.case_text
+    with pytest.raises(ValueError, match="model_dchi2"):
+        PhaseConfig(model_dchi2=-1.0)

@@ -18,6 +18,7 @@ import contextlib
 import logging
 import math
 import threading
+import time
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from types import TracebackType
@@ -285,7 +286,7 @@ class AravisCamera:
             if buf is None:
                 self.counters["timeouts"] += 1
                 self._cam.get_exposure_time()  # a camera gone raises here: CameraUnavailable
-                problems.append(f"no frame within {timeout_us / 1e6:.1f} s")
+                problems.append(f"no frame within {timeout_us / 1e6:g} s")
                 continue
             try:
                 status = buf.get_status()
@@ -304,13 +305,26 @@ class AravisCamera:
         )
 
     def _one_buffer(self, timeout_us: int) -> Any:
+        """The frame of one software trigger, or None when none came within ``timeout_us``.
+
+        A frame of an earlier try that timed out may still be on its way, taken with that try's
+        settings: one whose first packet arrived before this trigger (Aravis stamps it with the
+        host's clock) cannot answer it, and is given back unread (``stale``)."""
         if self._stream is None:  # no software trigger: one acquisition per shot
             return self._cam.acquisition(timeout_us)
         while (stale := self._stream.try_pop_buffer()) is not None:  # a late frame of an earlier try
             self.counters["stale"] += 1
             self._stream.push_buffer(stale)
+        triggered_ns = time.time_ns() // 1000 * 1000  # (Aravis' stamps are whole µs)
         self._cam.software_trigger()
-        return self._stream.timeout_pop_buffer(timeout_us)
+        deadline = time.monotonic() + timeout_us / 1e6
+        while (left_us := int((deadline - time.monotonic()) * 1e6)) > 0:
+            buf = self._stream.timeout_pop_buffer(left_us)
+            if buf is None or buf.get_system_timestamp() >= triggered_ns:
+                return buf
+            self.counters["stale"] += 1
+            self._stream.push_buffer(buf)
+        return None
 
     def _frame(self, buf: Any, began: datetime) -> CapturedFrame:
         fmt = PFNC.get(buf.get_image_pixel_format())

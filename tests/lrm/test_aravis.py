@@ -123,3 +123,23 @@ def test_a_gige_camera_s_packet_size_is_set_before_its_stream_and_its_frames_arr
     assert all(whole_ramp(f.pixels, f.extra["frame_id"]) for f in frames)
     with pytest.raises(ValueError, match="packet_size_b must be > 0"):
         AravisCamera(gige.serial, packet_size_b=0)
+
+
+def test_a_late_frame_of_a_shot_that_timed_out_is_never_the_next_shot_s(gige: FakeGigECamera) -> None:
+    """A shot whose frame does not come in time fails (`CaptureFailed`, nothing returned); its frame,
+    taken at that shot's gain, still arrives (4 MB on the loopback): the next shot, at another
+    gain, returns its own frame, never that one under the new settings."""
+    from lrm.cameras.aravis import AravisCamera
+
+    with AravisCamera(gige.serial, frame_timeout_s=0.001, retries=1) as cam:  # the whole sensor
+        for _ in range(5):
+            cam.frame_timeout_s = 0.001
+            with pytest.raises(CaptureFailed, match=r"2 tries, no frame within 0\.011 s"):
+                cam.capture(0.01, 0.0)
+            cam.frame_timeout_s = 5.0
+            f = cam.capture(0.01, 1.0)
+            # the emulator draws its ramp times (1 + gain): at 1 dB twice the 0 dB ramp, clipped
+            h, w = f.pixels.shape
+            ramp = (f.extra["frame_id"] + np.add.outer(np.arange(h), np.arange(w))) % 255
+            assert f.gain_db == 1.0 and np.array_equal(f.pixels, np.minimum(2 * ramp, 255)), cam.counters
+    assert cam.counters["timeouts"] == 10

@@ -168,7 +168,7 @@ def ingest(
     )
     configure_logging(s.log_level, s.log_format)
     if conformance:
-        from camcal.cli.conformance import ingest_conformance
+        from camcal.cli.lrm_conformance import ingest_conformance
 
         ingest_conformance(s.ingest_bind, s.keys_path(), s.link_plaintext, dive or s.dive, conformance_s)
         return

@@ -93,7 +93,7 @@ def with_outbox(make: Callable[[], Any]) -> Any:
 
 
 def register(parent: typer.Typer) -> None:
-    from camcal.cli.conformance import lrm_conformance
+    from camcal.cli.lrm_conformance import lrm_conformance
 
     app.command("conformance")(lrm_conformance)
     parent.add_typer(app, name="lrm")

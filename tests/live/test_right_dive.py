@@ -75,11 +75,13 @@ def test_a_message_of_another_dive_is_refused_and_one_of_this_dive_is_stored(shi
         assert (reply.type, reply.reason, reply.retry, reply.seq) == ("nack", "wrong_dive", True, 1)
         assert "trex-7" in reply.detail and "trex-8" in reply.detail
         assert ship.rows("SELECT COUNT(*) FROM frames WHERE module_id='R'") == [(0,)]
-        (reply,) = rogue.send(frame_parts(boot="k", seq=1, module="R", camera="R", dive="trex-7"))
-        assert reply.type == "ack"
+        # this dive's: its hello welcomed (data before a hello is refused since 1.9), its frame stored
         hello = {"v": 1, "type": "hello", "module": "R", "boot": "k", "dive": "trex-7"}
         (welcome,) = rogue.send([json.dumps(hello).encode()])
         assert (welcome.type, welcome.dive) == ("welcome", "trex-7") and welcome.ingest
+        (reply,) = rogue.send(frame_parts(boot="k", seq=1, module="R", camera="R", dive="trex-7"))
+        assert reply.type == "ack", reply
+        assert ship.rows("SELECT COUNT(*) FROM frames WHERE module_id='R'") == [(1,)]
     finally:
         rogue.close()
 

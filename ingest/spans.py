@@ -124,8 +124,9 @@ def span_attenuation_by_band(rows: Iterable[ResultRow], setup: Setup) -> SpanAtt
     rows = list(rows)
     offset = {m: c.distance_m for m, c in setup.cameras.items()}
 
-    def lem_depth(r: ResultRow) -> float | None:
-        return None if r.depth_m is None else r.depth_m + offset.get(r.module, 0.0)
+    def lem_depth(r: ResultRow) -> float | None:  # None where unknown (a NaN or inf row is unknown too)
+        d = None if r.depth_m is None else r.depth_m + offset.get(r.module, 0.0)
+        return d if d is not None and math.isfinite(d) else None
 
     bounds = depth_bands([d for d in map(lem_depth, rows) if d is not None])
     members: dict[int, list[ResultRow]] = defaultdict(list)  # band index (-1: depth unknown)

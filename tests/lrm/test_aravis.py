@@ -89,7 +89,7 @@ def test_incomplete_frames_are_taken_again_or_refused_never_returned() -> None:
     from lrm.cameras.aravis import AravisCamera
 
     with FakeGigECamera(lost_per_thousand=50) as lossy:
-        cam = AravisCamera(lossy.serial, width_px=64, height_px=64, frame_timeout_s=0.5, retries=4)
+        cam = AravisCamera(lossy.serial, width_px=256, height_px=256, frame_timeout_s=0.5, retries=4)
         returned = failed = 0
         for _ in range(8):
             try:
